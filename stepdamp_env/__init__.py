@@ -1,0 +1,27 @@
+"""StepperDamp: active electronic damping of hybrid stepper motors (US 7,733,051)."""
+
+from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams,
+                     SystemParams, get_preset, load_system, predicted_resonances,
+                     preset_names)
+from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "__version__",
+    "DriveParams",
+    "FeedforwardModel",
+    "MotorParams",
+    "ParameterError",
+    "RunMetrics",
+    "RunResult",
+    "RunSettings",
+    "ServoParams",
+    "SpeedProfile",
+    "SystemParams",
+    "get_preset",
+    "load_system",
+    "predicted_resonances",
+    "preset_names",
+    "simulate",
+]

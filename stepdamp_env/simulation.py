@@ -1,0 +1,354 @@
+"""Python face of the kernel: build configuration and state, run, read metrics.
+
+>>> from stepdamp_env import simulate
+>>> result = simulate("patent", mode="open-loop", damping="patent-ff", speed_rps=1.0)
+>>> result.metrics.rms_velocity_error_rad_s        # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from . import kernel as K
+from .params import FeedforwardModel, ParameterError, SystemParams, load_system
+
+__all__ = [
+    "MODES",
+    "DAMPINGS",
+    "SpeedProfile",
+    "RunSettings",
+    "RunMetrics",
+    "RunResult",
+    "build_config",
+    "initial_state",
+    "new_accumulators",
+    "metrics_from_accumulators",
+    "simulate",
+]
+
+MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
+DAMPINGS = ("none", "patent-ff")
+TWO_PI = 2.0 * math.pi
+
+
+def _check_choice(name: str, value: str, choices) -> None:
+    if value not in choices:
+        raise ParameterError(f"{name}={value!r} is not one of {sorted(choices)}")
+
+
+def _check_positive(name: str, value: float, allow_zero: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ParameterError(f"{name} must be a finite number, got {value!r}")
+    if value < 0 or (value == 0 and not allow_zero):
+        bound = "[0, inf)" if allow_zero else "(0, inf)"
+        raise ParameterError(f"{name}={value!r} is outside its allowed range {bound}")
+
+
+@dataclass(frozen=True)
+class SpeedProfile:
+    """Command profile. Speeds in rev/s, accelerations in rev/s^2, distance in rev.
+
+    ``kind="constant"``: from rest, accelerate at ``accel_rps2`` to ``speed_rps``
+    (signed) and hold it; the ramp keeps an open-loop start-up from losing steps.
+    ``kind="move"``: a trapezoidal point-to-point move of ``distance_rev``
+    (signed) at up to ``speed_rps``, triangular if the distance is too short.
+    """
+
+    speed_rps: float
+    accel_rps2: float = 50.0
+    kind: str = "constant"
+    distance_rev: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_choice("kind", self.kind, ("constant", "move"))
+        if not math.isfinite(self.speed_rps) or abs(self.speed_rps) > 1e3:
+            raise ParameterError(
+                f"speed_rps={self.speed_rps!r} is outside its allowed range [-1000, 1000]")
+        _check_positive("accel_rps2", self.accel_rps2)
+        if self.kind == "move":
+            _check_positive("speed_rps (magnitude of a move)", abs(self.speed_rps))
+            if not math.isfinite(self.distance_rev):
+                raise ParameterError(f"distance_rev must be finite, got {self.distance_rev!r}")
+
+    @property
+    def ramp_s(self) -> float:
+        """Time to reach the command speed (s)."""
+        return abs(self.speed_rps) / self.accel_rps2
+
+    def duration_s(self) -> float:
+        """Time the move takes (s); for ``constant`` the ramp time."""
+        if self.kind == "constant":
+            return self.ramp_s
+        v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
+        if v * v / a > d:
+            return 2.0 * math.sqrt(d / a)
+        return d / v + v / a
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How one run is simulated and measured (times in s).
+
+    Attributes:
+        mode: ``"open-loop"`` (eqs. 7-8) or ``"servo"`` (eqs. 14-15).
+        damping: ``"none"`` or ``"patent-ff"``. In open loop the feedforward is
+            the eq. 8 harmonic current; in servo it is eq. 15's harmonics plus
+            its Fs term. ``"none"`` leaves out every model term.
+        substeps: RK4 plant steps per PWM period (1 is accurate to about 1e-5
+            relative on the metrics; the tests check it against 10).
+        settle_s: time after the ramp before the measuring window opens;
+            ``None`` means four decay times 1/(zeta*wn) of the open-loop
+            resonance, clipped to [0.1, 0.6] s.
+        window_s: length of the measuring window; rounded up to whole periods
+            of the first detent harmonic so the lock-in amplitudes do not leak.
+        estimate: the controller's own motor model for the feedforward;
+            ``None`` takes the plant's exact values.
+    """
+
+    mode: str = "open-loop"
+    damping: str = "none"
+    substeps: int = 1
+    settle_s: float | None = None
+    window_s: float = 0.5
+    estimate: FeedforwardModel | None = None
+
+    def __post_init__(self) -> None:
+        _check_choice("mode", self.mode, MODES)
+        _check_choice("damping", self.damping, DAMPINGS)
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) \
+                or not 1 <= self.substeps <= 1000:
+            raise ParameterError(f"substeps={self.substeps!r} is outside its allowed range "
+                                 "[1, 1000] (integer)")
+        if self.settle_s is not None:
+            _check_positive("settle_s", self.settle_s, allow_zero=True)
+        _check_positive("window_s", self.window_s)
+
+
+def default_settle_s(system: SystemParams) -> float:
+    """Four decay times of the lightly damped open-loop resonance, in [0.1, 0.6] s."""
+    m = system.motor
+    k = m.Km * system.drive.holding_current * m.Nr
+    decay_rate = m.D / (2.0 * m.J)          # zeta * wn
+    if decay_rate <= 0:
+        return 0.6
+    return min(max(4.0 / decay_rate, 0.1), 0.6) if k > 0 else 0.6
+
+
+def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunSettings
+                     ) -> tuple[float, float]:
+    """(start, length) of the measuring window in s."""
+    settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
+    start = profile.duration_s() + settle
+    length = settings.window_s
+    if profile.kind == "constant" and profile.speed_rps != 0.0:
+        period = 1.0 / (system.motor.Nr * abs(profile.speed_rps))
+        length = math.ceil(length / period - 1e-9) * period
+    return start, length
+
+
+def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSettings,
+                 window_start_s: float = 0.0) -> np.ndarray:
+    """The kernel's configuration vector (see ``kernel.C_*``)."""
+    m, d, sv = system.motor, system.drive, system.servo
+    c = np.zeros(K.N_CONFIG)
+    c[K.C_R] = m.R
+    c[K.C_L] = m.L
+    c[K.C_KM] = m.Km
+    c[K.C_NR] = m.Nr
+    c[K.C_J] = m.J
+    c[K.C_D] = m.D
+    plant = FeedforwardModel.from_motor(m).coefficients()
+    c[K.C_DET_S1:K.C_DET_C4 + 1] = plant
+    c[K.C_FS] = m.Fs
+    c[K.C_LOAD] = m.load_torque
+    c[K.C_VDC] = d.Vdc
+    dt = 1.0 / d.pwm_hz
+    c[K.C_DT] = dt
+    c[K.C_HOLD] = d.holding_current
+    c[K.C_MICROSTEP] = m.full_step_rad / d.microsteps
+    kp_i, ki_i = system.current_gains()
+    c[K.C_KP_I] = kp_i
+    c[K.C_KI_I] = ki_i
+    c[K.C_ENCODER] = TWO_PI / sv.encoder_cpr
+    c[K.C_VEL_ALPHA] = 1.0 - math.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
+    c[K.C_KP_VEL], c[K.C_KP_POS], c[K.C_KI_POS] = system.servo_gains()
+    c[K.C_MODE] = MODES[settings.mode]
+    c[K.C_FF_ON] = 1.0 if settings.damping == "patent-ff" else 0.0
+    est = settings.estimate if settings.estimate is not None else FeedforwardModel.from_motor(m)
+    c[K.C_KM_EST] = est.Km
+    c[K.C_FS_EST] = est.Fs
+    c[K.C_FF_S1:K.C_FF_C4 + 1] = est.coefficients()
+    c[K.C_SUBSTEPS] = settings.substeps
+    # Stiction band: the speed friction alone removes in one plant step, so a
+    # zero crossing within a step is caught at the next step's start.
+    c[K.C_W_STICK] = m.Fs / m.J * dt / settings.substeps
+    c[K.C_PROFILE] = K.PROFILE_CONSTANT if profile.kind == "constant" else K.PROFILE_MOVE
+    c[K.C_SPEED] = TWO_PI * profile.speed_rps
+    c[K.C_ACCEL] = TWO_PI * profile.accel_rps2
+    c[K.C_DISTANCE] = TWO_PI * profile.distance_rev
+    c[K.C_WINDOW_START] = window_start_s
+    c[K.C_REF_SPEED] = TWO_PI * abs(profile.speed_rps)
+    return c
+
+
+def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
+    """Rotor at rest at ``theta0`` (rad), currents at their commanded steady values.
+
+    In open loop the holding current already flows along the command angle
+    (0 at t = 0) and the d integrator holds the R*i that sustains it, so a run
+    starts without a current transient. In servo the windings start unenergised.
+    """
+    s = np.zeros(K.N_STATE)
+    s[K.S_THETA] = theta0
+    theta_fb = math.floor(theta0 / config[K.C_ENCODER]) * config[K.C_ENCODER]
+    s[K.S_THETA_FB_PREV] = theta_fb
+    s[K.S_THETA_FB] = theta_fb
+    if config[K.C_MODE] == K.MODE_OPEN_LOOP:
+        s[K.S_IA] = config[K.C_HOLD]
+        s[K.S_INT_D] = config[K.C_R] * config[K.C_HOLD]
+        s[K.S_VA_NEXT] = config[K.C_R] * config[K.C_HOLD]
+        s[K.S_ID_MEAS] = config[K.C_HOLD]
+    return s
+
+
+def new_accumulators(n: int | None = None) -> np.ndarray:
+    """Zeroed metric sums for one drive, or an (n, N_ACC) batch."""
+    return np.zeros(K.N_ACC if n is None else (n, K.N_ACC))
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    """Metrics of one run over its measuring window (SI units).
+
+    Velocity error is w_cmd - w (rad/s) sampled once per PWM period.
+    """
+
+    speed_rps: float
+    rms_velocity_error_rad_s: float
+    p2p_velocity_error_rad_s: float
+    rms_velocity_error_norm: float      # divided by the command speed (rad/s)
+    p2p_velocity_error_norm: float
+    mean_velocity_error_rad_s: float
+    max_position_lag_rad: float         # over the whole run
+    max_position_lag_steps: float       # in full steps
+    step_loss: bool                     # lag past one full step
+    rms_injected_current_a: float       # feedforward plus residual q current
+    harmonic_amplitude_rad_s: dict[int, float]  # error amplitude at h*Nr*speed
+    peak_phase_current_a: float
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["harmonic_amplitude_rad_s"] = {str(h): v for h, v in
+                                           self.harmonic_amplitude_rad_s.items()}
+        return out
+
+
+def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
+                              speed_rps: float) -> RunMetrics:
+    """Turn the kernel's sums into :class:`RunMetrics`."""
+    n = acc[K.A_COUNT]
+    if n <= 0:
+        raise ValueError("the measuring window holds no sample: the run ended before it "
+                         "opened (raise duration_s or lower settle_s)")
+    rms = math.sqrt(acc[K.A_SUM_E2] / n)
+    p2p = acc[K.A_MAX_E] - acc[K.A_MIN_E]
+    w_cmd = TWO_PI * abs(speed_rps)
+    norm = w_cmd if w_cmd > 0 else math.nan
+    amps = {}
+    for h, (i_s, i_c) in ((1, (K.A_H1_S, K.A_H1_C)), (2, (K.A_H2_S, K.A_H2_C)),
+                          (4, (K.A_H4_S, K.A_H4_C))):
+        amps[h] = 2.0 / n * math.hypot(acc[i_s], acc[i_c])
+    step = system.motor.full_step_rad
+    lag = float(acc[K.A_MAX_LAG])
+    return RunMetrics(
+        speed_rps=float(speed_rps),
+        rms_velocity_error_rad_s=rms,
+        p2p_velocity_error_rad_s=float(p2p),
+        rms_velocity_error_norm=rms / norm,
+        p2p_velocity_error_norm=float(p2p) / norm,
+        mean_velocity_error_rad_s=float(acc[K.A_SUM_E] / n),
+        max_position_lag_rad=lag,
+        max_position_lag_steps=lag / step,
+        step_loss=bool(lag > step),
+        rms_injected_current_a=math.sqrt(acc[K.A_SUM_IFF2] / n),
+        harmonic_amplitude_rad_s=amps,
+        peak_phase_current_a=float(acc[K.A_MAX_CURRENT]),
+    )
+
+
+@dataclass
+class RunResult:
+    """Outcome of :func:`simulate`: metrics, and the trace if one was asked for."""
+
+    system: SystemParams
+    profile: SpeedProfile
+    settings: RunSettings
+    window_start_s: float
+    duration_s: float
+    metrics: RunMetrics
+    trace: dict[str, np.ndarray] | None = None
+    final_state: np.ndarray = field(default_factory=lambda: np.zeros(K.N_STATE))
+    accumulators: np.ndarray = field(default_factory=new_accumulators)
+
+
+def simulate(system: SystemParams | str | Mapping[str, Any], *,
+             speed_rps: float | None = None,
+             profile: SpeedProfile | None = None,
+             mode: str = "open-loop", damping: str = "none",
+             duration_s: float | None = None,
+             settings: RunSettings | None = None,
+             trace: bool = False, trace_every: int = 1,
+             estimate: FeedforwardModel | None = None) -> RunResult:
+    """Simulate one run and measure it.
+
+    Give either ``speed_rps`` (a constant-speed profile with the default ramp)
+    or a full ``profile``. ``duration_s`` defaults to the end of the measuring
+    window (ramp + settle + window); a shorter duration raises. ``settings``
+    overrides ``mode``, ``damping`` and ``estimate`` when given. With
+    ``trace=True`` the result holds one sample every ``trace_every`` PWM periods
+    of the channels in ``kernel.TRACE_NAMES`` (SI units; ``va``/``vb`` are the
+    winding voltages applied during that period).
+    """
+    system = load_system(system) if not isinstance(system, SystemParams) else system
+    if profile is None:
+        if speed_rps is None:
+            raise ParameterError("give speed_rps or profile")
+        profile = SpeedProfile(speed_rps=float(speed_rps))
+    elif speed_rps is not None:
+        raise ParameterError("give speed_rps or profile, not both")
+    if settings is None:
+        settings = RunSettings(mode=mode, damping=damping, estimate=estimate)
+    if isinstance(trace_every, bool) or not isinstance(trace_every, int) or trace_every < 1:
+        raise ParameterError(f"trace_every={trace_every!r} is outside its allowed range "
+                             "[1, inf) (integer)")
+    start, length = measuring_window(system, profile, settings)
+    end = start + length
+    if duration_s is None:
+        duration_s = end
+    _check_positive("duration_s", duration_s)
+    if duration_s < start:
+        raise ParameterError(
+            f"duration_s={duration_s} ends before the measuring window opens at {start:.4g} s "
+            "(ramp + settle); allowed range [window start, inf)")
+    config = build_config(system, profile, settings, window_start_s=start)
+    n_periods = int(round(duration_s * system.drive.pwm_hz))
+    state = initial_state(config)
+    acc = new_accumulators()
+    inputs = np.zeros(K.N_INPUT)
+    if trace:
+        rows = -(-n_periods // trace_every)
+        buf = np.zeros((rows, K.N_TRACE))
+    else:
+        buf = np.zeros((0, K.N_TRACE))
+    written = K.run_periods(config, state, acc, inputs, n_periods, buf, trace_every)
+    trace_dict = None
+    if trace:
+        trace_dict = {name: buf[:written, i].copy() for i, name in enumerate(K.TRACE_NAMES)}
+    metrics = metrics_from_accumulators(acc, system, profile.speed_rps)
+    return RunResult(system=system, profile=profile, settings=settings, window_start_s=start,
+                     duration_s=n_periods / system.drive.pwm_hz, metrics=metrics,
+                     trace=trace_dict, final_state=state, accumulators=acc)
