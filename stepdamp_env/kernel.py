@@ -343,7 +343,7 @@ def sincos(x):
 
 @_jit
 def sincos_shifted(x0, s0, c0, delta):
-    """sin and cos of x0 + delta given those of x0, to within an ulp.
+    """sin and cos of x0 + delta given those of x0, to a few ulp.
 
     For the small shifts of the RK4 stages a rotation by delta with its
     sin/cos from Taylor series (truncation error below 3e-18 for |delta| <= 1/8)
@@ -621,6 +621,9 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     w_stick = c[C_W_STICK]
     win_start = c[C_WINDOW_START]
     ref_rate = c[C_NR] * c[C_REF_SPEED]
+    step_s, step_c = sincos(ref_rate * dt)
+    ref_s, ref_c = 0.0, 1.0
+    lockin_count = int(acc[A_COUNT])
     x = (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
          s[S_E_FRIC], s[S_E_LOAD])
     cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT])
@@ -662,9 +665,15 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
             sum_e += err
             sum_e2 += err * err
             sum_iff2 += iq_inj * iq_inj
-            # Lock-in on the detent harmonics h*Nr*w_ref*t, timed from the window start.
-            xr = ref_rate * (t - win_start)
-            s1, c1 = sincos(xr)
+            # Lock-in on the detent harmonics h*Nr*w_ref*t, timed from the window
+            # start: a phasor turned by one period's angle, recomputed exactly
+            # every 256 samples so rounding cannot accumulate.
+            if lockin_count & 255 == 0:
+                ref_s, ref_c = sincos(ref_rate * (t - win_start))
+            else:
+                ref_s, ref_c = ref_s * step_c + ref_c * step_s, ref_c * step_c - ref_s * step_s
+            lockin_count += 1
+            s1, c1 = ref_s, ref_c
             s2, c2, s4, c4 = harmonics(s1, c1)
             h1s += err * s1
             h1c += err * c1

@@ -12,12 +12,18 @@ Drive: Vdc, pwm_hz, holding_current, microsteps, current_bandwidth_hz,
     Kp_current, Ki_current
 Servo: encoder_cpr, velocity_cutoff_hz, Kp_vel, Kp_pos, Ki_pos
 
-Derived gains (``None`` means "derive"): the current PI cancels the winding pole,
-Kp_current = L * wc and Ki_current = R * wc with wc = 2*pi*current_bandwidth_hz,
-so the ideal closed loop is first order with that bandwidth. The servo gains place
+Derived gains (``None`` means "derive"): the current PI is designed on the
+sampled loop the drive really has. With the winding discretised exactly over a
+PWM period (pole a = exp(-R*dt/L)) and one period of computation delay, the PI
+zero cancels the pole (Ki_current = Kp_current*(1 - a)/dt) and the loop gain
+g = Kp_current*(1 - a)/R leaves the closed loop T(z) = g/(z^2 - z + g); g is
+solved in closed form so that |T| is -3 dB at current_bandwidth_hz. The servo gains place
 the three poles of J*s^3 + Kp_vel*s^2 + Kp_pos*s + Ki_pos at -ws (a triple pole),
 ws = 2*pi*velocity_cutoff_hz / 5, a fifth of the velocity filter's corner so the
-filter's lag stays small at the loop's crossover.
+filter's lag stays small at the loop's crossover. The 200 Hz default corner
+suits the patent's 4000 count/rev encoder at 20 kHz, whose raw differentiated
+velocity has a resolution of 31 rad/s; at 1 kHz the loop amplifies that noise
+into a limit cycle.
 """
 
 from __future__ import annotations
@@ -167,8 +173,8 @@ class DriveParams:
         holding_current: open-loop d-axis current, eq. 7 (A).
         microsteps: microsteps per full step (64 default; finer allowed).
         current_bandwidth_hz: designed bandwidth of the current loops (Hz).
-        Kp_current: proportional gain (V/A); ``None`` derives L * wc.
-        Ki_current: integral gain (V/(A*s)); ``None`` derives R * wc.
+        Kp_current: proportional gain (V/A); ``None`` derives it (module docstring).
+        Ki_current: integral gain (V/(A*s)); ``None`` derives it likewise.
     """
 
     Vdc: float = 48.0
@@ -181,11 +187,11 @@ class DriveParams:
 
     def __post_init__(self) -> None:
         _validate_fields(self)
-        if self.current_bandwidth_hz >= self.pwm_hz / 4:
+        if self.current_bandwidth_hz > self.pwm_hz / 8:
             raise ParameterError(
                 f"current_bandwidth_hz={self.current_bandwidth_hz} is outside its allowed "
-                f"range (0, pwm_hz/4 = {self.pwm_hz / 4}): a sampled loop with one period "
-                "of computation delay is unstable above that")
+                f"range (0, pwm_hz/8 = {self.pwm_hz / 8}]: past that a sampled loop with "
+                "one period of computation delay rings")
 
 
 @dataclass(frozen=True)
@@ -202,7 +208,7 @@ class ServoParams:
     """
 
     encoder_cpr: int = 4000
-    velocity_cutoff_hz: float = 1_000.0
+    velocity_cutoff_hz: float = 200.0
     Kp_vel: float | None = None
     Kp_pos: float | None = None
     Ki_pos: float | None = None
@@ -281,9 +287,15 @@ class SystemParams:
     # -- derived quantities ----------------------------------------------------
     def current_gains(self) -> tuple[float, float]:
         """(Kp, Ki) of the d and q current PI loops in V/A and V/(A*s)."""
-        wc = 2.0 * math.pi * self.drive.current_bandwidth_hz
-        kp = self.drive.Kp_current if self.drive.Kp_current is not None else self.motor.L * wc
-        ki = self.drive.Ki_current if self.drive.Ki_current is not None else self.motor.R * wc
+        dt = 1.0 / self.drive.pwm_hz
+        g = delayed_loop_gain(self.drive.current_bandwidth_hz * dt)
+        pole = math.exp(-self.motor.R * dt / self.motor.L)
+        kp = g * self.motor.R / (1.0 - pole)
+        ki = kp * (1.0 - pole) / dt
+        if self.drive.Kp_current is not None:
+            kp = self.drive.Kp_current
+        if self.drive.Ki_current is not None:
+            ki = self.drive.Ki_current
         return kp, ki
 
     def servo_gains(self) -> tuple[float, float, float]:
@@ -303,6 +315,19 @@ class SystemParams:
     def predicted_resonances_rps(self) -> dict[int, float]:
         """Shaft speeds wn/(h*Nr) for h = 4, 2, 1, in rev/s (lowest first)."""
         return predicted_resonances(self)
+
+
+def delayed_loop_gain(bandwidth_per_sample: float) -> float:
+    """Loop gain g for which g/(z^2 - z + g) is -3 dB at ``bandwidth_per_sample``.
+
+    The argument is the bandwidth over the sample rate (f_c/f_s). From
+    |z^2 - z + g|^2 = 2 g^2 at z = exp(j*2*pi*f_c/f_s): with A = z^2 - z,
+    g^2 - 2 Re(A) g - |A|^2 = 0.
+    """
+    theta = 2.0 * math.pi * bandwidth_per_sample
+    a = complex(math.cos(2 * theta), math.sin(2 * theta)) - complex(math.cos(theta),
+                                                                    math.sin(theta))
+    return a.real + math.sqrt(a.real ** 2 + abs(a) ** 2)
 
 
 def predicted_resonances(system: SystemParams) -> dict[int, float]:
@@ -381,7 +406,81 @@ def _patent() -> SystemParams:
     return SystemParams(motor, drive, ServoParams(encoder_cpr=4000), name="patent")
 
 
-PRESETS: dict[str, Any] = {"patent": _patent}
+# Real motors. Datasheet figures are quoted beside the numbers; the rest is
+# marked ASSUMED. Conventions used for every datasheet preset:
+# * holding torque is taken with both phases at the rated RMS current, so the
+#   sinusoidal-microstep amplitude is sqrt(2)*I_rated (that is holding_current)
+#   and Km = T_hold / (sqrt(2)*I_rated), giving Km*holding_current = T_hold;
+# * the datasheet detent torque is the peak of the detent curve, split ASSUMED
+#   60 % / 25 % / 15 % over the 4th / 2nd / 1st harmonic, phases ASSUMED;
+# * J = rotor inertia plus an ASSUMED rigidly coupled load of nine times the
+#   rotor's (10:1 total to rotor, the usual upper end for open-loop steppers;
+#   lighter loads push the resonances to speeds where the drive's own
+#   electrical dynamics shift the peaks further from the rigid-spring formula);
+# * D ASSUMED so that the mechanical damping ratio D/(2*sqrt(Km*I*Nr*J)) is
+#   0.02, a lightly damped rig like the patent's; Fs ASSUMED about 1 % of T_hold.
+# The detent also modulates the spring by +-4*Nr*Kd4; past a modulation depth
+# eps = 4*Kd4/T_hold of about 4*zeta that drives a parametric (Mathieu)
+# resonance at the h=2 speed which no feedforward at the command angle removes
+# (README, "Known limits"): the QSH4218-35-10-027 (eps = 0.2) is left out for that.
+_SQRT2 = math.sqrt(2.0)
+
+
+def _datasheet_motor(*, name: str, i_rated: float, r: float, l: float, t_hold: float,
+                     detent: float, j_rotor: float, vdc: float,
+                     fs: float, phi1: float, phi2: float) -> SystemParams:
+    j = 10.0 * j_rotor
+    stiffness = t_hold * 50          # Km*holding_current*Nr, N*m/rad
+    d = 2.0 * 0.02 * math.sqrt(stiffness * j)
+    motor = MotorParams(R=r, L=l, Km=t_hold / (_SQRT2 * i_rated), Nr=50, J=j, D=d,
+                        Kd1=0.15 * detent, Kd2=0.25 * detent, Kd4=0.6 * detent,
+                        phi1=phi1, phi2=phi2, Fs=fs, load_torque=0.0)
+    drive = DriveParams(Vdc=vdc, pwm_hz=20_000.0, holding_current=_SQRT2 * i_rated,
+                        microsteps=64, current_bandwidth_hz=1_500.0)
+    return SystemParams(motor, drive, ServoParams(encoder_cpr=4000), name=name)
+
+
+def _qsh4218_51_10_049() -> SystemParams:
+    """Trinamic QSH4218-51-10-049, NEMA 17, 1.8 degree.
+
+    Source: Trinamic "QMot QSH4218 manual" V1.10, table 2.1: rated current
+    1.0 A RMS, 5.0 Ohm, 8.0 mH, holding torque 0.49 N*m, detent torque
+    28 mN*m, rotor inertia 68 g*cm^2; torque curve measured at 24 V (Vdc).
+    """
+    return _datasheet_motor(name="qsh4218-51-10-049", i_rated=1.0, r=5.0, l=8.0e-3,
+                            t_hold=0.49, detent=0.028, j_rotor=68e-7, vdc=24.0, fs=0.005, phi1=0.9, phi2=-0.5)
+
+
+def _qsh5718_56_28_126() -> SystemParams:
+    """Trinamic QSH5718-56-28-126, NEMA 23, 1.8 degree.
+
+    Source: Trinamic "QMot QSH5718 manual" V2.6, table 2.1: rated current
+    2.8 A RMS, 0.9 Ohm, 2.5 mH, holding torque 1.26 N*m, detent torque
+    0.039 N*m, rotor inertia 300 g*cm^2; torque curve measured at 30 V (Vdc).
+    """
+    return _datasheet_motor(name="qsh5718-56-28-126", i_rated=2.8, r=0.9, l=2.5e-3,
+                            t_hold=1.26, detent=0.039, j_rotor=300e-7, vdc=30.0, fs=0.012, phi1=0.3, phi2=2.0)
+
+
+def _qsh6018_65_28_210() -> SystemParams:
+    """Trinamic QSH6018-65-28-210, 60 mm flange, 1.8 degree.
+
+    Source: Trinamic "QMot QSH6018 manual" V1.20, table 1.1: rated current
+    2.8 A RMS, 1.2 Ohm, 4.6 mH, holding torque 2.1 N*m, rotor inertia
+    570 g*cm^2; torque curves measured at 30 V (Vdc). The datasheet leaves the
+    detent torque blank: ASSUMED 0.06 N*m (about 3 % of T_hold, in line with
+    the family's smaller motors).
+    """
+    return _datasheet_motor(name="qsh6018-65-28-210", i_rated=2.8, r=1.2, l=4.6e-3,
+                            t_hold=2.1, detent=0.06, j_rotor=570e-7, vdc=30.0, fs=0.02, phi1=-1.3, phi2=0.4)
+
+
+PRESETS: dict[str, Any] = {
+    "patent": _patent,
+    "qsh4218-51-10-049": _qsh4218_51_10_049,
+    "qsh5718-56-28-126": _qsh5718_56_28_126,
+    "qsh6018-65-28-210": _qsh6018_65_28_210,
+}
 
 
 def preset_names() -> list[str]:

@@ -1,0 +1,153 @@
+"""``stepdamp`` command line: sweep, simulate, presets."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Sequence
+
+import numpy as np
+
+from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
+                     preset_names)
+from .simulation import DAMPINGS, MODES, RunSettings, SpeedProfile, simulate
+
+__all__ = ["main"]
+
+
+def _add_system_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--motor", default="patent",
+                   help=f"preset ({', '.join(preset_names())}) or a motor .json file")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
+    p.add_argument("--mode", choices=sorted(MODES), default="open-loop")
+    p.add_argument("--damping", choices=DAMPINGS, default="none")
+    p.add_argument("--estimate", default=None, metavar="NAME|FILE.json",
+                   help="motor whose Km, Kd1/2/4, phi1/2, Fs the feedforward uses "
+                        "(default: the plant's own, i.e. exact)")
+    p.add_argument("--accel", type=float, default=50.0, metavar="RPS2",
+                   help="command acceleration of the start-up ramp (rev/s^2)")
+    p.add_argument("--substeps", type=int, default=1,
+                   help="RK4 plant steps per PWM period")
+
+
+def _settings(args: argparse.Namespace, system) -> RunSettings:
+    estimate = None
+    if args.estimate is not None:
+        estimate = FeedforwardModel.from_motor(load_system(args.estimate).motor)
+    return RunSettings(mode=args.mode, damping=args.damping, substeps=args.substeps,
+                       estimate=estimate)
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .io import write_json
+    from .plots import plot_sweep, plot_velocity_error_traces, trace_speeds
+    from .sweep import parse_speed_range, run_sweep
+
+    system = load_system(args.motor, parse_set_overrides(args.overrides))
+    settings = _settings(args, system)
+    speeds = parse_speed_range(args.speeds)
+    result = run_sweep(system, speeds, settings, accel_rps2=args.accel,
+                       workers=args.workers, progress=not args.no_progress)
+    os.makedirs(args.out, exist_ok=True)
+    write_json(os.path.join(args.out, "sweep.json"), result.to_dict())
+    plot_sweep([result], os.path.join(args.out, "sweep.png"))
+    plot_velocity_error_traces(system, settings, trace_speeds(system, speeds),
+                               os.path.join(args.out, "velocity_error_traces.png"),
+                               accel_rps2=args.accel)
+    predicted = system.predicted_resonances_rps()
+    print(f"motor {system.name}: {args.mode}, {args.damping}, {len(speeds)} speeds")
+    for h, peak in result.peaks().items():
+        print(f"  h={h}: predicted {predicted[h]:.4f} rev/s, ripple peak at "
+              f"{peak['speed_rps']:.4f} rev/s ({peak['relative_offset']:+.1%}), "
+              f"RMS {peak['ripple_rad_s']:.4g} rad/s")
+    lost = int(np.sum(result.column("step_loss")))
+    print(f"  step loss in {lost} of {len(speeds)} runs; wrote {args.out}/sweep.json, "
+          "sweep.png, velocity_error_traces.png")
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    system = load_system(args.motor, parse_set_overrides(args.overrides))
+    settings = _settings(args, system)
+    if args.move is not None:
+        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel, kind="move",
+                               distance_rev=args.move)
+    else:
+        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel)
+    result = simulate(system, profile=profile, settings=settings,
+                      duration_s=args.duration, trace=args.trace is not None)
+    if args.trace is not None:
+        from .io import write_npz
+
+        write_npz(args.trace, **result.trace)
+    out = {"motor": system.name, "mode": settings.mode, "damping": settings.damping,
+           "duration_s": result.duration_s, "window_start_s": result.window_start_s,
+           **result.metrics.to_dict()}
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        for key, value in out.items():
+            if isinstance(value, float):
+                value = f"{value:.6g}"
+            print(f"{key:28s} {value}")
+    return 0
+
+
+def _cmd_presets(args: argparse.Namespace) -> int:
+    for name in preset_names():
+        system = load_system(name)
+        res = system.predicted_resonances_rps()
+        print(f"{name:24s} wn = {system.natural_frequency():7.1f} rad/s, resonances "
+              + ", ".join(f"h={h}: {v:.3f}" for h, v in res.items()) + " rev/s")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="stepdamp", description=__doc__)
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"stepdamp {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("sweep", help="ripple against command speed (resonance sweep)")
+    _add_system_args(p)
+    p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
+                   help="command speeds in rev/s")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("simulate", help="one run; prints its metrics")
+    _add_system_args(p)
+    p.add_argument("--speed", type=float, required=True, metavar="RPS",
+                   help="command speed (rev/s); the top speed of a --move")
+    p.add_argument("--move", type=float, default=None, metavar="REV",
+                   help="point-to-point move of this many revolutions instead of constant speed")
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                   help="default: ramp + settle + measuring window")
+    p.add_argument("--trace", default=None, metavar="FILE.npz",
+                   help="write one sample per PWM period")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("presets", help="list the motor presets")
+    p.set_defaults(func=_cmd_presets)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ParameterError as exc:
+        print(f"stepdamp: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""Resonance sweeps: ripple against command speed, run on every core."""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .params import ParameterError, SystemParams
+from .simulation import RunSettings, SpeedProfile, simulate
+
+__all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks"]
+
+
+def parse_speed_range(text: str) -> np.ndarray:
+    """``START:STOP:STEP`` in rev/s (STOP included when it falls on the grid)."""
+    parts = text.split(":")
+    if len(parts) != 3:
+        raise ParameterError(f"--speeds expects START:STOP:STEP in rev/s, got {text!r}")
+    try:
+        start, stop, step = (float(p) for p in parts)
+    except ValueError:
+        raise ParameterError(f"--speeds expects numbers, got {text!r}") from None
+    if not all(math.isfinite(v) for v in (start, stop, step)):
+        raise ParameterError(f"--speeds must be finite, got {text!r}")
+    if step <= 0 or stop < start or start <= 0:
+        raise ParameterError(
+            f"--speeds {text!r}: need 0 < START <= STOP and STEP > 0 (rev/s)")
+    n = int(math.floor((stop - start) / step + 1e-9)) + 1
+    if n > 100_000:
+        raise ParameterError(f"--speeds {text!r} gives {n} points; allowed at most 100000")
+    # Rounded to 1e-9 rev/s so the grid prints and compares cleanly.
+    return np.round(start + step * np.arange(n), 9)
+
+
+@dataclass
+class SweepResult:
+    """Metrics of one run per speed, in the order of ``speeds_rps``."""
+
+    system: SystemParams
+    settings: RunSettings
+    accel_rps2: float
+    speeds_rps: np.ndarray
+    metrics: list[dict[str, Any]]
+
+    def column(self, key: str) -> np.ndarray:
+        return np.array([m[key] for m in self.metrics])
+
+    def peaks(self) -> dict[int, dict[str, float]]:
+        return find_resonance_peaks(self.speeds_rps, self.column("rms_velocity_error_rad_s"),
+                                    self.system.predicted_resonances_rps())
+
+    def to_dict(self) -> dict[str, Any]:
+        from . import __version__
+
+        predicted = self.system.predicted_resonances_rps()
+        est = self.settings.estimate
+        return {
+            "package": "stepdamp-env",
+            "version": __version__,
+            "motor": self.system.name,
+            "mode": self.settings.mode,
+            "damping": self.settings.damping,
+            "controller_estimate": None if est is None else est.__dict__,
+            "accel_rps2": self.accel_rps2,
+            "substeps": self.settings.substeps,
+            "speeds_rps": self.speeds_rps.tolist(),
+            "rms_velocity_error_rad_s": self.column("rms_velocity_error_rad_s").tolist(),
+            "p2p_velocity_error_rad_s": self.column("p2p_velocity_error_rad_s").tolist(),
+            "rms_velocity_error_norm": self.column("rms_velocity_error_norm").tolist(),
+            "max_position_lag_rad": self.column("max_position_lag_rad").tolist(),
+            "step_loss": [bool(v) for v in self.column("step_loss")],
+            "rms_injected_current_a": self.column("rms_injected_current_a").tolist(),
+            "harmonic_amplitude_rad_s": {
+                str(h): [m["harmonic_amplitude_rad_s"][str(h)] for m in self.metrics]
+                for h in (1, 2, 4)},
+            "predicted_resonances_rps": {str(h): v for h, v in predicted.items()},
+            "measured_resonances_rps": {str(h): v for h, v in self.peaks().items()},
+            "parameters": self.system.to_dict(),
+            "derived": self.system.derived_dict(),
+            "runs": self.metrics,
+        }
+
+
+def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
+                         predicted: dict[int, float], search: float = 0.15
+                         ) -> dict[int, dict[str, float]]:
+    """The ripple maximum within +-``search`` (relative) of each predicted speed.
+
+    Returns per harmonic h: the speed of the maximum, its ripple, its relative
+    distance from the prediction and whether it is a local maximum of the
+    sweep (not an edge of the searched band).
+    """
+    out: dict[int, dict[str, float]] = {}
+    for h, pred in predicted.items():
+        band = np.nonzero((speeds >= pred * (1 - search)) & (speeds <= pred * (1 + search)))[0]
+        if band.size == 0:
+            continue
+        i = band[np.argmax(ripple[band])]
+        interior = 0 < i < len(speeds) - 1 and ripple[i] >= ripple[i - 1] \
+            and ripple[i] >= ripple[i + 1] and i not in (band[0], band[-1])
+        out[h] = {"speed_rps": float(speeds[i]), "ripple_rad_s": float(ripple[i]),
+                  "relative_offset": float(speeds[i] / pred - 1.0),
+                  "is_local_max": bool(interior)}
+    return out
+
+
+def _run_point(args: tuple[SystemParams, RunSettings, float, float]) -> dict[str, Any]:
+    system, settings, speed, accel = args
+    result = simulate(system, profile=SpeedProfile(speed_rps=speed, accel_rps2=accel),
+                      settings=settings)
+    return result.metrics.to_dict()
+
+
+def default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else (os.cpu_count() or 1))
+
+
+def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
+              settings: RunSettings | None = None, accel_rps2: float = 50.0,
+              workers: int | None = None, progress: bool = True) -> SweepResult:
+    """Simulate each speed (constant-speed profile) and collect its metrics.
+
+    Runs are independent and deterministic, so the result does not depend on
+    ``workers`` (default: every core this process may use).
+    """
+    settings = settings or RunSettings()
+    speeds = np.asarray(speeds_rps, dtype=float)
+    jobs = [(system, settings, float(v), float(accel_rps2)) for v in speeds]
+    workers = default_workers() if workers is None else workers
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(jobs), desc=f"sweep {settings.mode}/{settings.damping}",
+                   unit="run")
+    metrics: list[dict[str, Any]] = []
+    if workers <= 1 or len(jobs) < 4:
+        for job in jobs:
+            metrics.append(_run_point(job))
+            if bar:
+                bar.update()
+    else:
+        method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+        chunk = max(1, len(jobs) // (workers * 8))
+        with ProcessPoolExecutor(max_workers=workers,
+                                 mp_context=multiprocessing.get_context(method)) as pool:
+            for m in pool.map(_run_point, jobs, chunksize=chunk):
+                metrics.append(m)
+                if bar:
+                    bar.update()
+    if bar:
+        bar.close()
+    return SweepResult(system=system, settings=settings, accel_rps2=float(accel_rps2),
+                       speeds_rps=speeds, metrics=metrics)

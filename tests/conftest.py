@@ -1,0 +1,34 @@
+"""Shared helpers for the tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stepdamp_env import kernel as K
+from stepdamp_env.params import get_preset
+from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
+                                     new_accumulators)
+
+
+def run_raw(system, profile, settings=None, n_periods=1000, state=None, window_start_s=0.0,
+            trace_every=1):
+    """Run the kernel directly; returns (config, final state, accumulators, trace)."""
+    settings = settings or RunSettings()
+    c = build_config(system, profile, settings, window_start_s=window_start_s)
+    s = initial_state(c) if state is None else state
+    acc = new_accumulators()
+    trace = np.zeros((-(-n_periods // trace_every), K.N_TRACE))
+    rows = K.run_periods(c, s, acc, np.zeros(K.N_INPUT), n_periods, trace, trace_every)
+    return c, s, acc, {name: trace[:rows, i] for i, name in enumerate(K.TRACE_NAMES)}
+
+
+@pytest.fixture(scope="session")
+def patent():
+    return get_preset("patent")
+
+
+@pytest.fixture(scope="session")
+def still():
+    """A profile that holds the command at zero."""
+    return SpeedProfile(speed_rps=0.0)

@@ -1,0 +1,90 @@
+"""The ``stepdamp`` command line and its result files."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from stepdamp_env import io as sio
+from stepdamp_env.cli import main
+from stepdamp_env.params import get_preset
+from stepdamp_env.simulation import RunSettings
+from stepdamp_env.sweep import parse_speed_range, run_sweep
+
+
+def test_sweep_writes_json_and_figures(tmp_path, capsys):
+    out = tmp_path / "sw"
+    rc = main(["sweep", "--motor", "patent", "--speeds", "0.6:0.74:0.02", "--out", str(out),
+               "--no-progress", "--set", "Fs=0.003"])
+    assert rc == 0
+    data = json.loads((out / "sweep.json").read_text())
+    for key in ("speeds_rps", "rms_velocity_error_rad_s", "p2p_velocity_error_rad_s",
+                "step_loss", "predicted_resonances_rps", "parameters", "version"):
+        assert key in data
+    assert len(data["speeds_rps"]) == len(data["rms_velocity_error_rad_s"]) == 8
+    assert data["parameters"]["Fs"] == 0.003
+    assert data["predicted_resonances_rps"]["4"] == pytest.approx(
+        get_preset("patent").predicted_resonances_rps()[4])
+    for name in ("sweep.png", "velocity_error_traces.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "h=4: predicted" in capsys.readouterr().out
+
+
+def test_simulate_prints_metrics_and_writes_a_trace(tmp_path, capsys):
+    trace = tmp_path / "run.npz"
+    rc = main(["simulate", "--motor", "qsh5718-56-28-126", "--mode", "servo", "--damping",
+               "patent-ff", "--speed", "0.5", "--duration", "0.8", "--trace", str(trace),
+               "--json"])
+    assert rc == 0
+    metrics = json.loads(capsys.readouterr().out)
+    assert metrics["mode"] == "servo" and metrics["rms_velocity_error_rad_s"] > 0
+    data = np.load(trace)
+    for key in ("t", "theta", "omega", "theta_cmd", "ia", "ib", "va", "vb"):
+        assert data[key].shape == (16000,)
+    assert np.allclose(np.diff(data["t"]), 1 / 20000)
+
+
+def test_simulate_move_ends_at_its_target(capsys):
+    rc = main(["simulate", "--speed", "2", "--move", "1.5", "--duration", "1.5", "--json"])
+    assert rc == 0
+    metrics = json.loads(capsys.readouterr().out)
+    assert not metrics["step_loss"]
+
+
+def test_cli_reports_bad_input_cleanly(capsys):
+    assert main(["simulate", "--motor", "nope", "--speed", "1"]) == 2
+    assert "unknown motor preset 'nope'" in capsys.readouterr().err
+    assert main(["sweep", "--speeds", "1:0:0.1", "--out", "x"]) == 2
+    assert main(["simulate", "--set", "L=-1", "--speed", "1"]) == 2
+    assert "L=-1.0 is outside its allowed range" in capsys.readouterr().err
+
+
+def test_speed_range_parsing():
+    assert parse_speed_range("0.2:0.3:0.05").tolist() == [0.2, 0.25, 0.3]
+    with pytest.raises(ValueError, match="START:STOP:STEP"):
+        parse_speed_range("1:2")
+
+
+def test_sweep_is_identical_across_worker_counts():
+    system = get_preset("patent")
+    speeds = np.linspace(0.5, 0.8, 8)
+    one = run_sweep(system, speeds, RunSettings(), workers=1, progress=False)
+    two = run_sweep(system, speeds, RunSettings(), workers=2, progress=False)
+    assert one.metrics == two.metrics
+
+
+def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
+    path = tmp_path / "result.json"
+    sio.write_json(path, {"a": 1})
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(sio.json, "dump", boom)
+    with pytest.raises(RuntimeError):
+        sio.write_json(path, {"a": 2})
+    assert json.loads(path.read_text()) == {"a": 1}
+    assert os.listdir(tmp_path) == ["result.json"]
