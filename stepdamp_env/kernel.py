@@ -32,8 +32,9 @@ from numba import njit
 
 # No Python error checks on division: the inputs are validated before they get here.
 _jit = njit(cache=True, error_model="numpy", fastmath={"contract"})
-# The few large pieces of the hot loop are inlined at numba-IR level: LLVM's own
-# inliner leaves them as calls that pass tuples through memory.
+# The pieces of the hot loop are inlined at numba-IR level: LLVM's own inliner
+# leaves many as calls that return tuples through memory (measured with
+# benchmarks/bench_sim.py: about 10 % of the loop's time).
 _jit_inline = njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
 
 # ---------------------------------------------------------------------------
@@ -192,7 +193,7 @@ def inverse_park(d, q, angle):
     return d * c - q * s, d * s + q * c
 
 
-@_jit
+@_jit_inline
 def svpwm_legs(va, vb, vdc):
     """Leg voltages (V) of the three-leg chopper, eqs. 10-13, each clamped to [0, Vdc].
 
@@ -209,13 +210,13 @@ def svpwm_legs(va, vb, vdc):
     return v_alpha, v_beta, v_gamma
 
 
-@_jit
+@_jit_inline
 def pi_output(error, integrator, kp):
     """Unsaturated PI output kp*e + integrator (V)."""
     return kp * error + integrator
 
 
-@_jit
+@_jit_inline
 def pi_update(error, integrator, demanded, achieved, kp, ki, dt):
     """Integrator (V) after one step, with back-calculation anti-windup.
 
@@ -226,7 +227,7 @@ def pi_update(error, integrator, demanded, achieved, kp, ki, dt):
     return integrator + dt * ki * (error + (achieved - demanded) * (1.0 / kp))
 
 
-@_jit
+@_jit_inline
 def harmonics(s1, c1):
     """sin and cos of 2x and 4x from sin x and cos x (no further trig calls)."""
     s2 = 2.0 * s1 * c1
@@ -236,7 +237,7 @@ def harmonics(s1, c1):
     return s2, c2, s4, c4
 
 
-@_jit
+@_jit_inline
 def harmonic_series(s1, c1, a1, b1, a2, b2, a4, b4):
     """a1 sin x + b1 cos x + a2 sin 2x + b2 cos 2x + a4 sin 4x + b4 cos 4x."""
     s2, c2, s4, c4 = harmonics(s1, c1)
@@ -272,13 +273,13 @@ def detent_potential(theta, p):
              + (p[10] * c4 - p[11] * s4) / (4.0 * nr))
 
 
-@_jit
+@_jit_inline
 def electromagnetic_torque(ia, ib, sin_x, cos_x, km):
     """tau_em = Km(-ia sin x + ib cos x) (N*m), x = Nr*theta (eq. 3)."""
     return km * (-ia * sin_x + ib * cos_x)
 
 
-@_jit
+@_jit_inline
 def friction_torque(omega, tau_drive, fs):
     """Friction while sliding (N*m, positive opposes positive rotation).
 
@@ -314,7 +315,7 @@ _C10, _C12, _C14 = -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0
 _C16 = 1.0 / 20922789888000.0
 
 
-@_jit
+@_jit_inline
 def sincos(x):
     """(sin x, cos x) in one call, within a few ulp of libm for |x| < 1e6.
 
@@ -341,7 +342,7 @@ def sincos(x):
     return -cp, sp
 
 
-@_jit
+@_jit_inline
 def sincos_shifted(x0, s0, c0, delta):
     """sin and cos of x0 + delta given those of x0, to a few ulp.
 
@@ -360,7 +361,7 @@ def sincos_shifted(x0, s0, c0, delta):
     return s0 * cd + c0 * sd, c0 * cd - s0 * sd
 
 
-@_jit
+@_jit_inline
 def motor_derivative_sc(sin_x, cos_x, omega, ia, ib, va, vb, p):
     """:func:`motor_derivative` given sin and cos of x = Nr*theta."""
     r, inv_l, km, d = p[0], p[1], p[2], p[5]
@@ -470,13 +471,13 @@ def rk4_step_stuck(x, va, vb, p, h):
     return (x[0], 0.0, ia1, ib1, x[4] + h6 * p_in, x[5] + h6 * p_cu, x[6], e_fric, x[8])
 
 
-@_jit
+@_jit_inline
 def quantise(x, q):
     """x rounded down to a whole number of steps of size q (encoder, microstep)."""
     return math.floor(x * (1.0 / q)) * q
 
 
-@_jit
+@_jit_inline
 def command(t, kind, speed, accel, distance):
     """Position (rad) and speed (rad/s) command at time t (s).
 
@@ -524,7 +525,7 @@ def controller_params(c):
             c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE])
 
 
-@_jit
+@_jit_inline
 def feedforward_torque(sin_x, cos_x, q, u):
     """Detent compensation torque (N*m) at the angle whose sin and cos are given.
 
@@ -668,10 +669,7 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
             # Lock-in on the detent harmonics h*Nr*w_ref*t, timed from the window
             # start: a phasor turned by one period's angle, recomputed exactly
             # every 256 samples so rounding cannot accumulate.
-            if lockin_count & 255 == 0:
-                ref_s, ref_c = sincos(ref_rate * (t - win_start))
-            else:
-                ref_s, ref_c = ref_s * step_c + ref_c * step_s, ref_c * step_c - ref_s * step_s
+            ref_s, ref_c = sincos(ref_rate * (t - win_start))
             lockin_count += 1
             s1, c1 = ref_s, ref_c
             s2, c2, s4, c4 = harmonics(s1, c1)
