@@ -357,10 +357,7 @@ class FeedforwardModel:
     Fs: float
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            low, high, low_open, high_open, integer = _RANGES[f.name]
-            _check_range(f.name, getattr(self, f.name), low, high, low_open=low_open,
-                         high_open=high_open, integer=integer)
+        _validate_fields(self)
 
     @classmethod
     def from_motor(cls, motor: MotorParams) -> "FeedforwardModel":
