@@ -54,6 +54,25 @@ def bench_vector(env, seconds: float) -> float:
             return steps / dt
 
 
+def bench_kernel_only(num_envs: int, seconds: float) -> float:
+    """kernel.run_batch alone on the env's drives: the ceiling of the vector env."""
+    from stepdamp_env import kernel as K
+    venv = StepperDampVectorEnv(num_envs=num_envs)
+    venv.reset(seed=0)
+    c, s, acc, u = venv._c, venv._s, venv._acc, venv._u
+    n = venv._steps_per_call
+    K.run_batch(c, s, acc, u, n)
+    steps = 0
+    t0 = time.perf_counter()
+    while True:
+        for _ in range(100):
+            K.run_batch(c, s, acc, u, n)
+        steps += 100 * num_envs
+        dt = time.perf_counter() - t0
+        if dt >= seconds:
+            return steps / dt
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--num-envs", type=int, default=64)
@@ -67,6 +86,8 @@ def main() -> None:
         venv = StepperDampVectorEnv(num_envs=args.num_envs, action_mode=mode)
         rate = bench_vector(venv, args.seconds)
         print(f"vector env N={args.num_envs} ({mode:8s})      : {rate:>10,.0f} env-steps/s")
+    rate = bench_kernel_only(args.num_envs, args.seconds)
+    print(f"kernel.run_batch alone N={args.num_envs}  : {rate:>10,.0f} env-steps/s (ceiling)")
     venv = gym.make_vec("StepperDamp-v0", num_envs=args.num_envs)
     rate = bench_vector(venv, args.seconds)
     print(f"vector env N={args.num_envs} (gym.make_vec)   : {rate:>10,.0f} env-steps/s")

@@ -25,3 +25,7 @@ __all__ = [
     "preset_names",
     "simulate",
 ]
+
+from .envs import register_envs  # noqa: E402
+
+register_envs()
