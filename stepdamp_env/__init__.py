@@ -4,6 +4,7 @@ from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError,
                      SystemParams, get_preset, load_system, predicted_resonances,
                      preset_names)
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
+from .envs import StepperDampEnv, StepperDampVectorEnv, register_envs
 
 __version__ = "0.1.0"
 
@@ -24,8 +25,10 @@ __all__ = [
     "predicted_resonances",
     "preset_names",
     "simulate",
+    "StepperDampEnv",
+    "StepperDampVectorEnv",
+    "register_envs",
 ]
 
-from .envs import register_envs  # noqa: E402
-
+# gym.make("StepperDamp-v0") works after `import stepdamp_env`.
 register_envs()
