@@ -83,7 +83,17 @@ C_ACCEL = 39       # command acceleration (rad/s^2, > 0)
 C_DISTANCE = 40    # move distance (rad, signed), profile 1 only
 C_WINDOW_START = 41  # metrics window start (s)
 C_REF_SPEED = 42   # speed whose harmonics the metrics lock on to (rad/s)
-N_CONFIG = 43
+C_I_NOISE = 43     # current-sensor noise, standard deviation per sample (A)
+C_I_OFFSET_A = 44  # current-sensor offsets of phases A and B (A)
+C_I_OFFSET_B = 45
+C_NOISE_SEED = 46  # seed of the sensor noise (an integer below 2**53)
+C_VEL_EST = 47     # velocity estimator: 0 difference + low-pass, 1 Kalman filter
+C_KF_K0 = 48       # steady-state Kalman gains on the encoder innovation
+C_KF_K1 = 49       # (position: dimensionless, velocity: 1/s)
+N_CONFIG = 50
+
+VEL_EST_LOWPASS = 0
+VEL_EST_KALMAN = 1
 
 MODE_OPEN_LOOP = 0
 MODE_SERVO = 1
@@ -117,7 +127,8 @@ S_ID_MEAS = 20     # last measured d/q currents in the Park frame (A)
 S_IQ_MEAS = 21
 S_IQ_FF = 22       # last injected feedforward + residual q current (A)
 S_PARK_ANGLE = 23  # last Park (electrical) angle (rad)
-N_STATE = 24
+S_THETA_EST = 24   # Kalman estimate of the shaft angle (rad)
+N_STATE = 25
 
 # ---------------------------------------------------------------------------
 # Accumulated metrics (per drive). Window sums use samples with t >= window start.
@@ -471,6 +482,37 @@ def rk4_step_stuck(x, va, vb, p, h):
     return (x[0], 0.0, ia1, ib1, x[4] + h6 * p_in, x[5] + h6 * p_cu, x[6], e_fric, x[8])
 
 
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_TWO_M53 = 1.0 / 9007199254740992.0
+
+
+@_jit_inline
+def splitmix64(x):
+    """SplitMix64 finaliser: a well-mixed 64-bit hash of ``x`` (uint64)."""
+    z = x + _GOLDEN
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    return z ^ (z >> np.uint64(31))
+
+
+@_jit
+def gaussian_pair(seed, counter):
+    """Two independent standard normal samples for (seed, counter).
+
+    Counter-based (Box-Muller on hashed counters): the noise of PWM period k
+    is a function of k alone, so it does not depend on how a run is chunked.
+    """
+    key = splitmix64(np.uint64(seed))
+    c2 = np.uint64(counter) * np.uint64(2)
+    u1 = (float(splitmix64(key ^ c2) >> np.uint64(11)) + 1.0) * _TWO_M53      # (0, 1]
+    u2 = float(splitmix64(key ^ (c2 + np.uint64(1))) >> np.uint64(11)) * _TWO_M53
+    r = math.sqrt(-2.0 * math.log(u1))
+    s, c = sincos(2.0 * math.pi * u2)
+    return r * c, r * s
+
+
 @_jit_inline
 def quantise(x, q):
     """x rounded down to a whole number of steps of size q (encoder, microstep)."""
@@ -516,13 +558,16 @@ def controller_params(c):
 
     (dt, Nr, holding current, microstep angle, Kp_i, Ki_i, encoder angle,
     velocity filter alpha, Kp_vel, Kp_pos, Ki_pos, mode, ff_on, Km_est, Fs_est,
-    ff s1, c1, s2, c2, s4, c4, Vdc, profile kind, speed, accel, distance)
+    ff s1, c1, s2, c2, s4, c4, Vdc, profile kind, speed, accel, distance,
+    current noise, offset a, offset b, noise seed, velocity estimator, Kalman k0, k1)
     """
     return (c[C_DT], c[C_NR], c[C_HOLD], c[C_MICROSTEP], c[C_KP_I], c[C_KI_I],
             c[C_ENCODER], c[C_VEL_ALPHA], c[C_KP_VEL], c[C_KP_POS], c[C_KI_POS],
             c[C_MODE], c[C_FF_ON], c[C_KM_EST], c[C_FS_EST],
             c[C_FF_S1], c[C_FF_C1], c[C_FF_S2], c[C_FF_C2], c[C_FF_S4], c[C_FF_C4],
-            c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE])
+            c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE],
+            c[C_I_NOISE], c[C_I_OFFSET_A], c[C_I_OFFSET_B], c[C_NOISE_SEED], c[C_VEL_EST],
+            c[C_KF_K0], c[C_KF_K1])
 
 
 @_jit_inline
@@ -539,24 +584,40 @@ def feedforward_torque(sin_x, cos_x, q, u):
 
 
 @_jit_inline
-def control_step(t, theta, ia, ib, cs, q, u):
-    """The controller of one PWM period at time t (s): a pure function.
+def control_step(period, theta, ia, ib, cs, q, u):
+    """The controller of PWM period ``period`` (a count) : a pure function.
 
-    ``theta``, ``ia``, ``ib`` are the true shaft angle and the sampled winding
-    currents; ``cs`` = (integrator d, integrator q, previous encoder angle,
-    filtered velocity, position-error integral) is the controller's state;
+    ``theta``, ``ia``, ``ib`` are the true shaft angle and winding currents
+    (the current sensors add their offset and noise here); ``cs`` =
+    (integrator d, integrator q, previous encoder angle, velocity estimate,
+    position-error integral, Kalman angle estimate) is the controller's state;
     ``q`` is :func:`controller_params`, ``u`` the external inputs.
 
     Returns (new cs, (va, vb) winding voltages to apply next period,
     (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle)).
     """
-    int_d, int_q, theta_fb_prev, omega_fb, pos_int = cs
+    int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est = cs
     dt, nr = q[0], q[1]
+    t = period * dt
     theta_cmd, omega_cmd = command(t, q[22], q[23], q[24], q[25])
-    # Encoder and differentiated, low-passed velocity (a drive senses it in
-    # either mode).
+    # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[6])
-    omega_fb = omega_fb + q[7] * ((theta_fb - theta_fb_prev) * (1.0 / dt) - omega_fb)
+    if q[30] == VEL_EST_KALMAN:
+        # Steady-state Kalman filter, constant-velocity model, measuring the
+        # centre of the encoder count.
+        predicted = theta_est + dt * omega_fb
+        innovation = theta_fb + 0.5 * q[6] - predicted
+        theta_est = predicted + q[31] * innovation
+        omega_fb = omega_fb + q[32] * innovation
+    else:
+        omega_fb = omega_fb + q[7] * ((theta_fb - theta_fb_prev) * (1.0 / dt) - omega_fb)
+    if q[26] != 0.0:
+        noise_a, noise_b = gaussian_pair(q[29], period)
+        ia = ia + q[27] + q[26] * noise_a
+        ib = ib + q[28] + q[26] * noise_b
+    else:
+        ia = ia + q[27]
+        ib = ib + q[28]
 
     if q[11] == MODE_OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
@@ -598,7 +659,7 @@ def control_step(t, theta, ia, ib, cs, q, u):
     vq_app = -va * sin_a + vb * cos_a
     int_d = pi_update(err_d, int_d, vd, vd_app, kp, ki, dt)
     int_q = pi_update(err_q, int_q, vq, vq_app, kp, ki, dt)
-    return ((int_d, int_q, theta_fb, omega_fb, pos_int), (va, vb),
+    return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est), (va, vb),
             (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle))
 
 
@@ -627,7 +688,8 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     lockin_count = int(acc[A_COUNT])
     x = (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
          s[S_E_FRIC], s[S_E_LOAD])
-    cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT])
+    cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT],
+          s[S_THETA_EST])
     va_next, vb_next = s[S_VA_NEXT], s[S_VB_NEXT]
     period = s[S_PERIOD]
     obs = (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], 0.0,
@@ -644,7 +706,7 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
         t = period * dt
         # Computation delay: this period applies what the previous one computed.
         va, vb = va_next, vb_next
-        cs, v_next, obs = control_step(t, x[0], x[2], x[3], cs, q, u)
+        cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u)
         va_next, vb_next = v_next
 
         # Metrics of the sample at the period's start.
@@ -706,7 +768,7 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     s[S_PERIOD] = period
     (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
      s[S_E_FRIC], s[S_E_LOAD]) = x
-    s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT] = cs
+    s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT], s[S_THETA_EST] = cs
     s[S_VA_NEXT], s[S_VB_NEXT] = va_next, vb_next
     (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], _iq_cmd,
      s[S_IQ_FF], s[S_PARK_ANGLE]) = obs

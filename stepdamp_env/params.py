@@ -9,8 +9,8 @@ JSON files and of ``stepdamp ... --set FIELD=VALUE``.
 Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in physics-notes.md):
     R, L, Km, Nr, J, D, Kd1, Kd2, Kd4, phi1, phi2, Fs, load_torque
 Drive: Vdc, pwm_hz, holding_current, microsteps, current_bandwidth_hz,
-    Kp_current, Ki_current
-Servo: encoder_cpr, velocity_cutoff_hz, Kp_vel, Kp_pos, Ki_pos
+    Kp_current, Ki_current, current_noise_a, current_offset_a, current_offset_b
+Servo: encoder_cpr, velocity_cutoff_hz, Kp_vel, Kp_pos, Ki_pos, kalman_accel_std
 
 Derived gains (``None`` means "derive"): the current PI is designed on the
 sampled loop the drive really has. With the winding discretised exactly over a
@@ -100,12 +100,16 @@ _RANGES: dict[str, tuple[float, float, bool, bool, bool]] = {
     "current_bandwidth_hz": (0.0, _INF, True, True, False),
     "Kp_current": (0.0, 1e6, True, False, False),
     "Ki_current": (0.0, 1e9, False, False, False),
+    "current_noise_a": (0.0, 100.0, False, False, False),
+    "current_offset_a": (-100.0, 100.0, False, False, False),
+    "current_offset_b": (-100.0, 100.0, False, False, False),
     # servo
     "encoder_cpr": (1, 1 << 30, False, False, True),
     "velocity_cutoff_hz": (0.0, _INF, True, True, False),
     "Kp_vel": (0.0, 1e6, False, False, False),
     "Kp_pos": (0.0, 1e9, False, False, False),
     "Ki_pos": (0.0, 1e12, False, False, False),
+    "kalman_accel_std": (0.0, 1e9, True, False, False),
 }
 
 
@@ -175,6 +179,8 @@ class DriveParams:
         current_bandwidth_hz: designed bandwidth of the current loops (Hz).
         Kp_current: proportional gain (V/A); ``None`` derives it (module docstring).
         Ki_current: integral gain (V/(A*s)); ``None`` derives it likewise.
+        current_noise_a: current-sensor noise, standard deviation per sample (A).
+        current_offset_a, current_offset_b: current-sensor offsets (A).
     """
 
     Vdc: float = 48.0
@@ -184,6 +190,9 @@ class DriveParams:
     current_bandwidth_hz: float = 1_500.0
     Kp_current: float | None = None
     Ki_current: float | None = None
+    current_noise_a: float = 0.0
+    current_offset_a: float = 0.0
+    current_offset_b: float = 0.0
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -205,6 +214,8 @@ class ServoParams:
         Kp_vel: velocity gain (N*m*s/rad); ``None`` derives 3*J*ws.
         Kp_pos: position gain (N*m/rad); ``None`` derives 3*J*ws^2.
         Ki_pos: position integral gain (N*m/(rad*s)); ``None`` derives J*ws^3.
+        kalman_accel_std: acceleration noise of the Kalman velocity estimator's
+            model, per control period (rad/s^2); used when it is selected.
     """
 
     encoder_cpr: int = 4000
@@ -212,6 +223,7 @@ class ServoParams:
     Kp_vel: float | None = None
     Kp_pos: float | None = None
     Ki_pos: float | None = None
+    kalman_accel_std: float = 2000.0
 
     def __post_init__(self) -> None:
         _validate_fields(self)

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from . import kernel as K
+from .estimators import kalman_velocity_gains
 from .params import FeedforwardModel, ParameterError, SystemParams, load_system
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
 
 MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
 DAMPINGS = ("none", "patent-ff")
+VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN}
 TWO_PI = 2.0 * math.pi
 
 
@@ -107,6 +109,10 @@ class RunSettings:
             of the first detent harmonic so the lock-in amplitudes do not leak.
         estimate: the controller's own motor model for the feedforward;
             ``None`` takes the plant's exact values.
+        velocity_estimator: ``"lowpass"`` (difference of encoder angles through
+            a first-order low-pass, the patent's) or ``"kalman"`` (steady-state
+            Kalman filter, :mod:`stepdamp_env.estimators`).
+        noise_seed: seed of the current-sensor noise (integer in [0, 2**53)).
     """
 
     mode: str = "open-loop"
@@ -115,9 +121,16 @@ class RunSettings:
     settle_s: float | None = None
     window_s: float = 0.5
     estimate: FeedforwardModel | None = None
+    velocity_estimator: str = "lowpass"
+    noise_seed: int = 0
 
     def __post_init__(self) -> None:
         _check_choice("mode", self.mode, MODES)
+        _check_choice("velocity_estimator", self.velocity_estimator, VELOCITY_ESTIMATORS)
+        if isinstance(self.noise_seed, bool) or not isinstance(self.noise_seed, (int, np.integer)) \
+                or not 0 <= self.noise_seed < 2 ** 53:
+            raise ParameterError(f"noise_seed={self.noise_seed!r} is outside its allowed range "
+                                 "[0, 2**53) (integer)")
         _check_choice("damping", self.damping, DAMPINGS)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) \
                 or not 1 <= self.substeps <= 1000:
@@ -192,6 +205,12 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     c[K.C_DISTANCE] = TWO_PI * profile.distance_rev
     c[K.C_WINDOW_START] = window_start_s
     c[K.C_REF_SPEED] = TWO_PI * abs(profile.speed_rps)
+    c[K.C_I_NOISE] = d.current_noise_a
+    c[K.C_I_OFFSET_A] = d.current_offset_a
+    c[K.C_I_OFFSET_B] = d.current_offset_b
+    c[K.C_NOISE_SEED] = settings.noise_seed
+    c[K.C_VEL_EST] = VELOCITY_ESTIMATORS[settings.velocity_estimator]
+    c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER], sv.kalman_accel_std)
     return c
 
 
@@ -207,6 +226,7 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
     theta_fb = math.floor(theta0 / config[K.C_ENCODER]) * config[K.C_ENCODER]
     s[K.S_THETA_FB_PREV] = theta_fb
     s[K.S_THETA_FB] = theta_fb
+    s[K.S_THETA_EST] = theta_fb + 0.5 * config[K.C_ENCODER]
     if config[K.C_MODE] == K.MODE_OPEN_LOOP:
         s[K.S_IA] = config[K.C_HOLD]
         s[K.S_INT_D] = config[K.C_R] * config[K.C_HOLD]
