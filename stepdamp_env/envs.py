@@ -32,7 +32,9 @@ from numba import njit
 from . import kernel as K
 from .params import (FeedforwardModel, ParameterError, SystemParams, load_system,
                      predicted_resonances)
-from .simulation import RunSettings, SpeedProfile, build_config, initial_state
+from .simulation import (VELOCITY_ESTIMATORS, RunMetrics, RunSettings, SpeedProfile,
+                         build_config, initial_state, merge_accumulators,
+                         metrics_from_accumulators, new_accumulators)
 
 __all__ = [
     "ENV_ID",
@@ -133,6 +135,8 @@ class EnvOptions:
     current_limit_factor: float = 3.0
     privileged: bool = False
     substeps: int = 1
+    velocity_estimator: str = "lowpass"
+    measure_from_s: float | None = None
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> "EnvOptions":
@@ -169,6 +173,9 @@ class EnvOptions:
         _number("current_limit_factor", self.current_limit_factor, 1.0, 100.0, low_open=True)
         if not isinstance(self.privileged, (bool, np.bool_)):
             raise ParameterError(f"privileged must be True or False, got {self.privileged!r}")
+        _choice("velocity_estimator", self.velocity_estimator, tuple(VELOCITY_ESTIMATORS))
+        if self.measure_from_s is not None:
+            _number("measure_from_s", self.measure_from_s, 0.0, 1e6)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise _bad("substeps", self.substeps, "[1, 1000] (integer)")
@@ -428,12 +435,16 @@ class _EpisodeFactory:
             estimate = self.nominal_estimate
         else:
             estimate = None                 # the plant's exact values
+        # The sensor noise of the episode: its own stream, drawn after the speed.
+        noise_seed = int(rng.integers(2 ** 53))
         settings = RunSettings(mode=o.mode, damping=self.damping, substeps=int(o.substeps),
-                               estimate=estimate)
+                               estimate=estimate, velocity_estimator=o.velocity_estimator,
+                               noise_seed=noise_seed)
         profile = SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2)
-        # No metrics window: the env reads per-step sums only, and the window's
-        # lock-in sums would cost a sincos per PWM period.
-        c[:] = build_config(system, profile, settings, window_start_s=math.inf)
+        # Without measure_from_s no metrics window: the env reads per-step sums
+        # only, and the window's lock-in sums would cost a sincos per PWM period.
+        window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
+        c[:] = build_config(system, profile, settings, window_start_s=window)
         s[:] = initial_state(c)
         par[P_FULL_STEP] = system.motor.full_step_rad
         par[P_W_REF] = TWO_PI * speed
@@ -518,6 +529,14 @@ _DOC_OPTIONS = """
       ``current_limit_factor`` (3.0): see Rewards and Episode End.
     * ``privileged`` (False): append the true states to the observation.
     * ``substeps`` (1): RK4 plant steps per PWM period.
+    * ``velocity_estimator`` ("lowpass"): the drive's encoder velocity estimate,
+      "lowpass" (difference + first-order low-pass, the patent's) or "kalman".
+    * ``measure_from_s`` (None; scalar env only): open the simulation core's
+      measuring window at this time (s) so that ``env.run_metrics()`` returns the
+      core's metrics of the episode (used by the leaderboard).
+    * Sensor noise and offsets are motor-file fields (``current_noise_a``,
+      ``current_offset_a``, ``current_offset_b``, via ``overrides``); each
+      episode draws its own noise seed.
 """
 
 
@@ -613,6 +632,7 @@ class StepperDampEnv(gym.Env):
         self._n = f.n_periods
         self._offset = f.offset
         self._privileged = bool(self.options.privileged)
+        self._measuring = self.options.measure_from_s is not None
         # One-row 2-D arrays for the compiled helpers, 1-D views of them for the kernel.
         self._c2 = np.zeros((1, K.N_CONFIG))
         self._s2 = np.zeros((1, K.N_STATE))
@@ -626,7 +646,9 @@ class StepperDampEnv(gym.Env):
         self._par, self._obs, self._out = self._par2[0], self._obs2[0], self._out2[0]
         self._trace = np.zeros((self._n if render_mode else 0, K.N_TRACE))
         self._history: list[np.ndarray] = []
+        self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
+        self._speed_rps = 0.0
         self._ready = False
 
     # -- public read-outs ------------------------------------------------------
@@ -645,6 +667,23 @@ class StepperDampEnv(gym.Env):
         """Simulated time of one agent step (s)."""
         return self._factory.seconds_per_step
 
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the episode started (s)."""
+        return float(self._s[K.S_PERIOD] * self._c[K.C_DT])
+
+    def run_metrics(self) -> RunMetrics:
+        """The simulation core's metrics of the episode so far, over the window
+        that opens at ``measure_from_s`` (lag, current peak: whole episode).
+
+        Needs ``measure_from_s``; raises ``ValueError`` if the window is empty.
+        """
+        if not self._measuring:
+            raise ParameterError("run_metrics() needs the option measure_from_s")
+        if self.system is None:
+            raise gym.error.ResetNeeded("call reset() before run_metrics()")
+        return metrics_from_accumulators(self._run_acc, self.system, self._speed_rps)
+
     # -- API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -654,6 +693,8 @@ class StepperDampEnv(gym.Env):
         self._u[:] = 0.0
         self._factory.initial_observation(self._s2, self._par2, self._obs2)
         self._history = []
+        self._run_acc[:] = 0.0
+        self._speed_rps = info["speed_rps"]
         self._ready = True
         return self._obs.copy(), info
 
@@ -664,6 +705,8 @@ class StepperDampEnv(gym.Env):
         if _load_actions(self._a2, self._u2, self._acc2, self._par2, self._offset) >= 0:
             raise _action_error(action, self._act_shape)
         K.run_periods(self._c, self._s, self._acc, self._u, self._n, self._trace, 1)
+        if self._measuring:
+            merge_accumulators(self._run_acc, self._acc)
         out = self._out
         _observe(self._s2, self._acc2, self._a2, self._par2, _IX, self._privileged, self._obs2,
                  self._out2)
@@ -759,6 +802,9 @@ class StepperDampVectorEnv(VectorEnv):
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.options = EnvOptions.from_kwargs(options)
+        if self.options.measure_from_s is not None:
+            raise ParameterError("measure_from_s is an option of the scalar env only; allowed "
+                                 "here: None")
         self._factory = f = _EpisodeFactory(self.options)
         n = self.num_envs = int(num_envs)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)

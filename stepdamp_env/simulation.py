@@ -235,6 +235,26 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
     return s
 
 
+def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
+    """Fold the sums of a later stretch ``part`` into ``total`` (in place).
+
+    Sums add, extremes combine; the lock-in sums add because their phase is
+    timed from the window start, not from the stretch.
+    """
+    if part[K.A_COUNT] > 0:
+        if total[K.A_COUNT] > 0:
+            total[K.A_MIN_E] = min(total[K.A_MIN_E], part[K.A_MIN_E])
+            total[K.A_MAX_E] = max(total[K.A_MAX_E], part[K.A_MAX_E])
+        else:
+            total[K.A_MIN_E] = part[K.A_MIN_E]
+            total[K.A_MAX_E] = part[K.A_MAX_E]
+    for i in (K.A_COUNT, K.A_SUM_E, K.A_SUM_E2, K.A_SUM_IFF2, K.A_H1_S, K.A_H1_C, K.A_H2_S,
+              K.A_H2_C, K.A_H4_S, K.A_H4_C, K.A_SUM_E2_ALL, K.A_COUNT_ALL, K.A_SUM_IFF2_ALL):
+        total[i] += part[i]
+    total[K.A_MAX_LAG] = max(total[K.A_MAX_LAG], part[K.A_MAX_LAG])
+    total[K.A_MAX_CURRENT] = max(total[K.A_MAX_CURRENT], part[K.A_MAX_CURRENT])
+
+
 def new_accumulators(n: int | None = None) -> np.ndarray:
     """Zeroed metric sums for one drive, or an (n, N_ACC) batch."""
     return np.zeros(K.N_ACC if n is None else (n, K.N_ACC))

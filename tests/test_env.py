@@ -373,3 +373,30 @@ def test_render_rgb_array():
     assert frame.shape[0] > 100 and frame.shape[1] > 100
     assert frame.std() > 0                          # something was drawn
     env.close()
+
+
+def test_measured_episode_gives_the_simulation_core_metrics():
+    # The env, stepped with zero actions through a measuring window, reports the
+    # very metrics simulate() computes for the same run.
+    from stepdamp_env.envs import StepperDampEnv
+    from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window
+
+    system = get_preset("patent")
+    speed = 1.3
+    start, length = measuring_window(system, SpeedProfile(speed), RunSettings())
+    env = StepperDampEnv(speed_rps=speed, measure_from_s=start)
+    env.reset(seed=0)
+    zero = np.zeros(env.action_space.shape, np.float32)
+    while env.time_s < start + length - 1e-12:
+        env.step(zero)
+    ref = simulate(system, speed_rps=speed, damping="patent-ff", duration_s=env.time_s).metrics
+    got = env.run_metrics()
+    # Extremes are exact; sums differ in the last bits (summed per step, then added).
+    assert (got.p2p_velocity_error_rad_s, got.max_position_lag_rad, got.step_loss) == (
+        ref.p2p_velocity_error_rad_s, ref.max_position_lag_rad, ref.step_loss)
+    for key in ("rms_velocity_error_rad_s", "rms_injected_current_a",
+                "mean_velocity_error_rad_s"):
+        assert getattr(got, key) == pytest.approx(getattr(ref, key), rel=1e-12, abs=1e-15), key
+    for h in (1, 2, 4):
+        assert got.harmonic_amplitude_rad_s[h] == pytest.approx(
+            ref.harmonic_amplitude_rad_s[h], rel=1e-9)
