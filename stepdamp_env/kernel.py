@@ -627,11 +627,14 @@ def control_step(period, theta, ia, ib, cs, q, u):
         iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[13]) + u[6]
         iq_cmd = iq_inj
     else:
-        # Eqs. 14-15: at the encoder angle; Fs is fed forward with the command's sign.
-        angle = nr * theta_fb
+        # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
+        # floored count lags by half a count on average); Fs is fed forward
+        # with the command's sign.
+        theta_meas = theta_fb + 0.5 * q[6]
+        angle = nr * theta_meas
         sin_a, cos_a = sincos(angle)
         id_cmd = 0.0
-        theta_err = theta_cmd - theta_fb
+        theta_err = theta_cmd - theta_meas
         pos_int = pos_int + theta_err * dt
         fs_ff = 0.0
         if omega_cmd > 0.0:

@@ -20,10 +20,13 @@ g = Kp_current*(1 - a)/R leaves the closed loop T(z) = g/(z^2 - z + g); g is
 solved in closed form so that |T| is -3 dB at current_bandwidth_hz. The servo gains place
 the three poles of J*s^3 + Kp_vel*s^2 + Kp_pos*s + Ki_pos at -ws (a triple pole),
 ws = 2*pi*velocity_cutoff_hz / 5, a fifth of the velocity filter's corner so the
-filter's lag stays small at the loop's crossover. The 200 Hz default corner
+filter's lag stays small at the loop's crossover. The 100 Hz default corner
 suits the patent's 4000 count/rev encoder at 20 kHz, whose raw differentiated
-velocity has a resolution of 31 rad/s; at 1 kHz the loop amplifies that noise
-into a limit cycle.
+velocity has a resolution of 31 rad/s: at 1 kHz the loop amplifies that noise
+into a limit cycle, and at 200 Hz the noise current of a heavy axis (the
+QSH6018 preset) already saturates the bridge. In servo mode the encoder
+angle is taken at the centre of its count (a floored count lags by half a
+count on average).
 """
 
 from __future__ import annotations
@@ -219,7 +222,7 @@ class ServoParams:
     """
 
     encoder_cpr: int = 4000
-    velocity_cutoff_hz: float = 200.0
+    velocity_cutoff_hz: float = 100.0
     Kp_vel: float | None = None
     Kp_pos: float | None = None
     Ki_pos: float | None = None
