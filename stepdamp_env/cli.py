@@ -96,6 +96,37 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from .identify import identify
+    from .io import write_json
+
+    system = load_system(args.motor, parse_set_overrides(args.overrides))
+    result = identify(system, method=args.method, noise_seed=args.seed)
+    model = result.model
+    identified = system.replace(Kd1=model.Kd1, Kd2=model.Kd2, Kd4=model.Kd4,
+                                phi1=model.phi1, phi2=model.phi2, Fs=model.Fs)
+    motor_file = {**identified.to_dict(), "name": f"{system.name}-identified",
+                  "source": f"stepdamp identify --method {args.method} on {system.name}"}
+    os.makedirs(args.out, exist_ok=True)
+    write_json(os.path.join(args.out, "identified_motor.json"), motor_file)
+    write_json(os.path.join(args.out, "identification.json"),
+               {"motor": system.name, **result.to_dict(),
+                "truth": {k: getattr(system.motor, k)
+                          for k in ("Kd1", "Kd2", "Kd4", "phi1", "phi2", "Fs", "D")}})
+    m = system.motor
+    print(f"motor {system.name}: {args.method}, {result.iterations} round(s) at "
+          f"{', '.join(f'{v:g}' for v in result.speeds_rps)} rev/s")
+    print(f"  {'':6s} {'identified':>12s} {'truth':>12s} {'error':>9s}")
+    for name in ("Kd1", "Kd2", "Kd4", "Fs"):
+        print(f"  {name:6s} {getattr(model, name):12.6g} {getattr(m, name):12.6g} "
+              f"{result.errors[name]:+9.2%}")
+    for name in ("phi1", "phi2"):
+        print(f"  {name:6s} {getattr(model, name):12.6g} {getattr(m, name):12.6g} "
+              f"{result.errors[name]:+9.4f} rad")
+    print(f"  wrote {args.out}/identified_motor.json, identification.json")
+    return 0
+
+
 def _cmd_presets(args: argparse.Namespace) -> int:
     for name in preset_names():
         system = load_system(name)
@@ -133,6 +164,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write one sample per PWM period")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify the detent model in servo mode (claim 1)")
+    p.add_argument("--motor", default="patent",
+                   help=f"preset ({', '.join(preset_names())}) or a motor .json file")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
+    p.add_argument("--method", choices=("iterative", "least-squares"), default="iterative")
+    p.add_argument("--seed", type=int, default=0, help="current-sensor noise seed")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.set_defaults(func=_cmd_identify)
 
     p = sub.add_parser("presets", help="list the motor presets")
     p.set_defaults(func=_cmd_presets)
