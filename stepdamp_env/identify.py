@@ -39,6 +39,7 @@ import numpy as np
 
 from . import kernel as K
 from .params import FeedforwardModel, ParameterError, SystemParams, load_system
+from .response import servo_loop
 from .simulation import RunSettings, SpeedProfile, build_config, initial_state, new_accumulators
 
 __all__ = ["IdentificationResult", "identify", "METHODS"]
@@ -115,25 +116,11 @@ def _servo_run(system: SystemParams, speed_rps: float, estimate: FeedforwardMode
 def effort_response(system: SystemParams, frequency_rad_s: float) -> complex:
     """Ratio of the servo's effort to a torque disturbance at ``frequency_rad_s``.
 
-    L/(1 + L) with L = C(z) * T_i(z) * exp(-j*w*dt/2) / (J*(j*w)^2): C is the
-    servo law (P velocity on the low-passed differenced encoder, PI position),
-    T_i the sampled current loop with its computation delay, the exponential
-    the half-period hold, J the datasheet inertia.
+    L/(1 + L), L the servo's loop gain (:func:`stepdamp_env.response.servo_loop`:
+    P velocity on the low-passed differenced encoder, PI position, the sampled
+    current loop with its delays, the datasheet inertia).
     """
-    w = frequency_rad_s
-    dt = 1.0 / system.drive.pwm_hz
-    z = complex(math.cos(w * dt), math.sin(w * dt))
-    zi = 1.0 / z
-    alpha = 1.0 - math.exp(-2.0 * math.pi * system.servo.velocity_cutoff_hz * dt)
-    kv, kp, ki = system.servo_gains()
-    lowpass = alpha / (1.0 - (1.0 - alpha) * zi)
-    controller = kv * lowpass * (1.0 - zi) / dt + kp + ki * dt / (1.0 - zi)
-    kp_i, ki_i = system.current_gains()
-    pole = math.exp(-system.motor.R * dt / system.motor.L)
-    g = kp_i * (1.0 - pole) / system.motor.R
-    current_loop = g / (z * z - z + g)
-    hold = complex(math.cos(w * dt / 2), -math.sin(w * dt / 2))
-    loop = controller * current_loop * hold / (system.motor.J * (1j * w) ** 2)
+    loop = servo_loop(system, frequency_rad_s)
     return loop / (1.0 + loop)
 
 

@@ -1,0 +1,202 @@
+"""Model-based harmonic feedforward policies: delay compensation and adaptation.
+
+Both act in ``action_mode="harmonic"`` on top of the patent feedforward and
+describe a detent harmonic h as a phasor P = a + j*b of its sine and cosine
+coefficients (a*sin(hx) + b*cos(hx) = Im(P*exp(j*hx)), N*m). The feedforward's
+torque reaches the rotor through the current path G (sampled current loop,
+computation delay, held voltage; :func:`stepdamp_env.response.current_path`);
+in open loop the detent it acts against runs behind it by the rotor's static lag. Sending
+P/G instead of P puts the intended torque on the rotor.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from typing import Any
+
+import numpy as np
+
+from stepdamp_env.params import FeedforwardModel, SystemParams
+from stepdamp_env.response import current_path, torque_to_velocity, velocity_filter
+
+from .base import MotorKnowledge, PolicyContext, resolve_estimate
+
+__all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS"]
+
+HARMONICS = (1, 2, 4)
+
+
+def phasors(model: FeedforwardModel) -> np.ndarray:
+    """The model's harmonics 1, 2, 4 as complex phasors (N*m)."""
+    c = model.coefficients()
+    return np.array([complex(c[0], c[1]), complex(c[2], c[3]), complex(c[4], c[5])])
+
+
+def torque_paths(system: SystemParams, mode: str, speed_rps: float,
+                 friction: FeedforwardModel | None = None) -> np.ndarray:
+    """G for h = 1, 2, 4 at the held speed, from the drive model.
+
+    The current path (sampled current loop, computation delay, held voltage).
+    In open loop the rotor also trails its command by the static lag
+    (Fs + D*w)/(Km*holding_current*Nr), so the detent it feels runs h*Nr*lag
+    behind the feedforward's angle: G carries that as a phase lead (with Fs
+    from ``friction``, the drive's friction estimate, if given).
+    """
+    w = 2.0 * math.pi * abs(speed_rps)
+    m = system.motor
+    lag = 0.0
+    if mode == "open-loop":
+        fs = friction.Fs if friction is not None else m.Fs
+        lag = (fs + m.D * w) / (m.Km * system.drive.holding_current * m.Nr)
+    out = np.zeros(3, dtype=complex)
+    for i, h in enumerate(HARMONICS):
+        out[i] = current_path(system, h * m.Nr * w) * cmath.exp(1j * h * m.Nr * lag)
+    return out
+
+
+def _actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
+    """Actions that turn the base feedforward ``base`` into ``applied``, clipped
+    to the action range [-1, 1] (a policy cannot ask for more)."""
+    delta = (applied - base) / scale
+    out = np.empty(6, dtype=np.float32)
+    out[0::2] = delta.real
+    out[1::2] = delta.imag
+    return np.clip(out, -1.0, 1.0)
+
+
+def _applied(action: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
+    """The feedforward phasors an action really applies."""
+    return base + scale * (action[0::2].astype(float) + 1j * action[1::2].astype(float))
+
+
+class DelayCompensatedFF:
+    """``ff-delay-comp``: the identified feedforward sent as P/G.
+
+    G is evaluated at the held command speed (a speed-dependent phase lead and
+    gain derived from the drive model), so during the start-up ramp the lead
+    is that of the final speed.
+    """
+
+    def __init__(self, estimate: str = "identified") -> None:
+        self.name = "ff-delay-comp"
+        self.estimate = estimate
+        self._action = np.zeros(6, dtype=np.float32)
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "patent-ff", "action_mode": "harmonic",
+                "estimate": resolve_estimate(self.estimate, knowledge)}
+
+    def reset(self, context: PolicyContext) -> None:
+        model = _model(self.estimate, context.knowledge)
+        base = phasors(model)
+        g = torque_paths(context.knowledge.nominal, context.mode, context.speed_rps, model)
+        self._action = _actions(base / g, base, context.action_scale)
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self._action
+
+
+class AdaptiveFF:
+    """``adaptive-ff``: cancels what is left of the detent ripple, online.
+
+    Two parts, per harmonic h = 1, 2, 4 at h*Nr*speed:
+
+    * a Kalman filter (filterpy) tracks the phasors R_h of the velocity error
+      e = Im(sum_h R_h*exp(j*h*x)) from the filtered velocity error and the
+      electrical angle x of each observation (six random-walk states, so the
+      ripple's change after each correction is followed);
+    * an integrator moves the applied feedforward A_h by mu * R_h/(G_h*H_h),
+      with G the current path and H = M*F the rotor's torque-to-speed response
+      (open loop: on its spring; servo: inside the loop) times the velocity
+      estimator, all from the datasheet model (:mod:`stepdamp_env.response`).
+
+    Since e = Im(sum (D_h - A_h*G_h)*H_h*exp(j*h*x)) for a detent D, the only
+    rest point is R = 0, A = D/G, whatever the model's error, as long as its
+    phase error stays below 90 degrees: phases that drift with the load (the
+    patent's warning) are followed. Each correction is shrunk by the
+    estimate's signal-to-noise ratio |R|^2/(|R|^2 + 4*var R), so a ripple
+    buried in the encoder's noise leaves the feedforward alone. Adaptation
+    starts ``start_s`` after the ramp.
+
+    Args:
+        estimate: starting model, "identified" or "nominal".
+        step_gain: mu, the fraction of the estimated error corrected per agent
+            step (0.02 at 1 kHz: a 50 ms time constant).
+        ripple_drift_rad_s: random-walk step of each ripple phasor per agent
+            step (rad/s), how fast the estimate may follow a change.
+        noise_rad_s: standard deviation of the velocity error not explained
+            by the harmonics (encoder quantisation, other ripple) (rad/s).
+        start_s: wait after the ramp before adapting (s).
+    """
+
+    def __init__(self, estimate: str = "identified", step_gain: float = 0.02,
+                 ripple_drift_rad_s: float = 0.005, noise_rad_s: float = 3.0,
+                 start_s: float = 0.05) -> None:
+        self.name = "adaptive-ff"
+        self.estimate = estimate
+        self.step_gain = step_gain
+        self.ripple_drift_rad_s = ripple_drift_rad_s
+        self.noise_rad_s = noise_rad_s
+        self.start_s = start_s
+        self._action = np.zeros(6, dtype=np.float32)
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "patent-ff", "action_mode": "harmonic",
+                "estimate": resolve_estimate(self.estimate, knowledge)}
+
+    def reset(self, context: PolicyContext) -> None:
+        from filterpy.kalman import KalmanFilter
+
+        system = context.knowledge.nominal
+        model = _model(self.estimate, context.knowledge)
+        self._base = phasors(model)
+        g = torque_paths(system, context.mode, context.speed_rps, model)
+        w = 2.0 * math.pi * abs(context.speed_rps)
+        nr = system.motor.Nr
+        h = np.array([torque_to_velocity(system, k * nr * w, context.mode)
+                      * velocity_filter(system, k * nr * w) for k in HARMONICS])
+        self._inverse_path = 1.0 / (g * h)
+        self._w_ref = w
+        self._scale = context.action_scale
+        kf = KalmanFilter(dim_x=6, dim_z=1)
+        kf.x = np.zeros((6, 1))
+        kf.P = np.eye(6) * (0.1 * w + 1.0) ** 2
+        kf.Q = np.eye(6) * self.ripple_drift_rad_s ** 2
+        kf.R = np.array([[self.noise_rad_s ** 2]])
+        kf.F = np.eye(6)
+        self._kf = kf
+        self._row = np.zeros((1, 6))
+        self._action = _actions(self._base / g, self._base, self._scale)
+        self._applied = _applied(self._action, self._base, self._scale)
+        ramp_s = abs(context.speed_rps) / 50.0
+        self._start_step = int(round((ramp_s + self.start_s) * context.agent_hz))
+        self._step = 0
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        self._step += 1
+        if self._step <= self._start_step:
+            return self._action
+        row = self._row
+        row[0, 0::2] = observation[2:8:2]      # sin x, sin 2x, sin 4x
+        row[0, 1::2] = observation[3:8:2]      # cos x, cos 2x, cos 4x
+        kf = self._kf
+        kf.predict()
+        kf.update(np.array([[float(observation[1]) * self._w_ref]]), H=row)
+        ripple = kf.x[0::2, 0] + 1j * kf.x[1::2, 0]
+        # Shrink each correction by its signal-to-noise ratio, so a ripple
+        # buried in encoder noise does not walk the feedforward around.
+        power = np.abs(ripple) ** 2
+        variance = kf.P[0::2, 0::2].diagonal() + kf.P[1::2, 1::2].diagonal()
+        weight = power / (power + 4.0 * variance)
+        target = self._applied + self.step_gain * weight * ripple * self._inverse_path
+        self._action = _actions(target, self._base, self._scale)
+        self._applied = _applied(self._action, self._base, self._scale)
+        return self._action
+
+
+def _model(which: str, knowledge: MotorKnowledge) -> FeedforwardModel:
+    est = resolve_estimate(which, knowledge)
+    if isinstance(est, FeedforwardModel):
+        return est
+    return knowledge.exact

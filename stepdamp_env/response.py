@@ -1,0 +1,69 @@
+"""Frequency responses of the drive model, as the drive itself can compute them.
+
+All take a :class:`~stepdamp_env.params.SystemParams` (what the drive believes:
+datasheet motor, its own gains) and an angular frequency w (rad/s) of a signal
+in time, and return a complex gain. They serve the model-based baselines
+(delay compensation, adaptive feedforward) and identification.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .params import SystemParams
+
+__all__ = ["current_path", "velocity_filter", "servo_loop", "torque_to_velocity"]
+
+
+def _z(system: SystemParams, w: float) -> tuple[complex, float]:
+    dt = 1.0 / system.drive.pwm_hz
+    return complex(math.cos(w * dt), math.sin(w * dt)), dt
+
+
+def current_path(system: SystemParams, w: float) -> complex:
+    """From the q current the controller computes at a sample to the torque.
+
+    The sampled current loop with its period of computation delay,
+    g/(z^2 - z + g), times the half-period lag of the held voltage.
+    """
+    z, dt = _z(system, w)
+    kp, _ = system.current_gains()
+    pole = math.exp(-system.motor.R * dt / system.motor.L)
+    g = kp * (1.0 - pole) / system.motor.R
+    delay = w * dt / 2.0
+    return g / (z * z - z + g) * complex(math.cos(delay), -math.sin(delay))
+
+
+def velocity_filter(system: SystemParams, w: float) -> complex:
+    """Differenced encoder angle through the first-order low-pass, per rad/s of speed."""
+    z, dt = _z(system, w)
+    zi = 1.0 / z
+    alpha = 1.0 - math.exp(-2.0 * math.pi * system.servo.velocity_cutoff_hz * dt)
+    # The backward difference (1 - z^-1)/dt of the angle, over j*w: the
+    # difference's own half-sample lag, relative to the true speed.
+    diff = (1.0 - zi) / dt / complex(0.0, w) if w != 0 else 1.0
+    return alpha / (1.0 - (1.0 - alpha) * zi) * diff
+
+
+def servo_loop(system: SystemParams, w: float) -> complex:
+    """Loop gain L of the servo: C(z) * current path / (J*(j*w)^2)."""
+    z, dt = _z(system, w)
+    zi = 1.0 / z
+    kv, kp, ki = system.servo_gains()
+    controller = kv * velocity_filter(system, w) * complex(0.0, w) + kp + ki * dt / (1.0 - zi)
+    return controller * current_path(system, w) / (system.motor.J * complex(0.0, w) ** 2)
+
+
+def torque_to_velocity(system: SystemParams, w: float, mode: str) -> complex:
+    """Shaft speed (rad/s) per N*m of torque disturbance at w.
+
+    Open loop: the rotor on the spring of its holding current,
+    j*w/(k - J*w^2 + j*w*D), k = Km*holding_current*Nr. Servo: the rigid
+    rotor inside the servo loop, (1/(J*j*w))/(1 + L).
+    """
+    m = system.motor
+    jw = complex(0.0, w)
+    if mode == "open-loop":
+        k = m.Km * system.drive.holding_current * m.Nr
+        return jw / (k + m.J * jw * jw + m.D * jw)
+    return 1.0 / (m.J * jw) / (1.0 + servo_loop(system, w))
