@@ -1,4 +1,4 @@
-"""``stepdamp`` command line: sweep, simulate, presets."""
+"""``stepdamp`` command line: sweep, simulate, presets, leaderboard."""
 
 from __future__ import annotations
 
@@ -136,6 +136,36 @@ def _cmd_presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_leaderboard(args: argparse.Namespace) -> int:
+    from baselines import BASELINE_NAMES
+
+    from .leaderboard import SUITES, full_protocol, quick_protocol, run_leaderboard, write_outputs
+
+    protocol = quick_protocol() if args.quick else full_protocol()
+    suites = SUITES if args.suite == "all" else (args.suite,)
+    protocol = protocol.with_suites(suites)
+    baselines = list(BASELINE_NAMES) if args.baselines is None else \
+        [b for group in args.baselines for b in group]
+    unknown = sorted(set(baselines) - set(BASELINE_NAMES))
+    if unknown:
+        raise ParameterError(f"--baselines: unknown {unknown}; choose from {list(BASELINE_NAMES)}")
+    extra = [p for group in args.policy for p in group]
+    board = run_leaderboard(protocol, baselines + extra, workers=args.workers,
+                            progress=not args.no_progress)
+    written = write_outputs(board, args.out, protocol, plots=not args.no_plots)
+    for suite in protocol.suites:
+        print(f"{protocol.name} {protocol.version} ({protocol.variant}), {suite}:")
+        rows = sorted((e for e in board["entries"] if e["suite"] == suite),
+                      key=lambda e: e["rank"])
+        for e in rows:
+            lo, hi = e["headline"]["ci95"]
+            print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM {e['headline']['iqm']:.4f} "
+                  f"[{lo:.4f}, {hi:.4f}]  step losses {e['step_losses']['runs_lost']}/"
+                  f"{e['step_losses']['runs']}")
+    print("wrote " + ", ".join(written))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stepdamp", description=__doc__)
     from . import __version__
@@ -174,6 +204,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="current-sensor noise seed")
     p.add_argument("--out", required=True, metavar="DIR")
     p.set_defaults(func=_cmd_identify)
+
+    p = sub.add_parser("leaderboard", help="run the stepdamp-bench v0 protocol on the "
+                                           "baselines and given policies")
+    p.add_argument("--quick", action="store_true",
+                   help="reduced CI protocol: presets, one seed, resonant speeds, 0.1 s window")
+    p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
+                   help="extra policy: package.module:attr (Policy class, factory or "
+                        "instance) or an SB3 model .zip; repeatable")
+    p.add_argument("--baselines", action="append", nargs="+", default=None, metavar="NAME",
+                   help="run only these baselines (default: all; 'none' always runs)")
+    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.set_defaults(func=_cmd_leaderboard)
 
     p = sub.add_parser("presets", help="list the motor presets")
     p.set_defaults(func=_cmd_presets)
