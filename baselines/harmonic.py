@@ -115,9 +115,16 @@ class AdaptiveFF:
     rest point is R = 0, A = D/G, whatever the model's error, as long as its
     phase error stays below 90 degrees: phases that drift with the load (the
     patent's warning) are followed. Each correction is shrunk by the
-    estimate's signal-to-noise ratio |R|^2/(|R|^2 + 4*var R), so a ripple
-    buried in the encoder's noise leaves the feedforward alone. Adaptation
-    starts ``start_s`` after the ramp.
+    estimate's signal-to-noise ratio, max(0, 1 - 4*var R/|R|^2), so a ripple
+    buried in the encoder's noise (under 2 sigma) leaves the feedforward alone.
+
+    The model's phase error is small on the motor the model describes, but a
+    lightly damped resonance turns a few per cent of error in inertia or
+    torque constant into tens of degrees. A guard therefore watches each
+    harmonic: after ``start_s`` past the ramp it first measures the ripple of
+    the unadapted feedforward for ``probe_s``, and if adapting ever makes a
+    harmonic's ripple more than ``guard_ratio`` times that (beyond the noise),
+    it puts that harmonic's feedforward back and stops adapting it.
 
     Args:
         estimate: starting model, "identified" or "nominal".
@@ -131,14 +138,17 @@ class AdaptiveFF:
     """
 
     def __init__(self, estimate: str = "identified", step_gain: float = 0.02,
-                 ripple_drift_rad_s: float = 0.005, noise_rad_s: float = 3.0,
-                 start_s: float = 0.05) -> None:
+                 ripple_drift_rad_s: float = 0.005, noise_rad_s: float = 0.3,
+                 start_s: float = 0.05, probe_s: float = 0.05,
+                 guard_ratio: float = 2.0) -> None:
         self.name = "adaptive-ff"
         self.estimate = estimate
         self.step_gain = step_gain
         self.ripple_drift_rad_s = ripple_drift_rad_s
         self.noise_rad_s = noise_rad_s
         self.start_s = start_s
+        self.probe_s = probe_s
+        self.guard_ratio = guard_ratio
         self._action = np.zeros(6, dtype=np.float32)
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
@@ -169,8 +179,12 @@ class AdaptiveFF:
         self._row = np.zeros((1, 6))
         self._action = _actions(self._base / g, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
+        self._initial = self._applied.copy()
         ramp_s = abs(context.speed_rps) / 50.0
         self._start_step = int(round((ramp_s + self.start_s) * context.agent_hz))
+        self._adapt_step = self._start_step + int(round(self.probe_s * context.agent_hz))
+        self._reference_power = np.zeros(3)
+        self._active = np.ones(3, dtype=bool)
         self._step = 0
 
     def act(self, observation: np.ndarray) -> np.ndarray:
@@ -184,11 +198,21 @@ class AdaptiveFF:
         kf.predict()
         kf.update(np.array([[float(observation[1]) * self._w_ref]]), H=row)
         ripple = kf.x[0::2, 0] + 1j * kf.x[1::2, 0]
-        # Shrink each correction by its signal-to-noise ratio, so a ripple
-        # buried in encoder noise does not walk the feedforward around.
         power = np.abs(ripple) ** 2
         variance = kf.P[0::2, 0::2].diagonal() + kf.P[1::2, 1::2].diagonal()
-        weight = power / (power + 4.0 * variance)
+        if self._step <= self._adapt_step:          # probing the unadapted ripple
+            self._reference_power = power
+            return self._action
+        diverged = self._active & (power > self.guard_ratio * self._reference_power
+                                   + 4.0 * variance)
+        if diverged.any():
+            self._active &= ~diverged
+            self._applied = np.where(diverged, self._initial, self._applied)
+        # Only a ripple clearly above the estimate's noise (2 sigma) is
+        # corrected, and in proportion to how clearly, so a ripple buried in
+        # encoder noise does not walk the feedforward around.
+        weight = self._active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300),
+                                        0.0, 1.0)
         target = self._applied + self.step_gain * weight * ripple * self._inverse_path
         self._action = _actions(target, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
