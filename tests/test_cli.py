@@ -88,3 +88,11 @@ def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
         sio.write_json(path, {"a": 2})
     assert json.loads(path.read_text()) == {"a": 1}
     assert os.listdir(tmp_path) == ["result.json"]
+
+
+def test_result_files_get_the_usual_mode(tmp_path):
+    path = tmp_path / "r.json"
+    sio.write_json(path, {"a": 1})
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (path.stat().st_mode & 0o777) == (0o666 & ~mask)
