@@ -31,6 +31,10 @@ def _add_system_args(p: argparse.ArgumentParser) -> None:
                    help="command acceleration of the start-up ramp (rev/s^2)")
     p.add_argument("--substeps", type=int, default=1,
                    help="RK4 plant steps per PWM period")
+    p.add_argument("--velocity-estimator", choices=("lowpass", "kalman"), default="lowpass",
+                   help="servo velocity estimate: differenced encoder through a low-pass "
+                        "(the patent's) or a steady-state Kalman filter")
+    p.add_argument("--noise-seed", type=int, default=0, help="current-sensor noise seed")
 
 
 def _settings(args: argparse.Namespace, system) -> RunSettings:
@@ -38,7 +42,8 @@ def _settings(args: argparse.Namespace, system) -> RunSettings:
     if args.estimate is not None:
         estimate = FeedforwardModel.from_motor(load_system(args.estimate).motor)
     return RunSettings(mode=args.mode, damping=args.damping, substeps=args.substeps,
-                       estimate=estimate)
+                       estimate=estimate, velocity_estimator=args.velocity_estimator,
+                       noise_seed=args.noise_seed)
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
