@@ -69,6 +69,8 @@ class SweepResult:
             "controller_estimate": None if est is None else est.__dict__,
             "accel_rps2": self.accel_rps2,
             "substeps": self.settings.substeps,
+            "velocity_estimator": self.settings.velocity_estimator,
+            "noise_seed": self.settings.noise_seed,
             "speeds_rps": self.speeds_rps.tolist(),
             "rms_velocity_error_rad_s": self.column("rms_velocity_error_rad_s").tolist(),
             "p2p_velocity_error_rad_s": self.column("p2p_velocity_error_rad_s").tolist(),
