@@ -171,6 +171,13 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from agents.train import args_from_namespace, train
+
+    train(args_from_namespace(args))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stepdamp", description=__doc__)
     from . import __version__
@@ -225,6 +232,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.set_defaults(func=_cmd_leaderboard)
+
+    p = sub.add_parser("train", help="train a residual RL agent (SAC, TD3, PPO) on "
+                                     "StepperDamp-v0; see agents/train.py")
+    from agents.train import add_arguments as _add_train_arguments
+
+    _add_train_arguments(p)
+    p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("presets", help="list the motor presets")
     p.set_defaults(func=_cmd_presets)

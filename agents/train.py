@@ -1,0 +1,370 @@
+"""Train a residual agent (SAC, TD3 or PPO) on StepperDamp-v0: one readable script.
+
+Every setting is a field of :class:`Args`; hyperparameters of the algorithm come
+from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by
+``StepperDamp-v0``), so the zoo and this script train the same thing::
+
+    stepdamp train --algo sac --seed 1 --out runs/sac
+    python -m agents.train --algo sac --total-timesteps 20000 --out runs/smoke
+
+What it does, in order:
+
+1. builds the training env: ``envs_per_motor`` native vectorised drives around
+   each preset (``randomize=True``, the env's generator seeded below 1_000_000;
+   the protocol's drawn motors are never used), the protocol's sensors
+   (0.01 A current noise, 4000 counts/rev), wrapped as residuals on top of the
+   base controller (:class:`agents.residual.ResidualVecEnv`);
+2. builds the algorithm with a zero-residual policy and zero-residual warm-up
+   (:mod:`agents.residual`); torch on one thread;
+3. trains with a progress bar, TensorBoard and CSV logs, checkpoints and a
+   periodic evaluation on the leaderboard's metrics (headline: mean RMS ripple
+   at the three resonant speeds over that of ``none``, IQM) on validation
+   motors drawn around the presets with seed ``val_seed`` (< 1_000_000) and
+   noise seeds below 1_000_000, with the exact feedforward model;
+4. writes ``final.zip`` and ``best.zip`` (best validation headline), each with its
+   ``.agent.json`` (the config the leaderboard policy needs), and ``train_log.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+import types
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
+ENV_ID = "StepperDamp-v0"
+PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
+
+
+@dataclass
+class Args:
+    """All arguments of a training run (``--name-with-dashes`` on the command line)."""
+
+    algo: str = "sac"                       # sac | td3 | ppo
+    seed: int = 1                           # torch/numpy seed; env seeds start at 1000*seed
+    out: str = "runs/residual"              # output directory
+    total_timesteps: int | None = None      # default: n_timesteps of the YAML
+    hyperparams: str | None = None          # YAML file (default agents/hyperparams/<algo>.yml)
+    motors: tuple[str, ...] = PRESETS       # presets the training motors are drawn around
+    envs_per_motor: int | None = None       # default: n_envs of the YAML / len(motors)
+    eval_freq: int = 50_000                 # env steps between validations (0: never)
+    val_seed: int = 900_000                 # validation motors' draw seed (< 1_000_000)
+    val_motors_per_preset: int = 2
+    checkpoint_freq: int = 100_000          # env steps between checkpoints (0: never)
+    progress: bool = True
+    tensorboard: bool = True
+    name: str | None = None                 # policy name (default "<algo>-residual")
+    extra: dict[str, Any] = field(default_factory=dict)   # YAML overrides (algo kwargs)
+
+
+# ---------------------------------------------------------------------------
+# Configuration: the zoo YAML
+# ---------------------------------------------------------------------------
+def load_hyperparams(args: Args) -> dict[str, Any]:
+    """The ``StepperDamp-v0`` entry of the algorithm's zoo YAML (a copy)."""
+    import yaml
+
+    path = args.hyperparams or os.path.join(HYPERPARAMS_DIR, f"{args.algo}.yml")
+    with open(path, encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    if ENV_ID not in data:
+        raise ValueError(f"{path}: no {ENV_ID!r} entry")
+    hp = dict(data[ENV_ID])
+    hp.update(args.extra)
+    return hp
+
+
+def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
+    """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs)."""
+    import torch
+
+    hp = dict(hp)
+    n_envs = int(hp.pop("n_envs", 16))
+    n_timesteps = int(float(hp.pop("n_timesteps", 1e5)))
+    env_kwargs = dict(hp.pop("env_kwargs", {}) or {})
+    wrapper_kwargs: dict[str, Any] = {}
+    wrappers = hp.pop("env_wrapper", None) or []
+    for w in (wrappers if isinstance(wrappers, list) else [wrappers]):
+        if isinstance(w, dict):
+            (name, kwargs), = w.items()
+        else:
+            name, kwargs = w, {}
+        if name.endswith("ResidualWrapper"):
+            wrapper_kwargs = dict(kwargs or {})
+    policy = hp.pop("policy", "ResidualMlpPolicy")
+    if isinstance(hp.get("policy_kwargs"), str):
+        hp["policy_kwargs"] = eval(hp["policy_kwargs"], {"dict": dict, "nn": torch.nn,
+                                                         "th": torch})  # zoo's convention
+    for key in ("train_freq",):
+        if isinstance(hp.get(key), list):
+            hp[key] = tuple(hp[key])
+    if "noise_type" in hp:                   # zoo: TD3's action noise by name
+        from stable_baselines3.common.noise import NormalActionNoise
+
+        kind = hp.pop("noise_type")
+        std = float(hp.pop("noise_std", 0.1))
+        if kind != "normal":
+            raise ValueError(f"noise_type {kind!r}: only 'normal' is supported here")
+        hp["action_noise"] = NormalActionNoise(np.zeros(6), std * np.ones(6))
+    hp.pop("normalize", None)
+    return {"n_envs": n_envs, "n_timesteps": n_timesteps, "env_kwargs": env_kwargs,
+            "wrapper_kwargs": wrapper_kwargs, "policy": policy, "algo_kwargs": hp}
+
+
+# ---------------------------------------------------------------------------
+# Validation on the leaderboard's metrics
+# ---------------------------------------------------------------------------
+class Validator:
+    """The leaderboard's run and score code on training-side validation motors."""
+
+    def __init__(self, args: Args, env_kwargs: dict[str, Any]) -> None:
+        from baselines.base import MotorKnowledge
+        from stepdamp_env.envs import StepperDampEnv
+        from stepdamp_env.leaderboard import ProtocolMotor, speed_grid
+        from stepdamp_env.params import FeedforwardModel
+
+        if not 0 <= args.val_seed < 1_000_000 - 1000:
+            raise ValueError("val_seed must stay below 1_000_000")
+        overrides = env_kwargs.get("overrides") or {}
+        # window_s, accel and failure ratio as the protocol; resonant speeds only.
+        self.protocol = types.SimpleNamespace(accel_rps2=50.0, window_s=0.3, failure_ratio=10.0,
+                                              resonance_harmonics=(4, 2, 1), off_resonance=())
+        motors, k = [], 0
+        for preset in args.motors:
+            env = StepperDampEnv(motor=preset, overrides=overrides, randomize=True)
+            for j in range(args.val_motors_per_preset):
+                env.reset(seed=args.val_seed + k)
+                k += 1
+                system = env.system.replace(name=f"{preset}~val{j}")
+                speeds, labels = speed_grid(system, self.protocol)
+                nominal = env._factory.nominal
+                motors.append(ProtocolMotor(system.name, system, nominal, speeds, labels))
+        self.motors = tuple(motors)
+        self.seed = args.val_seed
+        exact = {i: FeedforwardModel.from_motor(m.system.motor) for i, m in enumerate(motors)}
+        # The exact model stands in for the identified one (identification per
+        # validation motor would cost more than the validation itself).
+        self.knowledge = {(i, self.seed): MotorKnowledge(nominal=m.nominal, identified=exact[i],
+                                                         exact=exact[i])
+                          for i, m in enumerate(motors)}
+        self._reference: dict | None = None
+
+    def _runs(self, spec: str, source: Any) -> list[dict]:
+        from stepdamp_env import leaderboard as lb
+
+        lb._init_worker(self.motors, self.knowledge, self.protocol, {spec: source})
+        return [lb._run_job(lb._Job(spec, "open-loop", i, self.seed, j))
+                for i, m in enumerate(self.motors) for j in range(len(m.speeds_rps))]
+
+    def score(self, make_policy) -> dict[str, Any]:
+        from baselines import make_baseline
+        from stepdamp_env import leaderboard as lb
+
+        if self._reference is None:
+            src = lb.PolicySource("none", "none", lambda: make_baseline("none"))
+            self._reference = {(r["motor"], r["seed"], r["speed_rps"]): r
+                               for r in self._runs("none", src)}
+        src = lb.PolicySource("agent", "agent", make_policy)
+        runs = self._runs("agent", src)
+        scores = lb._scores(runs, self._reference, self.protocol)
+        heads = [s["headline"] for s in scores]
+        return {"headline_iqm": lb.iqm(heads), "headline_mean": float(np.mean(heads)),
+                "per_motor": {s["motor"]: s["headline"] for s in scores},
+                "step_losses": int(sum(r["failed"] for r in runs))}
+
+
+def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
+    wk = sp["wrapper_kwargs"]
+    return {"name": args.name or f"{args.algo}-residual", "algo": args.algo,
+            "base": wk.get("base", "patent-ff"),
+            "residual_scale": float(wk.get("residual_scale", 0.25)),
+            "eval_estimate": "identified",
+            "env_options": {"base_controller": "patent-ff", "action_mode": "harmonic"},
+            "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
+                         "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
+                         "wrapper_kwargs": wk, "hyperparams": args.hyperparams
+                         or f"agents/hyperparams/{args.algo}.yml"}}
+
+
+def save_agent(model: Any, path_zip: str, config: dict[str, Any]) -> None:
+    model.save(path_zip)
+    with open(os.path.splitext(path_zip)[0] + ".agent.json", "w", encoding="utf-8") as fh:
+        json.dump(config, fh, indent=2, default=str)
+        fh.write("\n")
+
+
+# ---------------------------------------------------------------------------
+# Training
+# ---------------------------------------------------------------------------
+def train(args: Args) -> dict[str, Any]:
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import configure
+
+    from .policy import ResidualAgent
+    from .residual import ALGOS, make_residual_vec_env
+
+    if args.algo not in ALGOS:
+        raise ValueError(f"algo={args.algo!r} is not one of {list(ALGOS)}")
+    if not 0 <= args.seed < 1000:
+        raise ValueError("seed must be in [0, 1000) (env seeds 1000*seed + k stay < 1_000_000)")
+    torch.set_num_threads(1)
+    sp = split_hyperparams(load_hyperparams(args))
+    per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
+    total = int(args.total_timesteps or sp["n_timesteps"])
+    wk = sp["wrapper_kwargs"]
+    env_kwargs = dict(sp["env_kwargs"])
+    env_kwargs.pop("motor", None)
+    max_steps = int(env_kwargs.pop("max_episode_steps", 300))
+    env = make_residual_vec_env(args.motors, per_motor, 1000 * args.seed,
+                                max_episode_steps=max_steps, **wk, **env_kwargs)
+    os.makedirs(args.out, exist_ok=True)
+    config = _agent_config(args, sp)
+    model = ALGOS[args.algo](sp["policy"], env, seed=args.seed, device="cpu", verbose=0,
+                             **sp["algo_kwargs"])
+    formats = ["csv"]
+    if args.tensorboard:
+        try:
+            import tensorboard  # noqa: F401
+
+            formats.append("tensorboard")
+        except ImportError:
+            print("tensorboard is not installed: CSV logs only (pip install tensorboard)")
+    model.set_logger(configure(os.path.join(args.out, "logs"), formats))
+    validator = Validator(args, env_kwargs) if args.eval_freq > 0 else None
+    log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,
+                           "n_envs": env.num_envs, "total_timesteps": total, "evaluations": []}
+    best = {"headline_iqm": math.inf}
+    t0 = time.time()
+
+    def evaluate(tag: str) -> dict[str, Any]:
+        path = os.path.join(args.out, "_eval.zip")
+        save_agent(model, path, config)
+        from . import policy as P
+
+        P._MODELS.pop(os.path.abspath(path), None)
+        agent = ResidualAgent(path)
+        res = validator.score(lambda: agent)
+        res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
+        log["evaluations"].append(res)
+        model.logger.record("eval/headline_iqm", res["headline_iqm"])
+        model.logger.record("eval/headline_mean", res["headline_mean"])
+        msg = (f"[{res['wall_s']:7.1f} s] step {res['step']:>8d}  validation headline IQM "
+               f"{res['headline_iqm']:.4f}  mean {res['headline_mean']:.4f}  "
+               f"step losses {res['step_losses']}")
+        print(msg, flush=True)
+        if res["headline_iqm"] < best["headline_iqm"]:
+            best.update(res)
+            save_agent(model, os.path.join(args.out, "best.zip"), config)
+        return res
+
+    class Loop(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.bar = None
+            if args.progress:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=total, unit="step", desc=f"{args.algo} training",
+                                mininterval=2.0)
+            self.last_eval = self.last_ckpt = 0
+
+        def _on_step(self) -> bool:
+            n = self.model.num_timesteps
+            if self.bar is not None:
+                self.bar.update(n - self.bar.n)
+            if validator is not None and n - self.last_eval >= args.eval_freq:
+                self.last_eval = n
+                evaluate("periodic")
+            if args.checkpoint_freq and n - self.last_ckpt >= args.checkpoint_freq:
+                self.last_ckpt = n
+                os.makedirs(os.path.join(args.out, "checkpoints"), exist_ok=True)
+                save_agent(self.model, os.path.join(args.out, "checkpoints",
+                                                    f"step_{n}.zip"), config)
+            return True
+
+        def _on_training_end(self) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    if validator is not None:
+        evaluate("initial (zero residual = base controller)")
+    model.learn(total_timesteps=total, callback=Loop())
+    train_s = time.time() - t0
+    save_agent(model, os.path.join(args.out, "final.zip"), config)
+    if validator is not None:
+        evaluate("final")
+    log["train_wall_s"] = round(train_s, 1)
+    log["wall_s"] = round(time.time() - t0, 1)
+    log["best"] = {k: v for k, v in best.items() if k != "per_motor"} if validator else None
+    with open(os.path.join(args.out, "train_log.json"), "w", encoding="utf-8") as fh:
+        json.dump(log, fh, indent=2, default=str)
+        fh.write("\n")
+    print(f"trained {total} steps in {train_s:.1f} s (wall incl. validation "
+          f"{log['wall_s']:.1f} s); wrote {args.out}/final.zip"
+          + (", best.zip" if validator else "") + ", train_log.json", flush=True)
+    env.close()
+    return log
+
+
+# ---------------------------------------------------------------------------
+# Command line
+# ---------------------------------------------------------------------------
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """One option per field of :class:`Args` (``stepdamp train`` uses these too)."""
+    d = Args()
+    p.add_argument("--algo", choices=("sac", "td3", "ppo"), default=d.algo)
+    p.add_argument("--seed", type=int, default=d.seed, help="seed in [0, 1000)")
+    p.add_argument("--out", default=d.out, metavar="DIR")
+    p.add_argument("--total-timesteps", type=int, default=None,
+                   help="default: n_timesteps of the YAML")
+    p.add_argument("--hyperparams", default=None, metavar="FILE.yml",
+                   help="zoo YAML (default agents/hyperparams/<algo>.yml)")
+    p.add_argument("--motors", nargs="+", default=list(d.motors), metavar="PRESET")
+    p.add_argument("--envs-per-motor", type=int, default=None)
+    p.add_argument("--eval-freq", type=int, default=d.eval_freq)
+    p.add_argument("--val-seed", type=int, default=d.val_seed)
+    p.add_argument("--val-motors-per-preset", type=int, default=d.val_motors_per_preset)
+    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq)
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-tensorboard", action="store_true")
+    p.add_argument("--name", default=None, help='policy name (default "<algo>-residual")')
+    p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one YAML hyperparameter (value parsed as YAML); repeatable")
+
+
+def args_from_namespace(ns: argparse.Namespace) -> Args:
+    import yaml
+
+    extra = {}
+    for item in ns.extra:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE")
+        extra[key] = yaml.safe_load(value)
+    return Args(algo=ns.algo, seed=ns.seed, out=ns.out, total_timesteps=ns.total_timesteps,
+                hyperparams=ns.hyperparams, motors=tuple(ns.motors),
+                envs_per_motor=ns.envs_per_motor, eval_freq=ns.eval_freq,
+                val_seed=ns.val_seed, val_motors_per_preset=ns.val_motors_per_preset,
+                checkpoint_freq=ns.checkpoint_freq, progress=not ns.no_progress,
+                tensorboard=not ns.no_tensorboard, name=ns.name, extra=extra)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(p)
+    train(args_from_namespace(p.parse_args(argv)))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
