@@ -190,18 +190,30 @@ TRACE_NAMES = ("t", "theta", "omega", "theta_cmd", "omega_cmd", "ia", "ib", "va"
 # ---------------------------------------------------------------------------
 # Small pieces. Each is a pure function of floats and float tuples.
 # ---------------------------------------------------------------------------
+@_jit_inline
+def park_sc(ia, ib, sin_a, cos_a):
+    """:func:`park` given the sine and cosine of the angle."""
+    return ia * cos_a + ib * sin_a, -ia * sin_a + ib * cos_a
+
+
+@_jit_inline
+def inverse_park_sc(d, q, sin_a, cos_a):
+    """:func:`inverse_park` given the sine and cosine of the angle."""
+    return d * cos_a - q * sin_a, d * sin_a + q * cos_a
+
+
 @_jit
 def park(ia, ib, angle):
     """Stationary (a, b) to rotating (d, q) at electrical angle ``angle`` (rad)."""
     s, c = sincos(angle)
-    return ia * c + ib * s, -ia * s + ib * c
+    return park_sc(ia, ib, s, c)
 
 
 @_jit
 def inverse_park(d, q, angle):
     """Rotating (d, q) to stationary (a, b) at electrical angle ``angle`` (rad)."""
     s, c = sincos(angle)
-    return d * c - q * s, d * s + q * c
+    return inverse_park_sc(d, q, s, c)
 
 
 @_jit_inline
@@ -645,21 +657,18 @@ def control_step(period, theta, ia, ib, cs, q, u):
         tau_fb = q[8] * (omega_cmd - omega_fb) + q[9] * theta_err + q[10] * pos_int
         iq_cmd = tau_fb * (1.0 / q[13]) + iq_inj
 
-    # Park, PI in DQ, inverse Park, SVPWM; the rotation is written out once.
-    id_m = ia * cos_a + ib * sin_a
-    iq_m = -ia * sin_a + ib * cos_a
+    # Park, PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
+    id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
     kp, ki = q[4], q[5]
     err_d = id_cmd - id_m
     err_q = iq_cmd - iq_m
     vd = pi_output(err_d, int_d, kp)
     vq = pi_output(err_q, int_q, kp)
-    va_dem = vd * cos_a - vq * sin_a
-    vb_dem = vd * sin_a + vq * cos_a
+    va_dem, vb_dem = inverse_park_sc(vd, vq, sin_a, cos_a)
     v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[21])
     va = v_alpha - v_gamma
     vb = v_beta - v_gamma
-    vd_app = va * cos_a + vb * sin_a
-    vq_app = -va * sin_a + vb * cos_a
+    vd_app, vq_app = park_sc(va, vb, sin_a, cos_a)
     int_d = pi_update(err_d, int_d, vd, vd_app, kp, ki, dt)
     int_q = pi_update(err_q, int_q, vq, vq_app, kp, ki, dt)
     return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est), (va, vb),
