@@ -258,6 +258,17 @@ def _clip(x, bound):
 
 
 @_jit
+def _store(obs, i, j, value, bound):
+    """Write ``value`` clipped to +-bound into obs[i, j]; a non-finite one as 0.
+    Returns whether it was non-finite."""
+    if not math.isfinite(value):
+        obs[i, j] = 0.0
+        return True
+    obs[i, j] = _clip(value, bound)
+    return False
+
+
+@_jit
 def _load_actions(a, u, acc, par, offset):
     """Scale the action rows ``a`` into the input rows ``u`` and zero ``acc``.
 
@@ -302,11 +313,7 @@ def _observe(s, acc, a, par, ix, privileged, obs, out):
         )
         nonfinite = False
         for j in range(11):
-            v = vals[j]
-            if not math.isfinite(v):
-                v = 0.0
-                nonfinite = True
-            obs[i, j] = _clip(v, bound)
+            nonfinite |= _store(obs, i, j, vals[j], bound)
         k = 11
         for j in range(a.shape[1]):
             obs[i, k] = a[i, j]
@@ -315,12 +322,7 @@ def _observe(s, acc, a, par, ix, privileged, obs, out):
             pv = ((theta_cmd - s[i, ix[7]]) / full_step, (omega_cmd - s[i, ix[8]]) / w_ref,
                   s[i, ix[9]] / hold, s[i, ix[10]] / hold)
             for j in range(4):
-                v = pv[j]
-                if not math.isfinite(v):
-                    v = 0.0
-                    nonfinite = True
-                obs[i, k] = _clip(v, bound)
-                k += 1
+                nonfinite |= _store(obs, i, k + j, pv[j], bound)
 
         n = max(acc[i, ix[12]], 1.0)
         e2 = acc[i, ix[11]] / n

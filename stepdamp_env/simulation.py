@@ -144,11 +144,10 @@ class RunSettings:
 def default_settle_s(system: SystemParams) -> float:
     """Four decay times of the lightly damped open-loop resonance, in [0.1, 0.6] s."""
     m = system.motor
-    k = m.Km * system.drive.holding_current * m.Nr
-    decay_rate = m.D / (2.0 * m.J)          # zeta * wn
+    decay_rate = m.D / (2.0 * m.J)          # zeta * wn (1/s)
     if decay_rate <= 0:
         return 0.6
-    return min(max(4.0 / decay_rate, 0.1), 0.6) if k > 0 else 0.6
+    return min(max(4.0 / decay_rate, 0.1), 0.6)
 
 
 def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunSettings
