@@ -70,7 +70,18 @@ def _applied(action: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
     return base + scale * (action[0::2].astype(float) + 1j * action[1::2].astype(float))
 
 
-class DelayCompensatedFF:
+class _HarmonicResidual:
+    """Shared by the harmonic policies: harmonic actions on the patent feedforward
+    with the model named by ``self.estimate``."""
+
+    estimate: str
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "patent-ff", "action_mode": "harmonic",
+                "estimate": resolve_estimate(self.estimate, knowledge)}
+
+
+class DelayCompensatedFF(_HarmonicResidual):
     """``ff-delay-comp``: the identified feedforward sent as P/G.
 
     G is evaluated at the held command speed (a speed-dependent phase lead and
@@ -83,10 +94,6 @@ class DelayCompensatedFF:
         self.estimate = estimate
         self._action = np.zeros(6, dtype=np.float32)
 
-    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
-        return {"base_controller": "patent-ff", "action_mode": "harmonic",
-                "estimate": resolve_estimate(self.estimate, knowledge)}
-
     def reset(self, context: PolicyContext) -> None:
         model = _model(self.estimate, context.knowledge)
         base = phasors(model)
@@ -97,7 +104,7 @@ class DelayCompensatedFF:
         return self._action
 
 
-class AdaptiveFF:
+class AdaptiveFF(_HarmonicResidual):
     """``adaptive-ff``: cancels what is left of the detent ripple, online.
 
     Two parts, per harmonic h = 1, 2, 4 at h*Nr*speed:
@@ -150,10 +157,6 @@ class AdaptiveFF:
         self.probe_s = probe_s
         self.guard_ratio = guard_ratio
         self._action = np.zeros(6, dtype=np.float32)
-
-    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
-        return {"base_controller": "patent-ff", "action_mode": "harmonic",
-                "estimate": resolve_estimate(self.estimate, knowledge)}
 
     def reset(self, context: PolicyContext) -> None:
         from filterpy.kalman import KalmanFilter
