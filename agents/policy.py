@@ -5,7 +5,7 @@ drive knows (:func:`agents.residual.context_features`, computed in ``reset``
 from the leaderboard's identified model and the nominal drive), so it is loaded
 as a ``package.module:attr`` policy rather than a bare ``.zip``::
 
-    stepdamp leaderboard --policy agents:sac_residual --out results/leaderboard
+    stepdamp leaderboard --policy agents:ppo_residual --out results/leaderboard
 
 A model is a ``NAME.zip`` (SB3) beside ``NAME.agent.json`` (algorithm, base,
 residual scale, env options, training arguments), as ``stepdamp train`` writes.
@@ -14,6 +14,7 @@ residual scale, env options, training arguments), as ``stepdamp train`` writes.
 from __future__ import annotations
 
 import json
+import math
 import os
 from typing import Any
 
@@ -51,7 +52,7 @@ class ResidualAgent:
     the network's residual, deterministic."""
 
     def __init__(self, path: str, name: str | None = None) -> None:
-        from .residual import context_features  # noqa: F401  (fail early if unavailable)
+        from .residual import EpisodeConstants, RESIDUAL_ACTIONS
 
         self.path = os.path.abspath(path)
         self.config = load_agent_config(self.path)
@@ -59,28 +60,55 @@ class ResidualAgent:
         self.model = load_model(self.path)
         self.base = self.config["base"]
         self.residual_scale = float(self.config["residual_scale"])
-        self._features = np.zeros(12, dtype=np.float32)
-        self._base_action = np.zeros(6)
+        self.residual_action = self.config.get("residual_action", "harmonic")
+        self.action_mode = RESIDUAL_ACTIONS[self.residual_action]
+        # Env options the agent was trained with (agent rate, velocity estimator).
+        self.env_extra = {k: v for k, v in self.config.get("env_options", {}).items()
+                          if k in ("agent_hz", "velocity_estimator")}
+        self.hold_steps = int(self.config.get("hold_steps", 1))
+        self.feedback_gain = float(self.config.get("feedback_gain", 0.0))
+        self._constants = EpisodeConstants(1)
+        self._step = 0
+        self._gain = np.zeros(1)
+        self._sq = 0.0
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
-        return {"base_controller": "patent-ff", "action_mode": "harmonic",
+        return {"base_controller": "patent-ff", "action_mode": self.action_mode,
+                **self.env_extra,
                 "estimate": resolve_estimate(self.config.get("eval_estimate", "identified"),
                                              knowledge)}
 
     def reset(self, context: PolicyContext) -> None:
-        from .residual import context_features
-
         est = context.estimate if context.estimate is not None else context.knowledge.exact
-        self._features, dc = context_features(context.knowledge.nominal, est, context.mode,
-                                              context.speed_rps, context.action_scale)
-        self._base_action = dc.astype(np.float64) if self.base == "ff-delay-comp" \
-            else np.zeros(6)
+        self._constants.set(0, context.knowledge.nominal, est, context.mode, context.speed_rps,
+                            context.action_scale, self.base)
+        self._step, self._gain, self._sq = 0, np.zeros(1), 0.0
 
     def residual(self, observation: np.ndarray) -> np.ndarray:
-        x = np.concatenate([np.asarray(observation, dtype=np.float32), self._features])
+        x = self._constants.augment(np.asarray(observation, dtype=np.float32)[None])
         r, _ = self.model.predict(x, deterministic=True)
         return np.asarray(r, dtype=np.float64)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        a = self._base_action + self.residual_scale * self.residual(observation)
-        return np.clip(a, -1.0, 1.0).astype(np.float32)
+        if self.residual_action != "feedback":
+            a = self._constants.env_action(self.residual(observation), self.residual_scale,
+                                           self.residual_action)
+            return a[0].astype(np.float32)
+        from .residual import feedback_current
+
+        # The gain is chosen every hold_steps steps from the observation and the RMS
+        # velocity feature of the observations since the last choice (as in training).
+        x = self._constants.augment(np.asarray(observation, dtype=np.float32)[None])
+        vel = float(x[0, len(observation)])
+        if self._step > 0:
+            self._sq += vel * vel
+        if self._step % self.hold_steps == 0:
+            rms = math.sqrt(self._sq / self.hold_steps) if self._step > 0 else 0.0
+            r, _ = self.model.predict(np.append(x[0], np.float32(rms)).astype(np.float32),
+                                      deterministic=True)
+            self._gain = np.asarray(r, dtype=np.float64).reshape(1)
+            self._sq = 0.0
+        self._step += 1
+        current = feedback_current(self._gain, np.array([vel]), self.feedback_gain)
+        a = self._constants.env_action(current[:, None], self.residual_scale, "current")
+        return a[0].astype(np.float32)

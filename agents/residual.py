@@ -81,13 +81,23 @@ from stepdamp_env.envs import P_W_REF, StepperDampEnv, StepperDampVectorEnv
 from stepdamp_env.params import FeedforwardModel, SystemParams
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
 
-__all__ = ["BASES", "N_FEATURES", "context_features", "ResidualSACPolicy", "ResidualTD3Policy",
+__all__ = ["BASES", "RESIDUAL_ACTIONS", "N_FEATURES", "context_features", "velocity_feature_gain",
+           "EpisodeConstants", "ResidualSACPolicy", "ResidualTD3Policy",
            "ResidualPPOPolicy", "ResidualSAC", "ResidualTD3", "ResidualPPO", "ALGOS",
-           "register_policy_aliases", "ResidualVecEnv", "ResidualWrapper", "make_residual_vec_env"]
+           "register_policy_aliases", "ResidualVecEnv", "HeldFeedbackVecEnv", "feedback_current",
+           "ResidualWrapper", "make_residual_vec_env"]
 
 BASES = ("patent-ff", "ff-delay-comp")
-N_FEATURES = 12
+# What the agent's residual acts on, and the env action mode that carries it.
+RESIDUAL_ACTIONS = {"harmonic": "harmonic", "current": "harmonic+current",
+                    "feedback": "harmonic+current"}
+N_FEATURES = 13
 DEFAULT_LOG_STD_INIT = -3.0
+# The velocity feature's unit: this fraction of wn*full_step (wn: the nominal
+# rotor's natural frequency on its holding-current spring). A settled ripple of
+# a few hundredths of rad/s is then of order 1 on every preset.
+VELOCITY_FEATURE_UNIT = 1e-3
+FEATURE_BOUND = 10.0
 
 
 # ---------------------------------------------------------------------------
@@ -95,7 +105,7 @@ DEFAULT_LOG_STD_INIT = -3.0
 # ---------------------------------------------------------------------------
 def context_features(nominal: SystemParams, estimate: FeedforwardModel, mode: str,
                      speed_rps: float, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """(12 features, ff-delay-comp's action) of one episode, float32.
+    """(12 episode features, ff-delay-comp's harmonic action) of one episode, float32.
 
     ``nominal``: the datasheet system (drive model); ``estimate``: the
     feedforward's model; ``scale``: ``harmonic_scale_nm`` of the episode.
@@ -107,9 +117,69 @@ def context_features(nominal: SystemParams, estimate: FeedforwardModel, mode: st
     return np.concatenate([coeffs, dc]).astype(np.float32), dc
 
 
-def _combine(base_action: np.ndarray, residual: np.ndarray, residual_scale: float) -> np.ndarray:
-    return np.clip(base_action + residual_scale * np.asarray(residual, dtype=np.float64),
-                   -1.0, 1.0)
+def velocity_feature_gain(nominal: SystemParams, speed_rps: float) -> float:
+    """Factor from the env's observation 1 ((w_cmd - w_fb)/w_cmd) to the velocity
+    feature: w_cmd - w_fb in units of VELOCITY_FEATURE_UNIT * wn * full_step.
+
+    A damping current proportional to the velocity error is then the same
+    linear function of the feature on every motor (wn, J from the datasheet).
+    """
+    m = nominal.motor
+    wn = math.sqrt(m.Km * nominal.drive.holding_current * m.Nr / m.J)
+    return 2.0 * math.pi * abs(speed_rps) / (VELOCITY_FEATURE_UNIT * wn * m.full_step_rad)
+
+
+class EpisodeConstants:
+    """Per-drive rows of what the residual layer adds: the velocity feature's
+    gain, the 12 context features and the base controller's harmonic action."""
+
+    def __init__(self, n: int) -> None:
+        self.velocity_gain = np.zeros(n)
+        self.features = np.zeros((n, N_FEATURES - 1), dtype=np.float32)
+        self.base_action = np.zeros((n, 6))
+
+    def set(self, i: int, nominal: SystemParams, estimate: FeedforwardModel, mode: str,
+            speed_rps: float, harmonic_scale: float, base: str) -> None:
+        feats, dc = context_features(nominal, estimate, mode, speed_rps, harmonic_scale)
+        self.features[i] = feats
+        self.base_action[i] = dc if base == "ff-delay-comp" else 0.0
+        self.velocity_gain[i] = velocity_feature_gain(nominal, speed_rps)
+
+    def augment(self, obs: np.ndarray, rows: Any = slice(None)) -> np.ndarray:
+        """Env observations (n, d) -> agent observations (n, d + N_FEATURES)."""
+        vel = np.clip(obs[:, 1] * self.velocity_gain[rows], -FEATURE_BOUND, FEATURE_BOUND)
+        return np.concatenate([obs, vel[:, None].astype(np.float32), self.features[rows]],
+                              axis=1)
+
+    def env_action(self, residual: np.ndarray, residual_scale: float, residual_action: str,
+                   rows: Any = slice(None)) -> np.ndarray:
+        """Agent residuals (n, k) -> env actions (see the module docstring)."""
+        r = residual_scale * np.asarray(residual, dtype=np.float64)
+        base = self.base_action[rows]
+        if residual_action == "harmonic":
+            return np.clip(base + r, -1.0, 1.0)
+        return np.concatenate([base, np.clip(r, -1.0, 1.0)], axis=1)
+
+
+def _check_residual_action(residual_action: str) -> str:
+    if residual_action not in RESIDUAL_ACTIONS:
+        raise ValueError(f"residual_action={residual_action!r} is not one of "
+                         f"{list(RESIDUAL_ACTIONS)}")
+    return residual_action
+
+
+def _residual_space(residual_action: str) -> spaces.Box:
+    n = 6 if residual_action == "harmonic" else 1
+    return spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
+
+
+def feedback_current(gain: np.ndarray, velocity_feature: np.ndarray, feedback_gain: float
+                     ) -> np.ndarray:
+    """The "feedback" residual's current residual (then scaled as a "current"
+    one) of the held agent action ``gain``:
+    ``clip(feedback_gain * gain * velocity_feature, -1, 1)``."""
+    return np.clip(feedback_gain * np.asarray(gain, dtype=np.float64)
+                   * np.asarray(velocity_feature, dtype=np.float64), -1.0, 1.0)
 
 
 # ---------------------------------------------------------------------------
@@ -219,30 +289,40 @@ ALGOS = {"sac": ResidualSAC, "td3": ResidualTD3, "ppo": ResidualPPO}
 # Environments
 # ---------------------------------------------------------------------------
 def _augmented_space(space: spaces.Box) -> spaces.Box:
-    high = np.concatenate([space.high, np.full(N_FEATURES, 10.0, dtype=np.float32)])
-    low = np.concatenate([space.low, np.full(N_FEATURES, -10.0, dtype=np.float32)])
-    return spaces.Box(low, high, dtype=np.float32)
+    bound = np.full(N_FEATURES, FEATURE_BOUND, dtype=np.float32)
+    return spaces.Box(np.concatenate([space.low, -bound]), np.concatenate([space.high, bound]),
+                      dtype=np.float32)
+
+
+def _episode_estimate(options: Any, system: SystemParams, nominal_estimate: FeedforwardModel
+                      ) -> FeedforwardModel:
+    return (FeedforwardModel.from_motor(system.motor) if options.estimate == "exact"
+            else nominal_estimate)
 
 
 class ResidualVecEnv(VecEnv):
     """Training env: one or more native StepperDamp vector envs (SB3 adapter)
-    side by side, observations with the 12 context features, actions residuals
-    on top of ``base`` (see the module docstring), rewards times ``reward_scale``.
+    side by side, observations with the 13 features, actions residuals on top
+    of ``base`` (see the module docstring), rewards times ``reward_scale``.
 
     Each part may be around another preset (``motor``); the part's ``motor`` is
-    the nominal system whose drive model the features use. Parts must use
-    ``action_mode="harmonic"`` and ``estimate="exact"`` or ``"nominal"``.
+    the nominal system whose drive model the features use. Parts must use the
+    env action mode of ``residual_action`` (``RESIDUAL_ACTIONS``) and
+    ``estimate="exact"`` or ``"nominal"``.
     """
 
     def __init__(self, parts: Sequence[StepperDampSB3VecEnv], base: str = "patent-ff",
-                 residual_scale: float = 0.25, reward_scale: float = 1.0) -> None:
+                 residual_scale: float = 0.25, reward_scale: float = 1.0,
+                 residual_action: str = "harmonic") -> None:
         if base not in BASES:
             raise ValueError(f"base={base!r} is not one of {list(BASES)}")
+        self.residual_action = _check_residual_action(residual_action)
         self.parts = list(parts)
         for p in self.parts:
             o = p.venv.options
-            if o.action_mode != "harmonic":
-                raise ValueError("ResidualVecEnv needs action_mode='harmonic'")
+            if o.action_mode != RESIDUAL_ACTIONS[residual_action]:
+                raise ValueError(f"residual_action={residual_action!r} needs action_mode="
+                                 f"{RESIDUAL_ACTIONS[residual_action]!r}, got {o.action_mode!r}")
             if isinstance(o.estimate, FeedforwardModel):
                 raise ValueError("ResidualVecEnv: estimate must be 'exact' or 'nominal'")
         self.base = base
@@ -252,25 +332,18 @@ class ResidualVecEnv(VecEnv):
         first = self.parts[0].venv
         self.render_mode = None            # before VecEnv.__init__, which looks for it
         super().__init__(n, _augmented_space(first.single_observation_space),
-                         first.single_action_space)
-        self._features = np.zeros((n, N_FEATURES), dtype=np.float32)
-        self._base_actions = np.zeros((n, 6))
+                         _residual_space(residual_action))
+        self.constants = EpisodeConstants(n)
         self._actions: np.ndarray | None = None
 
     def _update(self, k0: int, part: StepperDampSB3VecEnv, idx: Sequence[int]) -> None:
         v: StepperDampVectorEnv = part.venv
         f = v._factory
         for i in idx:
-            system = v.systems[i]
-            est = (FeedforwardModel.from_motor(system.motor) if v.options.estimate == "exact"
-                   else f.nominal_estimate)
+            est = _episode_estimate(v.options, v.systems[i], f.nominal_estimate)
             speed = float(v._par[i, P_W_REF]) / (2.0 * math.pi)
-            feats, dc = context_features(f.nominal, est, v.options.mode, speed, f.action_scale)
-            self._features[k0 + i] = feats
-            self._base_actions[k0 + i] = dc if self.base == "ff-delay-comp" else 0.0
-
-    def _obs(self, obs_parts: list[np.ndarray]) -> np.ndarray:
-        return np.concatenate([np.concatenate(obs_parts, axis=0), self._features], axis=1)
+            self.constants.set(k0 + i, f.nominal, est, v.options.mode, speed,
+                               f.harmonic_scale_nm, self.base)
 
     def reset(self) -> np.ndarray:
         obs_parts, k0 = [], 0
@@ -284,30 +357,33 @@ class ResidualVecEnv(VecEnv):
             k0 += p.num_envs
         self._reset_seeds()
         self._reset_options()
-        return self._obs(obs_parts)
+        return self.constants.augment(np.concatenate(obs_parts, axis=0))
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions, dtype=np.float64)
 
     def step_wait(self) -> VecEnvStepReturn:
-        a = _combine(self._base_actions, self._actions, self.residual_scale)
+        # float32 like every policy's action (the leaderboard agent's too).
+        a = self.constants.env_action(self._actions, self.residual_scale,
+                                      self.residual_action).astype(np.float32)
         obs_parts, rews, dones, infos, k0 = [], [], [], [], 0
         for p in self.parts:
             n = p.num_envs
             o, r, d, inf = p.step(a[k0:k0 + n])
-            done_idx = np.flatnonzero(d)
-            for i in done_idx:     # the finished episode's features go with its last obs
-                inf[i]["terminal_observation"] = np.concatenate(
-                    [inf[i]["terminal_observation"], self._features[k0 + i]])
-            self._update(k0, p, done_idx)
+            # The finished episode's constants go with its last observation.
+            for i in np.flatnonzero(d):
+                inf[i]["terminal_observation"] = self.constants.augment(
+                    inf[i]["terminal_observation"][None], [k0 + i])[0]
+            self._update(k0, p, np.flatnonzero(d))
             obs_parts.append(o)
             rews.append(r)
             dones.append(d)
             infos += inf
             k0 += n
         self._actions = None
-        return (self._obs(obs_parts), np.concatenate(rews) * np.float32(self.reward_scale),
-                np.concatenate(dones), infos)
+        return (self.constants.augment(np.concatenate(obs_parts, axis=0)),
+                np.concatenate(rews) * np.float32(self.reward_scale), np.concatenate(dones),
+                infos)
 
     def close(self) -> None:
         for p in self.parts:
@@ -331,15 +407,24 @@ class ResidualVecEnv(VecEnv):
 
 def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int, *,
                           base: str = "patent-ff", residual_scale: float = 0.25,
-                          reward_scale: float = 1.0, max_episode_steps: int = 300,
-                          **options: Any) -> ResidualVecEnv:
+                          reward_scale: float = 1.0, residual_action: str = "harmonic",
+                          hold_steps: int = 1, feedback_gain: float = 0.1,
+                          max_episode_steps: int = 300,
+                          **options: Any) -> VecEnv:
     """A :class:`ResidualVecEnv` with ``envs_per_motor`` drives around each of
-    ``motors``; drive k is seeded ``seed + k`` (seeds must stay below 1_000_000)."""
-    opts = {"action_mode": "harmonic", "estimate": "exact", **options}
+    ``motors`` (for ``residual_action="feedback"`` inside a
+    :class:`HeldFeedbackVecEnv` of ``hold_steps``); drive k is seeded ``seed + k``
+    (seeds must stay below 1_000_000)."""
+    opts = {"estimate": "exact", **options,
+            "action_mode": RESIDUAL_ACTIONS[_check_residual_action(residual_action)]}
     parts = [make_sb3_vec_env(num_envs=envs_per_motor, max_episode_steps=max_episode_steps,
                               motor=m, **opts) for m in motors]
     env = ResidualVecEnv(parts, base=base, residual_scale=residual_scale,
-                         reward_scale=reward_scale)
+                         reward_scale=reward_scale,
+                         residual_action="current" if residual_action == "feedback"
+                         else residual_action)
+    if residual_action == "feedback":
+        env = HeldFeedbackVecEnv(env, hold_steps, feedback_gain)
     n = env.num_envs
     if not 0 <= seed and seed + n < 1_000_000:
         raise ValueError(f"training seeds must be in [0, 1_000_000), got {seed}..{seed + n}")
@@ -347,42 +432,173 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     return env
 
 
+class HeldFeedbackVecEnv(VecEnv):
+    """The "feedback" residual: the agent picks a velocity-feedback gain every
+    ``hold_steps`` env steps; in between, every env step applies
+    :func:`feedback_current` of the latest velocity feature (a damping current).
+
+    Wraps a :class:`ResidualVecEnv` with ``residual_action="current"``. One
+    step of this env is ``hold_steps`` env steps: its reward is their mean, its
+    observation the last augmented one plus the RMS velocity feature over the
+    hold (0 after a reset). Episodes should last a whole number of holds; a
+    drive that terminates mid-hold restarts at once with gain 0 until the next
+    decision (its first observation then shows a few steps of the new episode,
+    with RMS 0).
+    """
+
+    def __init__(self, inner: ResidualVecEnv, hold_steps: int, feedback_gain: float) -> None:
+        if inner.residual_action != "current":
+            raise ValueError("HeldFeedbackVecEnv needs a ResidualVecEnv with "
+                             "residual_action='current'")
+        if not isinstance(hold_steps, (int, np.integer)) or hold_steps < 1:
+            raise ValueError(f"hold_steps={hold_steps!r} is outside its allowed range "
+                             "[1, inf) (integer)")
+        self.inner = inner
+        self.hold_steps = int(hold_steps)
+        self.feedback_gain = float(feedback_gain)
+        self.residual_action = "feedback"
+        self.render_mode = None
+        space = inner.observation_space
+        super().__init__(inner.num_envs,
+                         spaces.Box(np.append(space.low, 0.0).astype(np.float32),
+                                    np.append(space.high, FEATURE_BOUND).astype(np.float32),
+                                    dtype=np.float32),
+                         _residual_space("feedback"))
+        self._vel_col = int(inner.parts[0].venv.single_observation_space.shape[0])
+        self._gain = np.zeros(self.num_envs)
+        self._last: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        self.inner._seeds = self._seeds
+        self._last = self.inner.reset()
+        self._reset_seeds()
+        self._reset_options()
+        return np.concatenate([self._last, np.zeros((self.num_envs, 1), np.float32)], axis=1)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._gain = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        n = self.num_envs
+        gain = self._gain.copy()
+        reward = np.zeros(n)
+        count = np.zeros(n)
+        sq = np.zeros(n)
+        done = np.zeros(n, dtype=bool)
+        infos: list[dict] = [{} for _ in range(n)]
+        obs = self._last
+        for _ in range(self.hold_steps):
+            current = feedback_current(gain, obs[:, self._vel_col], self.feedback_gain)
+            obs, r, d, inf = self.inner.step(current[:, None])
+            live = ~done
+            reward[live] += r[live]
+            count[live] += 1
+            sq[live] += obs[live, self._vel_col].astype(np.float64) ** 2
+            for i in np.flatnonzero(d & live):
+                infos[i] = dict(inf[i])
+                infos[i]["terminal_observation"] = np.append(
+                    inf[i]["terminal_observation"],
+                    np.float32(math.sqrt(sq[i] / count[i]))).astype(np.float32)
+                gain[i] = 0.0
+            done |= d
+        self._last = obs
+        # A restarted drive's observation starts its new episode: RMS 0, as after a reset.
+        rms = np.where(done, 0.0, np.sqrt(sq / np.maximum(count, 1))).astype(np.float32)
+        return (np.concatenate([obs, rms[:, None]], axis=1),
+                (reward / np.maximum(count, 1)).astype(np.float32), done, infos)
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
+        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        return [None for _ in range(self.num_envs)]
+
+
 class ResidualWrapper(gym.Wrapper):
     """The same residual problem on a scalar ``StepperDamp-v0`` (``gym.make``), for
-    rl-baselines3-zoo (``env_wrapper``). Kwargs as :class:`ResidualVecEnv`."""
+    rl-baselines3-zoo (``env_wrapper``). Kwargs as :class:`ResidualVecEnv`; the
+    env's ``action_mode`` must be that of ``residual_action``."""
 
     def __init__(self, env: gym.Env, base: str = "patent-ff", residual_scale: float = 0.25,
-                 reward_scale: float = 1.0) -> None:
+                 reward_scale: float = 1.0, residual_action: str = "harmonic",
+                 hold_steps: int = 1, feedback_gain: float = 0.1) -> None:
         super().__init__(env)
         if base not in BASES:
             raise ValueError(f"base={base!r} is not one of {list(BASES)}")
+        self.residual_action = _check_residual_action(residual_action)
+        if not isinstance(hold_steps, (int, np.integer)) or hold_steps < 1:
+            raise ValueError(f"hold_steps={hold_steps!r} is outside its allowed range "
+                             "[1, inf) (integer)")
+        self.hold_steps = int(hold_steps) if residual_action == "feedback" else 1
+        self.feedback_gain = float(feedback_gain)
         inner: StepperDampEnv = env.unwrapped
-        if inner.options.action_mode != "harmonic" or \
+        mode = RESIDUAL_ACTIONS[residual_action]
+        if inner.options.action_mode != mode or \
                 isinstance(inner.options.estimate, FeedforwardModel):
-            raise ValueError("ResidualWrapper needs action_mode='harmonic' and estimate "
-                             "'exact' or 'nominal'")
+            raise ValueError(f"ResidualWrapper(residual_action={residual_action!r}) needs "
+                             f"action_mode={mode!r} and estimate 'exact' or 'nominal'")
         self.base = base
         self.residual_scale = float(residual_scale)
         self.reward_scale = float(reward_scale)
-        self.observation_space = _augmented_space(env.observation_space)
-        self._features = np.zeros(N_FEATURES, dtype=np.float32)
-        self._base_action = np.zeros(6)
+        space = _augmented_space(env.observation_space)
+        if residual_action == "feedback":      # + the RMS velocity feature over the hold
+            space = spaces.Box(np.append(space.low, 0.0).astype(np.float32),
+                               np.append(space.high, FEATURE_BOUND).astype(np.float32),
+                               dtype=np.float32)
+        self.observation_space = space
+        self.action_space = _residual_space(residual_action)
+        self.constants = EpisodeConstants(1)
+        self._vel_col = int(env.observation_space.shape[0])
+        self._last: np.ndarray | None = None
 
     def reset(self, **kwargs: Any):
         obs, info = self.env.reset(**kwargs)
         inner: StepperDampEnv = self.env.unwrapped
         f = inner._factory
-        est = (FeedforwardModel.from_motor(inner.system.motor)
-               if inner.options.estimate == "exact" else f.nominal_estimate)
-        self._features, dc = context_features(f.nominal, est, inner.options.mode,
-                                              info["speed_rps"], f.action_scale)
-        self._base_action = dc if self.base == "ff-delay-comp" else np.zeros(6)
-        return np.concatenate([obs, self._features]), info
+        est = _episode_estimate(inner.options, inner.system, f.nominal_estimate)
+        self.constants.set(0, f.nominal, est, inner.options.mode, info["speed_rps"],
+                           f.harmonic_scale_nm, self.base)
+        self._last = self.constants.augment(obs[None])
+        return self._observation(self._last, 0.0), info
+
+    def _observation(self, augmented: np.ndarray, rms: float) -> np.ndarray:
+        if self.residual_action != "feedback":
+            return augmented[0]
+        return np.append(augmented[0], np.float32(rms)).astype(np.float32)
 
     def step(self, action: Any):
-        a = _combine(self._base_action, action, self.residual_scale)
-        obs, reward, terminated, truncated, info = self.env.step(a)
-        return (np.concatenate([obs, self._features]), reward * self.reward_scale, terminated,
+        if self.residual_action != "feedback":
+            a = self.constants.env_action(np.asarray(action)[None], self.residual_scale,
+                                          self.residual_action)[0]
+            obs, reward, terminated, truncated, info = self.env.step(a.astype(np.float32))
+            self._last = self.constants.augment(obs[None])
+            return self._last[0], reward * self.reward_scale, terminated, truncated, info
+        # "feedback": hold the gain for hold_steps env steps (as HeldFeedbackVecEnv).
+        gain = np.asarray(action, dtype=np.float64).reshape(1)
+        total, sq, k = 0.0, 0.0, 0
+        terminated = truncated = False
+        info: dict = {}
+        while k < self.hold_steps and not (terminated or truncated):
+            current = feedback_current(gain, self._last[:, self._vel_col], self.feedback_gain)
+            a = self.constants.env_action(current[:, None], self.residual_scale, "current")[0]
+            obs, reward, terminated, truncated, info = self.env.step(a.astype(np.float32))
+            self._last = self.constants.augment(obs[None])
+            total += reward * self.reward_scale
+            sq += float(self._last[0, self._vel_col]) ** 2
+            k += 1
+        return (self._observation(self._last, math.sqrt(sq / k)), total / k, terminated,
                 truncated, info)
 
 

@@ -56,10 +56,10 @@ class Args:
     hyperparams: str | None = None          # YAML file (default agents/hyperparams/<algo>.yml)
     motors: tuple[str, ...] = PRESETS       # presets the training motors are drawn around
     envs_per_motor: int | None = None       # default: n_envs of the YAML / len(motors)
-    eval_freq: int = 50_000                 # env steps between validations (0: never)
+    eval_freq: int = 5_000                  # agent steps between validations (0: never)
     val_seed: int = 900_000                 # validation motors' draw seed (< 1_000_000)
     val_motors_per_preset: int = 2
-    checkpoint_freq: int = 100_000          # env steps between checkpoints (0: never)
+    checkpoint_freq: int = 10_000           # agent steps between checkpoints (0: never)
     progress: bool = True
     tensorboard: bool = True
     name: str | None = None                 # policy name (default "<algo>-residual")
@@ -108,13 +108,11 @@ def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
         if isinstance(hp.get(key), list):
             hp[key] = tuple(hp[key])
     if "noise_type" in hp:                   # zoo: TD3's action noise by name
-        from stable_baselines3.common.noise import NormalActionNoise
-
         kind = hp.pop("noise_type")
         std = float(hp.pop("noise_std", 0.1))
         if kind != "normal":
             raise ValueError(f"noise_type {kind!r}: only 'normal' is supported here")
-        hp["action_noise"] = NormalActionNoise(np.zeros(6), std * np.ones(6))
+        hp["action_noise"] = ("normal", std)     # made in train(), once the action size is known
     hp.pop("normalize", None)
     return {"n_envs": n_envs, "n_timesteps": n_timesteps, "env_kwargs": env_kwargs,
             "wrapper_kwargs": wrapper_kwargs, "policy": policy, "algo_kwargs": hp}
@@ -187,8 +185,12 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
     return {"name": args.name or f"{args.algo}-residual", "algo": args.algo,
             "base": wk.get("base", "patent-ff"),
             "residual_scale": float(wk.get("residual_scale", 0.25)),
+            "residual_action": wk.get("residual_action", "harmonic"),
+            "hold_steps": int(wk.get("hold_steps", 1)),
+            "feedback_gain": float(wk.get("feedback_gain", 0.1)),
             "eval_estimate": "identified",
-            "env_options": {"base_controller": "patent-ff", "action_mode": "harmonic"},
+            "env_options": {k: sp["env_kwargs"][k] for k in ("agent_hz", "velocity_estimator")
+                            if k in sp["env_kwargs"]},
             "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
                          "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
                          "wrapper_kwargs": wk, "hyperparams": args.hyperparams
@@ -229,8 +231,15 @@ def train(args: Args) -> dict[str, Any]:
                                 max_episode_steps=max_steps, **wk, **env_kwargs)
     os.makedirs(args.out, exist_ok=True)
     config = _agent_config(args, sp)
+    algo_kwargs = dict(sp["algo_kwargs"])
+    if isinstance(algo_kwargs.get("action_noise"), tuple):
+        from stable_baselines3.common.noise import NormalActionNoise
+
+        k = env.action_space.shape[0]
+        algo_kwargs["action_noise"] = NormalActionNoise(np.zeros(k),
+                                                        algo_kwargs["action_noise"][1] * np.ones(k))
     model = ALGOS[args.algo](sp["policy"], env, seed=args.seed, device="cpu", verbose=0,
-                             **sp["algo_kwargs"])
+                             **algo_kwargs)
     formats = ["csv"]
     if args.tensorboard:
         try:

@@ -46,9 +46,11 @@ class PolicyContext:
         estimate: the base controller's detent model in this episode.
         mode: "open-loop" or "servo".
         speed_rps: the held command speed (rev/s).
-        action_mode: "harmonic" or "current".
-        action_scale: physical size of action 1.0 (N*m per coefficient, or A).
+        action_mode: "harmonic", "current" or "harmonic+current".
+        action_scale: physical size of action 1.0 of the first action entry
+            (N*m per harmonic coefficient, or A in "current" mode).
         agent_hz: decision rate (Hz).
+        current_scale_a: physical size of a q-current action of 1.0 (A).
     """
 
     knowledge: MotorKnowledge
@@ -58,6 +60,7 @@ class PolicyContext:
     action_mode: str
     action_scale: float
     agent_hz: float
+    current_scale_a: float = 0.0
 
 
 @runtime_checkable

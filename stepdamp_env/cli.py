@@ -142,18 +142,18 @@ def _cmd_presets(args: argparse.Namespace) -> int:
 
 
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
-    from baselines import BASELINE_NAMES
-
-    from .leaderboard import SUITES, full_protocol, quick_protocol, run_leaderboard, write_outputs
+    from .leaderboard import (SUITES, default_policy_names, full_protocol, quick_protocol,
+                              run_leaderboard, write_outputs)
 
     protocol = quick_protocol() if args.quick else full_protocol()
     suites = SUITES if args.suite == "all" else (args.suite,)
     protocol = protocol.with_suites(suites)
-    baselines = list(BASELINE_NAMES) if args.baselines is None else \
+    named = default_policy_names()
+    baselines = list(named) if args.baselines is None else \
         [b for group in args.baselines for b in group]
-    unknown = sorted(set(baselines) - set(BASELINE_NAMES))
+    unknown = sorted(set(baselines) - set(named))
     if unknown:
-        raise ParameterError(f"--baselines: unknown {unknown}; choose from {list(BASELINE_NAMES)}")
+        raise ParameterError(f"--baselines: unknown {unknown}; choose from {list(named)}")
     extra = [p for group in args.policy for p in group]
     board = run_leaderboard(protocol, baselines + extra, workers=args.workers,
                             progress=not args.no_progress)
@@ -225,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="extra policy: package.module:attr (Policy class, factory or "
                         "instance) or an SB3 model .zip; repeatable")
     p.add_argument("--baselines", action="append", nargs="+", default=None, metavar="NAME",
-                   help="run only these baselines (default: all; 'none' always runs)")
+                   help="run only these baselines and reference agents (default: all; "
+                        "'none' always runs)")
     p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")

@@ -75,7 +75,7 @@ _RANDOM_ORDER = _SCALED_FIELDS + _PHASE_FIELDS     # fixed draw order: determini
 
 _MODES = ("open-loop", "servo")
 _BASE_CONTROLLERS = ("patent-ff", "none")
-_ACTION_MODES = ("harmonic", "current")
+_ACTION_MODES = ("harmonic", "current", "harmonic+current")
 
 
 # ---------------------------------------------------------------------------
@@ -224,8 +224,9 @@ P_SPEED_SCALE = 3   # normaliser of the speed command (rad/s)
 P_I_LIMIT = 4       # unsafe phase current (A)
 P_CUR_PEN = 5       # weight of the injected-current penalty
 P_TERM_PEN = 6      # penalty on termination
-P_ACT_SCALE = 7     # physical size of action 1.0 (N*m or A)
-N_PAR = 8
+P_ACT_SCALE = 7     # first of MAX_ACT_DIM columns: physical size of action entry j = 1.0 (N*m or A)
+MAX_ACT_DIM = 7
+N_PAR = P_ACT_SCALE + MAX_ACT_DIM
 
 # Per-step physical outputs (float64 row).
 O_REWARD = 0
@@ -283,9 +284,8 @@ def _load_actions(a, u, acc, par, offset):
             if not (-1.0 <= x <= 1.0):      # also catches NaN
                 return i
     for i in range(n):
-        scale = par[i, 7]
         for j in range(k):
-            u[i, offset + j] = a[i, j] * scale
+            u[i, offset + j] = a[i, j] * par[i, 7 + j]
         for j in range(acc.shape[1]):
             acc[i, j] = 0.0
     return -1
@@ -370,19 +370,26 @@ class _EpisodeFactory:
                 f"agent_hz={o.agent_hz!r} must divide pwm_hz={drive.pwm_hz!r} into a whole "
                 "number (>= 1) of PWM periods per agent step; allowed range: pwm_hz/k, k = 1, 2, ...")
         m = self.nominal.motor
+        harmonic_scale = o.harmonic_scale_nm
+        if harmonic_scale is None:
+            harmonic_scale = 2.0 * max(m.Kd1, m.Kd2, m.Kd4)
+            if harmonic_scale <= 0.0:
+                harmonic_scale = 0.02 * m.Km * drive.holding_current
+        current_scale = o.current_scale_a
+        if current_scale is None:
+            current_scale = 0.25 * drive.holding_current
+        self.harmonic_scale_nm = float(harmonic_scale)
+        self.current_scale_a = float(current_scale)
+        # The kernel's inputs ds1..dc4 and iq are adjacent (U_DS1..U_IQ).
         if o.action_mode == "harmonic":
-            self.act_dim, self.offset = 6, K.U_DS1
-            scale = o.harmonic_scale_nm
-            if scale is None:
-                scale = 2.0 * max(m.Kd1, m.Kd2, m.Kd4)
-                if scale <= 0.0:
-                    scale = 0.02 * m.Km * drive.holding_current
+            self.offset, scales = K.U_DS1, (harmonic_scale,) * 6
+        elif o.action_mode == "current":
+            self.offset, scales = K.U_IQ, (current_scale,)
         else:
-            self.act_dim, self.offset = 1, K.U_IQ
-            scale = o.current_scale_a
-            if scale is None:
-                scale = 0.25 * drive.holding_current
-        self.action_scale = float(scale)
+            self.offset, scales = K.U_DS1, (harmonic_scale,) * 6 + (current_scale,)
+        self.act_dim = len(scales)
+        self.action_scales = tuple(float(x) for x in scales)
+        self.action_scale = self.action_scales[0]
         self.obs_dim = N_BASE_OBS + self.act_dim + (N_PRIVILEGED if o.privileged else 0)
         hi_speed = max(o.speed_range_rps[1], o.speed_rps or 0.0)
         self.speed_scale = TWO_PI * hi_speed
@@ -455,7 +462,7 @@ class _EpisodeFactory:
         par[P_I_LIMIT] = o.current_limit_factor * system.drive.holding_current
         par[P_CUR_PEN] = o.current_penalty
         par[P_TERM_PEN] = o.termination_penalty
-        par[P_ACT_SCALE] = self.action_scale
+        par[P_ACT_SCALE:P_ACT_SCALE + self.act_dim] = self.action_scales
         return {"speed_rps": speed, "target_harmonic": h}, system
 
     def initial_observation(self, s: np.ndarray, par: np.ndarray, obs: np.ndarray) -> None:
@@ -564,7 +571,9 @@ class StepperDampEnv(gym.Env):
       sin/cos coefficients of the electrical-angle harmonics 1, 2, 4, in the order
       ds1, dc1, ds2, dc2, ds4, dc4, each ``action * harmonic_scale_nm``;
     * ``action_mode="current"`` (k = 1): a residual q-axis current (A),
-      ``action * current_scale_a``.
+      ``action * current_scale_a``;
+    * ``action_mode="harmonic+current"`` (k = 7): both, the six harmonic
+      corrections first, then the q current.
 
     An action of the wrong shape, non-finite or outside [-1, 1] raises ValueError.
 
@@ -616,7 +625,8 @@ class StepperDampEnv(gym.Env):
     """ + _DOC_OPTIONS + """
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version (``action_mode="harmonic+current"`` added later;
+      the other modes are unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}

@@ -382,16 +382,29 @@ def _check_policy(obj: Any, spec: str) -> None:
                                  "env_options(knowledge), reset(context) and act(obs)")
 
 
+def default_policy_names() -> tuple[str, ...]:
+    """What a leaderboard runs by default: every baseline and every committed
+    reference agent (``agents/reference``)."""
+    from agents import reference_names
+    from baselines import BASELINE_NAMES
+
+    return tuple(BASELINE_NAMES) + reference_names()
+
+
 def resolve_policy(spec: str) -> PolicySource:
     """A baseline name, ``package.module:attr`` or a ``.zip`` SB3 model file.
 
     ``attr`` may be a Policy class or factory (called without arguments for
     every run) or a Policy instance (deep-copied for every run).
     """
+    from agents import reference_agent, reference_names
     from baselines import BASELINE_NAMES, make_baseline
 
     if spec in BASELINE_NAMES:
         return PolicySource(spec, spec, lambda: make_baseline(spec))
+    if spec in reference_names():
+        algo = spec.split("-")[0]
+        return PolicySource(spec, spec, lambda: reference_agent(algo))
     if spec.endswith(".zip"):
         if not os.path.isfile(spec):
             raise ParameterError(f"policy file {spec!r} does not exist")
@@ -429,6 +442,7 @@ def resolve_policy(spec: str) -> PolicySource:
         _check_policy(obj, spec)
         return PolicySource(spec, str(obj.name), lambda: copy.deepcopy(obj))
     raise ParameterError(f"policy {spec!r} is not one of the baselines {list(BASELINE_NAMES)}, "
+                         f"a reference agent {list(reference_names())}, "
                          "a 'package.module:attr' path or an SB3 '.zip' model file")
 
 
@@ -496,8 +510,6 @@ def policy_env_options(policy: Any, knowledge: Any) -> dict[str, Any]:
 
 
 def _run_job(job: _Job) -> dict[str, Any]:
-    from baselines.base import PolicyContext
-
     from .envs import StepperDampEnv
 
     protocol: Protocol = _WORKER["protocol"]
@@ -512,16 +524,7 @@ def _run_job(job: _Job) -> dict[str, Any]:
     env = StepperDampEnv(motor=motor.system, mode=job.suite, speed_rps=speed,
                          accel_rps2=protocol.accel_rps2, measure_from_s=start, **options)
     obs, _ = env.reset(seed=job.seed)
-    base = options.get("base_controller", "patent-ff")
-    est = options.get("estimate", "exact")
-    estimate = None if base == "none" else (knowledge.exact if est == "exact" else est)
-    action_mode = options.get("action_mode", "harmonic")
-    policy.reset(PolicyContext(
-        knowledge=knowledge, estimate=estimate, mode=job.suite, speed_rps=speed,
-        action_mode=action_mode,
-        action_scale=float(options["harmonic_scale_nm"] if action_mode == "harmonic"
-                           else options["current_scale_a"]),
-        agent_hz=float(options.get("agent_hz", 1000.0))))
+    policy.reset(policy_context(options, knowledge, job.suite, speed))
     # Half a PWM period of slack: time_s is a float multiple of the period.
     end = start + length - 0.5 / motor.system.drive.pwm_hz
     steps, terminated, reason = 0, False, ""
@@ -734,20 +737,19 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
                     workers: int | None = None, progress: bool = True) -> dict[str, Any]:
     """Evaluate policies (baseline names, module paths, .zip files) under ``protocol``.
 
-    ``policies`` defaults to every baseline; ``none`` is always run (it is the
+    ``policies`` defaults to :func:`default_policy_names`; ``none`` is always run (it is the
     reference of every ratio). Returns the leaderboard as a JSON-ready dict.
     Runs are independent and deterministic: the result does not depend on
     ``workers`` (default: every core this process may use). If torch is loaded
     (SB3 policies), it is set to one thread in this process too, so that a
     serial run computes exactly what a worker does.
     """
-    from baselines import BASELINE_NAMES
     from baselines.base import MotorKnowledge
 
     from .sweep import default_workers
 
     specs = list(dict.fromkeys(["none", *(policies if policies is not None
-                                          else BASELINE_NAMES)]))
+                                          else default_policy_names())]))
     sources = {spec: resolve_policy(spec) for spec in specs}
     names = [s.name for s in sources.values()]
     dupes = sorted({n for n in names if names.count(n) > 1})
@@ -881,11 +883,28 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
     plt.close(fig)
 
 
+def policy_context(options: Mapping[str, Any], knowledge: Any, suite: str,
+                   speed_rps: float) -> Any:
+    """The :class:`~baselines.base.PolicyContext` of a run with the checked
+    ``options`` (:func:`policy_env_options`)."""
+    from baselines.base import PolicyContext
+
+    base = options.get("base_controller", "patent-ff")
+    est = options.get("estimate", "exact")
+    action_mode = options.get("action_mode", "harmonic")
+    return PolicyContext(
+        knowledge=knowledge,
+        estimate=None if base == "none" else (knowledge.exact if est == "exact" else est),
+        mode=suite, speed_rps=speed_rps, action_mode=action_mode,
+        action_scale=float(options["current_scale_a"] if action_mode == "current"
+                           else options["harmonic_scale_nm"]),
+        agent_hz=float(options.get("agent_hz", 1000.0)),
+        current_scale_a=float(options["current_scale_a"]))
+
+
 def trace_run(spec: str, motor: ProtocolMotor, knowledge: Any, suite: str, speed_rps: float,
               seed: int, protocol: Protocol, span_s: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """(time in the window (s), velocity error w_cmd - w (rad/s)) at the agent rate."""
-    from baselines.base import PolicyContext
-
     from . import kernel as K
     from .envs import StepperDampEnv
 
@@ -896,17 +915,7 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: Any, suite: str, speed
     env = StepperDampEnv(motor=motor.system, mode=suite, speed_rps=speed_rps,
                          accel_rps2=protocol.accel_rps2, **options)
     obs, _ = env.reset(seed=seed)
-    base = options.get("base_controller", "patent-ff")
-    est = options.get("estimate", "exact")
-    action_mode = options.get("action_mode", "harmonic")
-    policy.reset(PolicyContext(knowledge=knowledge,
-                               estimate=None if base == "none" else
-                               (knowledge.exact if est == "exact" else est),
-                               mode=suite, speed_rps=speed_rps, action_mode=action_mode,
-                               action_scale=float(options["harmonic_scale_nm"]
-                                                  if action_mode == "harmonic"
-                                                  else options["current_scale_a"]),
-                               agent_hz=float(options.get("agent_hz", 1000.0))))
+    policy.reset(policy_context(options, knowledge, suite, speed_rps))
     t, err = [], []
     while env.time_s < start + span_s:
         obs, _, terminated, _, _ = env.step(policy.act(obs))

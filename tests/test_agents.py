@@ -16,6 +16,7 @@ from agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualWrapper,  
 from agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
 from baselines import make_baseline  # noqa: E402
 from baselines.base import MotorKnowledge, PolicyContext  # noqa: E402
+from stepdamp_env import kernel as K  # noqa: E402
 from stepdamp_env.envs import StepperDampEnv  # noqa: E402
 from stepdamp_env.params import FeedforwardModel, get_preset  # noqa: E402
 
@@ -27,11 +28,12 @@ def _venv(n=2, **kw):
     return make_residual_vec_env([MOTOR], n, 10, randomize=True, **kw)
 
 
-def _save(model, path, algo, base):
+def _save(model, path, algo, base, residual_action="harmonic", env_options=None):
     model.save(path)
     with open(os.path.splitext(path)[0] + ".agent.json", "w") as fh:
         json.dump({"name": f"{algo}-residual", "algo": algo, "base": base,
-                   "residual_scale": 0.1}, fh)
+                   "residual_scale": 0.1, "residual_action": residual_action,
+                   "env_options": env_options or {}}, fh)
 
 
 def _context(system, speed, scale, mode="open-loop"):
@@ -45,7 +47,7 @@ def _trajectory(policy, system, speed, steps=150, seed=3):
     options = policy.env_options(_context(system, speed, 0.0).knowledge)
     env = StepperDampEnv(motor=system, speed_rps=speed, **options)
     obs, _ = env.reset(seed=seed)
-    policy.reset(_context(system, speed, env.unwrapped._factory.action_scale))
+    policy.reset(_context(system, speed, env.unwrapped._factory.harmonic_scale_nm))
     out = [obs]
     for _ in range(steps):
         obs, *_ = env.step(policy.act(obs))
@@ -54,10 +56,14 @@ def _trajectory(policy, system, speed, steps=150, seed=3):
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
-@pytest.mark.parametrize("base,baseline", [("patent-ff", "patent-ff-identified"),
-                                           ("ff-delay-comp", "ff-delay-comp")])
-def test_zero_residual_reproduces_base_controller(tmp_path, algo, base, baseline):
-    venv = _venv(base=base)
+@pytest.mark.parametrize("base,baseline,residual_action", [
+    ("patent-ff", "patent-ff-identified", "harmonic"),
+    ("ff-delay-comp", "ff-delay-comp", "harmonic"),
+    ("ff-delay-comp", "ff-delay-comp", "current"),
+])
+def test_zero_residual_reproduces_base_controller(tmp_path, algo, base, baseline,
+                                                  residual_action):
+    venv = _venv(base=base, residual_action=residual_action)
     model = ALGOS[algo]("ResidualMlpPolicy", venv, seed=0, device="cpu")
     obs = venv.reset()
     rng = np.random.default_rng(0)
@@ -65,7 +71,7 @@ def test_zero_residual_reproduces_base_controller(tmp_path, algo, base, baseline
     actions, _ = model.predict(probe, deterministic=True)
     assert np.array_equal(actions, np.zeros_like(actions))
     path = str(tmp_path / f"{algo}.zip")
-    _save(model, path, algo, base)
+    _save(model, path, algo, base, residual_action)
     agent = ResidualAgent(path)
     system = get_preset(MOTOR).replace(Kd2=0.9 * get_preset(MOTOR).motor.Kd2)
     speed = system.predicted_resonances_rps()[2]
@@ -97,9 +103,36 @@ def test_wrapper_matches_vector_env_features():
     feats, dc = context_features(inner._factory.nominal,
                                  FeedforwardModel.from_motor(inner.system.motor), "open-loop",
                                  info["speed_rps"], inner._factory.action_scale)
-    assert obs.shape == (29,) and np.array_equal(obs[17:], feats)
+    assert obs.shape == (30,) and np.array_equal(obs[18:], feats)
     obs2, *_ = env.step(np.zeros(6, dtype=np.float32))
     assert np.allclose(obs2[11:17], dc)             # the base action was applied
+    venv = make_residual_vec_env([MOTOR], 1, 5, randomize=True, base="ff-delay-comp",
+                                 residual_scale=0.1)
+    assert np.array_equal(venv.reset()[0], obs)     # same seed, same augmented observation
+
+
+def test_current_residual_velocity_feature_is_the_physical_velocity_error():
+    """Feature 17 = (w_cmd - w_fb) / (1e-3 * wn * full step) of the nominal motor, and a
+    residual r drives the q current r * residual_scale * current_scale_a."""
+    import gymnasium as gym
+
+    import stepdamp_env  # noqa: F401
+
+    env = ResidualWrapper(gym.make("StepperDamp-v0", motor=MOTOR, speed_rps=0.5,
+                                   action_mode="harmonic+current", agent_hz=4000.0),
+                          base="ff-delay-comp", residual_scale=0.1, residual_action="current")
+    assert env.action_space.shape == (1,) and env.observation_space.shape == (31,)
+    env.reset(seed=1)
+    m = get_preset(MOTOR).motor
+    wn = np.sqrt(m.Km * get_preset(MOTOR).drive.holding_current * m.Nr / m.J)
+    inner = env.unwrapped
+    for _ in range(40):
+        obs, *_ = env.step(np.array([0.5], dtype=np.float32))
+        s = inner.drive_state
+        want = (s[K.S_OMEGA_CMD] - s[K.S_OMEGA_FB]) / (1e-3 * wn * m.full_step_rad)
+        assert obs[18] == pytest.approx(np.clip(want, -10, 10), rel=1e-5, abs=1e-6)
+        assert obs[17] == pytest.approx(0.05)       # last env action's current entry
+        assert s[K.S_OMEGA_CMD] > 0
 
 
 def test_hyperparams_files_parse():
@@ -138,3 +171,90 @@ def test_cli_train_parses():
     ns = build_parser().parse_args(["train", "--algo", "td3", "--total-timesteps", "10",
                                     "--set", "learning_starts=5"])
     assert ns.algo == "td3" and ns.total_timesteps == 10 and ns.extra == ["learning_starts=5"]
+
+
+def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboard_agent(tmp_path):
+    """"feedback": a gain held for hold_steps, a damping current in between. The native
+    vector env (training), the scalar wrapper (zoo) and the leaderboard agent run the
+    same drive through the same actions, bit for bit."""
+    import gymnasium as gym
+
+    import stepdamp_env  # noqa: F401
+
+    hold, decisions, seed = 7, 4, 11
+    speed = get_preset(MOTOR).predicted_resonances_rps()[4]
+    env_kw = dict(motor=MOTOR, speed_rps=speed, agent_hz=4000.0, velocity_estimator="kalman",
+                  overrides={"current_noise_a": 0.01})
+    res_kw = dict(base="ff-delay-comp", residual_scale=0.05, residual_action="feedback",
+                  hold_steps=hold, feedback_gain=0.1)
+    venv = make_residual_vec_env([MOTOR], 1, seed, max_episode_steps=1000, **res_kw,
+                                 **{k: v for k, v in env_kw.items() if k != "motor"})
+    model = ALGOS["ppo"]("ResidualMlpPolicy", venv, seed=0, device="cpu",
+                         policy_kwargs={"net_arch": [8]})
+    venv.seed(seed)                             # the model seeded it with its own seed
+    with torch.no_grad():                       # a gain that depends on the observation
+        model.policy.action_net.weight.normal_(0.0, 0.02)
+        model.policy.action_net.bias.fill_(0.3)
+    path = str(tmp_path / "fb.zip")
+    model.save(path)
+    with open(str(tmp_path / "fb.agent.json"), "w") as fh:
+        json.dump({"name": "ppo-residual", "algo": "ppo", **res_kw,
+                   "env_options": {"agent_hz": 4000.0, "velocity_estimator": "kalman"}}, fh)
+
+    scalar = ResidualWrapper(gym.make("StepperDamp-v0", action_mode="harmonic+current",
+                                      **env_kw), **res_kw)
+    obs_v = venv.reset()
+    obs_s, _ = scalar.reset(seed=seed)
+    assert obs_s.shape == (32,) and np.array_equal(obs_v[0], obs_s) and obs_s[-1] == 0.0
+    gains = []
+    for _ in range(decisions):
+        a, _ = model.predict(obs_s, deterministic=True)
+        gains.append(float(a[0]))
+        obs_s, r_s, *_ = scalar.step(a)
+        obs_v, r_v, *_ = venv.step(a[None])
+        # Rewards: float32 in the SB3 vector env, float64 in the scalar one.
+        assert np.array_equal(obs_v[0], obs_s) and r_v[0] == pytest.approx(r_s, rel=1e-6)
+    assert obs_s[-1] > 0 and len(set(gains)) == decisions      # the gain really changed
+    state_training = scalar.unwrapped.drive_state
+
+    from agents import policy as P
+
+    P._MODELS.clear()
+    agent = ResidualAgent(path)
+    system = get_preset(MOTOR).replace(current_noise_a=0.01)
+    exact = FeedforwardModel.from_motor(system.motor)
+    knowledge = MotorKnowledge(nominal=get_preset(MOTOR), identified=exact, exact=exact)
+    options = agent.env_options(knowledge)
+    assert options["action_mode"] == "harmonic+current" and options["agent_hz"] == 4000.0
+    env = StepperDampEnv(motor=system, speed_rps=speed, **options)
+    obs, _ = env.reset(seed=seed)
+    f = env._factory
+    agent.reset(PolicyContext(knowledge=knowledge, estimate=exact, mode="open-loop",
+                              speed_rps=speed, action_mode="harmonic+current",
+                              action_scale=f.harmonic_scale_nm, agent_hz=4000.0,
+                              current_scale_a=f.current_scale_a))
+    for _ in range(hold * decisions):
+        obs, *_ = env.step(agent.act(obs))
+    assert np.array_equal(env.drive_state, state_training)
+
+
+def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
+    """The committed reference model (agents/reference/ppo-residual.*) runs in the
+    leaderboard by default under its name; on the quick protocol's open-loop suite it
+    damps below half of patent-ff-identified and below ff-delay-comp."""
+    import dataclasses
+
+    from agents import reference_names
+    from stepdamp_env.leaderboard import default_policy_names, quick_protocol, run_leaderboard
+
+    assert "ppo-residual" in reference_names() and "ppo-residual" in default_policy_names()
+    with open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                           "agents", "reference", "ppo-residual.train_log.json")) as fh:
+        log = json.load(fh)
+    assert log["config"]["training"]["seed"] == 1 and log["train_wall_s"] < 20 * 60
+    protocol = dataclasses.replace(quick_protocol(), suites=("open-loop",))
+    board = run_leaderboard(protocol, ["patent-ff-identified", "ff-delay-comp", "ppo-residual"],
+                            workers=1, progress=False)
+    iqm = {e["name"]: e["headline"]["iqm"] for e in board["entries"]}
+    assert iqm["ppo-residual"] < 0.5 * iqm["patent-ff-identified"]
+    assert iqm["ppo-residual"] < iqm["ff-delay-comp"]

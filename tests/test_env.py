@@ -85,6 +85,37 @@ def test_spaces_and_scaling():
     assert cur._factory.action_scale == pytest.approx(0.25 * 1.9)
 
 
+@pytest.mark.parametrize("mode", ["open-loop", "servo"])
+def test_harmonic_plus_current_is_both_modes_at_once(mode):
+    """Its first six entries act as "harmonic" mode, the seventh as "current" mode:
+    with the other part zero, each reproduces that mode bit for bit."""
+    rng = np.random.default_rng(4)
+    harmonic = rng.uniform(-1, 1, (60, 6)).astype(np.float32)
+    current = rng.uniform(-1, 1, (60, 1)).astype(np.float32)
+    zeros6, zeros1 = np.zeros_like(harmonic), np.zeros_like(current)
+    kw = {"mode": mode, "speed_rps": 0.7}
+
+    def states(action_mode, actions):
+        env = StepperDampEnv(action_mode=action_mode, **kw)
+        env.reset(seed=2)
+        out = []
+        for a in actions:
+            obs, *_ = env.step(a)
+            out.append(np.concatenate([env.drive_state, obs[:11]]))
+        return np.array(out)
+
+    both = StepperDampEnv(action_mode="harmonic+current", **kw)
+    assert both.action_space.shape == (7,)
+    assert both._factory.action_scales == (both._factory.harmonic_scale_nm,) * 6 + (
+        both._factory.current_scale_a,)
+    assert np.array_equal(states("harmonic+current", np.hstack([harmonic, zeros1])),
+                          states("harmonic", harmonic))
+    assert np.array_equal(states("harmonic+current", np.hstack([zeros6, current])),
+                          states("current", current))
+    assert not np.array_equal(states("harmonic+current", np.hstack([harmonic, current])),
+                              states("harmonic", harmonic))
+
+
 def test_agent_rate_sets_periods_per_step():
     env = StepperDampEnv(agent_hz=500.0, speed_rps=1.0)
     env.reset(seed=0)
