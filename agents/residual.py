@@ -43,9 +43,18 @@ files: a damped step's reward is about -1e-4) and the YAML files set the env's
 0.1 the agent learned to trade ripple for less feedforward current). A zero
 residual reproduces the base controller bit for bit.
 
+Other residual kinds (``residual_action``): ``"current"`` adds a q current
+``residual_scale * r`` (``current_scale_a`` units, env ``action_mode=
+"harmonic+current"``) to the base every env step; ``"feedback"`` (the YAMLs'
+choice) lets the agent pick a damping gain ``g`` every ``hold_steps`` env steps
+and injects ``residual_scale * clip(feedback_gain * g * v, -1, 1)`` each step in
+between, ``v`` the velocity feature (:func:`velocity_feature_gain`); see
+:class:`HeldFeedbackVecEnv`.
+
 Observation
 -----------
-The env's observation (17 numbers) plus 12 episode constants that the drive
+The env's observation, the velocity feature ``v`` (w_cmd - w_fb in units of
+1e-3 * wn * full step of the datasheet motor), then 12 episode constants that the drive
 knows from its own model (:func:`context_features`): the feedforward model's six
 sin/cos coefficients in action units, and ``a_base`` of ff-delay-comp (the
 speed-dependent phase lead the drive model predicts), both whatever ``base``
@@ -300,7 +309,26 @@ def _episode_estimate(options: Any, system: SystemParams, nominal_estimate: Feed
             else nominal_estimate)
 
 
-class ResidualVecEnv(VecEnv):
+class _WholeVecEnv(VecEnv):
+    """A VecEnv whose attributes and methods are its own, not per drive's."""
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
+        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        return [None for _ in range(self.num_envs)]
+
+
+class ResidualVecEnv(_WholeVecEnv):
     """Training env: one or more native StepperDamp vector envs (SB3 adapter)
     side by side, observations with the 13 features, actions residuals on top
     of ``base`` (see the module docstring), rewards times ``reward_scale``.
@@ -389,21 +417,6 @@ class ResidualVecEnv(VecEnv):
         for p in self.parts:
             p.close()
 
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
-        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self):
-        return [None for _ in range(self.num_envs)]
-
 
 def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int, *,
                           base: str = "patent-ff", residual_scale: float = 0.25,
@@ -432,7 +445,7 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     return env
 
 
-class HeldFeedbackVecEnv(VecEnv):
+class HeldFeedbackVecEnv(_WholeVecEnv):
     """The "feedback" residual: the agent picks a velocity-feedback gain every
     ``hold_steps`` env steps; in between, every env step applies
     :func:`feedback_current` of the latest velocity feature (a damping current).
@@ -509,21 +522,6 @@ class HeldFeedbackVecEnv(VecEnv):
 
     def close(self) -> None:
         self.inner.close()
-
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
-        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self):
-        return [None for _ in range(self.num_envs)]
 
 
 class ResidualWrapper(gym.Wrapper):
