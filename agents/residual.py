@@ -248,6 +248,11 @@ class _ZeroWarmup:
 
     warmup_noise_std: float = 0.0
 
+    def __init__(self, policy: Any = "ResidualMlpPolicy", *args: Any,
+                 warmup_noise_std: float = 0.0, **kwargs: Any):
+        self.warmup_noise_std = float(warmup_noise_std)
+        super().__init__(policy, *args, **kwargs)
+
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
         if self.num_timesteps < learning_starts:
             shape = (n_envs, *self.action_space.shape)
@@ -265,21 +270,11 @@ class ResidualSAC(_ZeroWarmup, SAC):
 
     policy_aliases = {**SAC.policy_aliases, "ResidualMlpPolicy": ResidualSACPolicy}
 
-    def __init__(self, policy: Any = "ResidualMlpPolicy", *args: Any,
-                 warmup_noise_std: float = 0.0, **kwargs: Any):
-        self.warmup_noise_std = float(warmup_noise_std)
-        super().__init__(policy, *args, **kwargs)
-
 
 class ResidualTD3(_ZeroWarmup, TD3):
     """TD3 with zero-residual warm-up (``policy="ResidualMlpPolicy"`` by default)."""
 
     policy_aliases = {**TD3.policy_aliases, "ResidualMlpPolicy": ResidualTD3Policy}
-
-    def __init__(self, policy: Any = "ResidualMlpPolicy", *args: Any,
-                 warmup_noise_std: float = 0.0, **kwargs: Any):
-        self.warmup_noise_std = float(warmup_noise_std)
-        super().__init__(policy, *args, **kwargs)
 
 
 class ResidualPPO(PPO):
