@@ -1,37 +1,40 @@
-"""Residual reinforcement-learning agents for StepperDamp (SAC, TD3, PPO; stable-baselines3).
+"""Residual reinforcement-learning agents for StepperDamp (installed as ``stepdamp_agents``).
 
-* :mod:`agents.residual`: zero-residual policies, zero-residual warm-up, the
-  residual training envs and the action scaling;
-* :mod:`agents.train`: the training script (``stepdamp train``);
-* :mod:`agents.policy`: a trained agent as a leaderboard policy;
-* ``agents/hyperparams/{sac,td3,ppo}.yml``: rl-baselines3-zoo hyperparameters;
-* ``agents/reference/``: the reference model ``ppo-residual.zip`` (with its
+SAC, TD3 and PPO from stable-baselines3, as residuals on the model-based baselines.
+
+* :mod:`stepdamp_agents.residual`: zero-residual policies, zero-residual warm-up,
+  the residual training envs and the action scaling;
+* :mod:`stepdamp_agents.train`: the training script (``stepdamp train``);
+* :mod:`stepdamp_agents.policy`: a trained agent as a leaderboard policy;
+* ``hyperparams/{sac,td3,ppo}.yml``: rl-baselines3-zoo hyperparameters;
+* ``reference/``: the reference model ``ppo-residual.zip`` (with its
   ``.agent.json`` config and ``ppo-residual.train_log.json``), which
   ``stepdamp leaderboard`` lists by default.
 
-Importing :mod:`agents.residual` registers ``"ResidualMlpPolicy"`` in SB3's policy
-aliases (so the zoo resolves it with ``--gym-packages stepdamp_env agents.residual``).
-This package itself imports neither torch nor SB3 (``stepdamp --help`` stays fast),
-nor does ``import stepdamp_env``.
-
-``stepdamp leaderboard`` evaluates every committed reference model by its name
-(``ppo-residual``); another trained model is given with ``--policy`` (see
-:mod:`agents.policy`).
+:func:`register_policies` (the ``stepdamp.policies`` entry point
+``reference-agents``) registers every committed reference model by its name
+(``ppo-residual``) and a loader for models ``stepdamp train`` writes, so
+``stepdamp leaderboard --policy runs/ppo/best.zip`` runs one with its own
+options. Importing :mod:`stepdamp_agents.residual` registers
+``"ResidualMlpPolicy"`` in SB3's policy aliases (the zoo: ``--gym-packages
+stepdamp_env stepdamp_agents.residual``). This package itself imports neither
+torch nor SB3 (``stepdamp --help`` stays fast), nor does ``import stepdamp_env``.
 """
 
 from __future__ import annotations
 
 import os
 
+from stepdamp_env.bench.registry import PolicySource, register_loader, register_policy
+
 REFERENCE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference")
 ALGO_NAMES = ("ppo", "sac", "td3")
 
-__all__ = ["REFERENCE_DIR", "reference_names", "reference_agent", "ppo_residual",
-           "sac_residual", "td3_residual"]
+__all__ = ["REFERENCE_DIR", "reference_names", "reference_agent", "register_policies"]
 
 
 def reference_names() -> tuple[str, ...]:
-    """Names (``<algo>-residual``) of the reference models committed in ``agents/reference``."""
+    """Names (``<algo>-residual``) of the reference models committed in ``reference/``."""
     return tuple(f"{a}-residual" for a in ALGO_NAMES
                  if os.path.isfile(os.path.join(REFERENCE_DIR, f"{a}-residual.zip")))
 
@@ -48,16 +51,37 @@ def reference_agent(algo: str = "ppo"):
     return ResidualAgent(path)
 
 
-def ppo_residual():
-    """``agents:ppo_residual``: the reference PPO residual agent (``ppo-residual``)."""
-    return reference_agent("ppo")
+def _reference_factory(algo: str):
+    def make():
+        return reference_agent(algo)
+    make.__qualname__ = f"reference_agent[{algo}]"
+    return make
 
 
-def sac_residual():
-    """``agents:sac_residual``: the SAC reference agent, if one is committed."""
-    return reference_agent("sac")
+_FACTORIES = {algo: _reference_factory(algo) for algo in ALGO_NAMES}
 
 
-def td3_residual():
-    """``agents:td3_residual``: the TD3 reference agent, if one is committed."""
-    return reference_agent("td3")
+def _is_trained_model(path: str) -> bool:
+    from .policy import agent_config_path
+
+    return path.endswith(".zip") and os.path.isfile(agent_config_path(path))
+
+
+def _load_trained_model(path: str) -> PolicySource:
+    """A model ``stepdamp train`` wrote, named ``<config name>@<file stem>`` so that
+    it never takes the name of the committed reference it may have been trained as."""
+    from .policy import ResidualAgent, load_agent_config
+
+    config = load_agent_config(path)
+    stem = os.path.splitext(os.path.basename(path))[0]
+    name = f"{config.get('name', 'agent')}@{stem}"
+    return PolicySource(path, name, lambda: ResidualAgent(path, name=name))
+
+
+def register_policies() -> None:
+    """Register the committed reference agents and the trained-model loader (idempotent)."""
+    for name in reference_names():
+        algo = name.split("-")[0]
+        register_policy(name, _FACTORIES[algo], kind="agent",
+                        description=f"committed reference {algo.upper()} residual agent")
+    register_loader("stepdamp-train", _is_trained_model, _load_trained_model)

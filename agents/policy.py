@@ -1,11 +1,13 @@
-"""A trained residual agent as a leaderboard policy (:class:`baselines.base.Policy`).
+"""A trained residual agent as a leaderboard policy (:class:`stepdamp_env.bench.policy.Policy`).
 
 The agent's network sees the env's observation plus the episode constants the
-drive knows (:func:`agents.residual.context_features`, computed in ``reset``
-from the leaderboard's identified model and the nominal drive), so it is loaded
-as a ``package.module:attr`` policy rather than a bare ``.zip``::
+drive knows (:func:`stepdamp_agents.residual.context_features`, computed in ``reset``
+from the leaderboard's identified model and the nominal drive), so a model that
+``stepdamp train`` wrote is put on the leaderboard by its path, its
+``.agent.json`` beside it (:func:`stepdamp_agents.register_policies` registers
+the loader)::
 
-    stepdamp leaderboard --policy agents:ppo_residual --out results/leaderboard
+    stepdamp leaderboard --policy runs/ppo/best.zip --out results/leaderboard
 
 A model is a ``NAME.zip`` (SB3) beside ``NAME.agent.json`` (algorithm, base,
 residual scale, env options, training arguments), as ``stepdamp train`` writes.
@@ -20,16 +22,20 @@ from typing import Any
 
 import numpy as np
 
-from baselines.base import MotorKnowledge, PolicyContext, resolve_estimate
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyContext, resolve_estimate
 
-__all__ = ["ResidualAgent", "load_agent_config", "load_model"]
+__all__ = ["ResidualAgent", "load_agent_config", "load_model", "forget_model", "agent_config_path"]
 
 _MODELS: dict[str, Any] = {}
 
 
+def agent_config_path(path: str) -> str:
+    """The ``NAME.agent.json`` beside a ``NAME.zip``."""
+    return os.path.splitext(path)[0] + ".agent.json"
+
+
 def load_agent_config(path: str) -> dict[str, Any]:
-    side = os.path.splitext(path)[0] + ".agent.json"
-    with open(side, encoding="utf-8") as fh:
+    with open(agent_config_path(path), encoding="utf-8") as fh:
         return json.load(fh)
 
 
@@ -39,12 +45,20 @@ def load_model(path: str) -> Any:
     if path not in _MODELS:
         import torch
 
-        from .residual import ALGOS
+        from .residual import ALGOS, POLICIES
 
         torch.set_num_threads(1)
         algo = load_agent_config(path)["algo"]
-        _MODELS[path] = ALGOS[algo].load(path, device="cpu")
+        # The policy class by this package's name (models saved before 0.2 name
+        # the module ``agents.residual``).
+        _MODELS[path] = ALGOS[algo].load(path, device="cpu",
+                                         custom_objects={"policy_class": POLICIES[algo]})
     return _MODELS[path]
+
+
+def forget_model(path: str) -> None:
+    """Drop the cached model of ``path`` (after the file was rewritten)."""
+    _MODELS.pop(os.path.abspath(path), None)
 
 
 class ResidualAgent:

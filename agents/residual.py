@@ -1,6 +1,6 @@
 """Residual learning done right: the agent starts exactly at its base controller.
 
-Three pieces, used by :mod:`agents.train` and usable from rl-baselines3-zoo:
+Three pieces, used by :mod:`stepdamp_agents.train` and usable from rl-baselines3-zoo:
 
 * **Policies whose residual starts at zero** (:class:`ResidualSACPolicy`,
   :class:`ResidualTD3Policy`, :class:`ResidualPPOPolicy`; registered as
@@ -34,10 +34,11 @@ of the nominal motor: 0.024 N*m for ``patent``). The agent's network outputs
 ``a_base`` is the base controller's action: zero for ``base="patent-ff"`` (the
 patent's feedforward alone) or the model-based delay compensation of
 ``ff-delay-comp`` for ``base="ff-delay-comp"`` (computed from the feedforward's
-own model and the nominal drive, :mod:`baselines.harmonic`). ``residual_scale``
-(0.1 in the YAML files) bounds how far the agent may move each coefficient: 0.1
-of the action unit, i.e. a fifth of the largest detent amplitude (about 2.4 mN*m
-for ``patent``); the rewards are multiplied by ``reward_scale`` (1000 in the YAML
+own model and the nominal drive, :mod:`stepdamp_baselines.harmonic`). ``residual_scale``
+bounds how far the agent may move each coefficient: 0.1 of the action unit, for
+example, is a fifth of the largest detent amplitude (about 2.4 mN*m for
+``patent``); the YAML files use the "feedback" residual with ``residual_scale``
+0.05 of ``current_scale_a``; the rewards are multiplied by ``reward_scale`` (1000 in the YAML
 files: a damped step's reward is about -1e-4) and the YAML files set the env's
 ``current_penalty`` to 0 (the leaderboard scores ripple only; with the default
 0.1 the agent learned to trade ripple for less feedforward current). A zero
@@ -85,14 +86,15 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepRetu
 from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
-from baselines.harmonic import _actions, phasors, torque_paths
-from stepdamp_env.envs import P_W_REF, StepperDampEnv, StepperDampVectorEnv
+from stepdamp_baselines.harmonic import harmonic_actions, phasors, torque_paths
+from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
+from stepdamp_env.env import OBS, StepperDampEnv, StepperDampVectorEnv
 from stepdamp_env.params import FeedforwardModel, SystemParams
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
 
 __all__ = ["BASES", "RESIDUAL_ACTIONS", "N_FEATURES", "context_features", "velocity_feature_gain",
            "EpisodeConstants", "ResidualSACPolicy", "ResidualTD3Policy",
-           "ResidualPPOPolicy", "ResidualSAC", "ResidualTD3", "ResidualPPO", "ALGOS",
+           "ResidualPPOPolicy", "ResidualSAC", "ResidualTD3", "ResidualPPO", "ALGOS", "POLICIES",
            "register_policy_aliases", "ResidualVecEnv", "HeldFeedbackVecEnv", "feedback_current",
            "ResidualWrapper", "make_residual_vec_env"]
 
@@ -121,7 +123,7 @@ def context_features(nominal: SystemParams, estimate: FeedforwardModel, mode: st
     """
     base = phasors(estimate)
     g = torque_paths(nominal, mode, speed_rps, estimate)
-    dc = _actions(base / g, base, scale)
+    dc = harmonic_actions(base / g, base, scale)
     coeffs = np.asarray(estimate.coefficients(), dtype=np.float32) / np.float32(scale)
     return np.concatenate([coeffs, dc]).astype(np.float32), dc
 
@@ -156,7 +158,8 @@ class EpisodeConstants:
 
     def augment(self, obs: np.ndarray, rows: Any = slice(None)) -> np.ndarray:
         """Env observations (n, d) -> agent observations (n, d + N_FEATURES)."""
-        vel = np.clip(obs[:, 1] * self.velocity_gain[rows], -FEATURE_BOUND, FEATURE_BOUND)
+        vel = np.clip(obs[:, OBS.velocity_error] * self.velocity_gain[rows], -FEATURE_BOUND,
+                      FEATURE_BOUND)
         return np.concatenate([obs, vel[:, None].astype(np.float32), self.features[rows]],
                               axis=1)
 
@@ -287,6 +290,7 @@ class ResidualPPO(PPO):
 
 
 ALGOS = {"sac": ResidualSAC, "td3": ResidualTD3, "ppo": ResidualPPO}
+POLICIES = {"sac": ResidualSACPolicy, "td3": ResidualTD3Policy, "ppo": ResidualPPOPolicy}
 
 
 # ---------------------------------------------------------------------------
@@ -296,12 +300,6 @@ def _augmented_space(space: spaces.Box) -> spaces.Box:
     bound = np.full(N_FEATURES, FEATURE_BOUND, dtype=np.float32)
     return spaces.Box(np.concatenate([space.low, -bound]), np.concatenate([space.high, bound]),
                       dtype=np.float32)
-
-
-def _episode_estimate(options: Any, system: SystemParams, nominal_estimate: FeedforwardModel
-                      ) -> FeedforwardModel:
-    return (FeedforwardModel.from_motor(system.motor) if options.estimate == "exact"
-            else nominal_estimate)
 
 
 class _WholeVecEnv(VecEnv):
@@ -361,20 +359,24 @@ class ResidualVecEnv(_WholeVecEnv):
 
     def _update(self, k0: int, part: StepperDampSB3VecEnv, idx: Sequence[int]) -> None:
         v: StepperDampVectorEnv = part.venv
-        f = v._factory
+        f = v.sampler
+        speeds = v.speeds_rps
         for i in idx:
-            est = _episode_estimate(v.options, v.systems[i], f.nominal_estimate)
-            speed = float(v._par[i, P_W_REF]) / (2.0 * math.pi)
-            self.constants.set(k0 + i, f.nominal, est, v.options.mode, speed,
-                               f.harmonic_scale_nm, self.base)
+            self.constants.set(k0 + i, f.nominal, f.episode_estimate(v.systems[i]),
+                               v.options.mode, float(speeds[i]), f.harmonic_scale_nm, self.base)
+
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        """Drive k is seeded ``seed + k`` at the next reset (each part seeds its own)."""
+        seeds = super().seed(seed)          # draws one if None, as SB3 does
+        k0 = 0
+        for p in self.parts:
+            p.seed(seeds[k0])
+            k0 += p.num_envs
+        return seeds
 
     def reset(self) -> np.ndarray:
         obs_parts, k0 = [], 0
-        for j, p in enumerate(self.parts):
-            seeds = self._seeds[k0:k0 + p.num_envs]
-            if any(s is not None for s in seeds):
-                p.seed(None)
-                p._seeds = list(seeds)
+        for p in self.parts:
             obs_parts.append(p.reset())
             self._update(k0, p, range(p.num_envs))
             k0 += p.num_envs
@@ -422,7 +424,7 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     """A :class:`ResidualVecEnv` with ``envs_per_motor`` drives around each of
     ``motors`` (for ``residual_action="feedback"`` inside a
     :class:`HeldFeedbackVecEnv` of ``hold_steps``); drive k is seeded ``seed + k``
-    (seeds must stay below 1_000_000)."""
+    (seeds must stay below ``TRAINING_SEED_LIMIT``)."""
     opts = {"estimate": "exact", **options,
             "action_mode": RESIDUAL_ACTIONS[_check_residual_action(residual_action)]}
     parts = [make_sb3_vec_env(num_envs=envs_per_motor, max_episode_steps=max_episode_steps,
@@ -434,8 +436,9 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     if residual_action == "feedback":
         env = HeldFeedbackVecEnv(env, hold_steps, feedback_gain)
     n = env.num_envs
-    if not 0 <= seed and seed + n < 1_000_000:
-        raise ValueError(f"training seeds must be in [0, 1_000_000), got {seed}..{seed + n}")
+    if not 0 <= seed <= TRAINING_SEED_LIMIT - n:
+        raise ValueError(f"training seeds must be in [0, {TRAINING_SEED_LIMIT}), got "
+                         f"{seed}..{seed + n - 1}")
     env.seed(seed)
     return env
 
@@ -476,8 +479,12 @@ class HeldFeedbackVecEnv(_WholeVecEnv):
         self._gain = np.zeros(self.num_envs)
         self._last: np.ndarray | None = None
 
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        seeds = super().seed(seed)
+        self.inner.seed(seeds[0])
+        return seeds
+
     def reset(self) -> np.ndarray:
-        self.inner._seeds = self._seeds
         self._last = self.inner.reset()
         self._reset_seeds()
         self._reset_options()
@@ -559,10 +566,9 @@ class ResidualWrapper(gym.Wrapper):
     def reset(self, **kwargs: Any):
         obs, info = self.env.reset(**kwargs)
         inner: StepperDampEnv = self.env.unwrapped
-        f = inner._factory
-        est = _episode_estimate(inner.options, inner.system, f.nominal_estimate)
-        self.constants.set(0, f.nominal, est, inner.options.mode, info["speed_rps"],
-                           f.harmonic_scale_nm, self.base)
+        f = inner.sampler
+        self.constants.set(0, f.nominal, f.episode_estimate(inner.system), inner.options.mode,
+                           info["speed_rps"], f.harmonic_scale_nm, self.base)
         self._last = self.constants.augment(obs[None])
         return self._observation(self._last, 0.0), info
 

@@ -5,22 +5,23 @@ from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by
 ``StepperDamp-v0``), so the zoo and this script train the same thing::
 
     stepdamp train --algo sac --seed 1 --out runs/sac
-    python -m agents.train --algo sac --total-timesteps 20000 --out runs/smoke
+    python -m stepdamp_agents.train --algo sac --total-timesteps 20000 --out runs/smoke
 
 What it does, in order:
 
 1. builds the training env: ``envs_per_motor`` native vectorised drives around
-   each preset (``randomize=True``, the env's generator seeded below 1_000_000;
+   each preset (``randomize=True``, the env's generator seeded below
+   ``TRAINING_SEED_LIMIT`` = 1_000_000;
    the protocol's drawn motors are never used), the protocol's sensors
    (0.01 A current noise, 4000 counts/rev), wrapped as residuals on top of the
-   base controller (:class:`agents.residual.ResidualVecEnv`);
+   base controller (:class:`stepdamp_agents.residual.ResidualVecEnv`);
 2. builds the algorithm with a zero-residual policy and zero-residual warm-up
-   (:mod:`agents.residual`); torch on one thread;
+   (:mod:`stepdamp_agents.residual`); torch on one thread;
 3. trains with a progress bar, TensorBoard and CSV logs, checkpoints and a
    periodic evaluation on the leaderboard's metrics (headline: mean RMS ripple
    at the three resonant speeds over that of ``none``, IQM) on validation
-   motors drawn around the presets with seed ``val_seed`` (< 1_000_000) and
-   noise seeds below 1_000_000, with the exact feedforward model;
+   motors drawn around the presets with seed ``val_seed`` and noise seeds
+   below the limit, with the exact feedforward model;
 4. writes ``final.zip`` and ``best.zip`` (best validation headline), each with its
    ``.agent.json`` (the config the leaderboard policy needs), and ``train_log.json``.
 """
@@ -34,15 +35,18 @@ import math
 import os
 import sys
 import time
-import types
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
+from stepdamp_env.env import DEFAULT_EPISODE_STEPS
+from stepdamp_env.params import preset_names
+
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
 ENV_ID = "StepperDamp-v0"
-PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
+PRESETS = tuple(preset_names())
 
 
 @dataclass
@@ -57,7 +61,7 @@ class Args:
     motors: tuple[str, ...] = PRESETS       # presets the training motors are drawn around
     envs_per_motor: int | None = None       # default: n_envs of the YAML / len(motors)
     eval_freq: int = 5_000                  # agent steps between validations (0: never)
-    val_seed: int = 900_000                 # validation motors' draw seed (< 1_000_000)
+    val_seed: int = 900_000                 # validation motors' draw seed (< TRAINING_SEED_LIMIT)
     val_motors_per_preset: int = 2
     checkpoint_freq: int = 10_000           # agent steps between checkpoints (0: never)
     progress: bool = True
@@ -122,20 +126,24 @@ def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
 # Validation on the leaderboard's metrics
 # ---------------------------------------------------------------------------
 class Validator:
-    """The leaderboard's run and score code on training-side validation motors."""
+    """The leaderboard's runner and scores on training-side validation motors.
+
+    Motors drawn around the training presets with ``val_seed`` (below
+    ``TRAINING_SEED_LIMIT``, never the protocol's), the resonant speeds of each,
+    open loop, the protocol's ramp, window and failure ratio; the exact model
+    stands in for the identified one (identification per validation motor
+    would cost more than the validation itself).
+    """
 
     def __init__(self, args: Args, env_kwargs: dict[str, Any]) -> None:
-        from baselines.base import MotorKnowledge
-        from stepdamp_env.envs import StepperDampEnv
-        from stepdamp_env.leaderboard import ProtocolMotor, speed_grid
+        from stepdamp_env.bench import MotorKnowledge, ProtocolMotor, full_protocol, speed_grid
+        from stepdamp_env.env import StepperDampEnv
         from stepdamp_env.params import FeedforwardModel
 
-        if not 0 <= args.val_seed < 1_000_000 - 1000:
-            raise ValueError("val_seed must stay below 1_000_000")
+        if not 0 <= args.val_seed < TRAINING_SEED_LIMIT - 1000:
+            raise ValueError(f"val_seed must stay below {TRAINING_SEED_LIMIT - 1000}")
         overrides = env_kwargs.get("overrides") or {}
-        # window_s, accel and failure ratio as the protocol; resonant speeds only.
-        self.protocol = types.SimpleNamespace(accel_rps2=50.0, window_s=0.3, failure_ratio=10.0,
-                                              resonance_harmonics=(4, 2, 1), off_resonance=())
+        self.protocol = dataclasses.replace(full_protocol(), off_resonance=())
         motors, k = [], 0
         for preset in args.motors:
             env = StepperDampEnv(motor=preset, overrides=overrides, randomize=True)
@@ -144,38 +152,42 @@ class Validator:
                 k += 1
                 system = env.system.replace(name=f"{preset}~val{j}")
                 speeds, labels = speed_grid(system, self.protocol)
-                nominal = env._factory.nominal
-                motors.append(ProtocolMotor(system.name, system, nominal, speeds, labels))
+                motors.append(ProtocolMotor(system.name, system, env.sampler.nominal, speeds,
+                                            labels))
         self.motors = tuple(motors)
         self.seed = args.val_seed
-        exact = {i: FeedforwardModel.from_motor(m.system.motor) for i, m in enumerate(motors)}
-        # The exact model stands in for the identified one (identification per
-        # validation motor would cost more than the validation itself).
-        self.knowledge = {(i, self.seed): MotorKnowledge(nominal=m.nominal, identified=exact[i],
-                                                         exact=exact[i])
-                          for i, m in enumerate(motors)}
+        self.knowledge = []
+        for m in motors:
+            exact = FeedforwardModel.from_motor(m.system.motor)
+            self.knowledge.append(MotorKnowledge(nominal=m.nominal, identified=exact,
+                                                 exact=exact))
         self._reference: dict | None = None
 
-    def _runs(self, spec: str, source: Any) -> list[dict]:
-        from stepdamp_env import leaderboard as lb
+    def _runs(self, make_policy) -> list[dict]:
+        from stepdamp_env.bench import run_episode
 
-        lb._init_worker(self.motors, self.knowledge, self.protocol, {spec: source})
-        return [lb._run_job(lb._Job(spec, "open-loop", i, self.seed, j))
-                for i, m in enumerate(self.motors) for j in range(len(m.speeds_rps))]
+        p = self.protocol
+        runs = []
+        for m, knowledge in zip(self.motors, self.knowledge):
+            for speed, label in zip(m.speeds_rps, m.speed_labels):
+                result = run_episode(make_policy(), knowledge, m.system, mode="open-loop",
+                                     speed_rps=speed, seed=self.seed, accel_rps2=p.accel_rps2,
+                                     window_s=p.window_s)
+                runs.append({"motor": m.name, "seed": self.seed, "speed_rps": speed,
+                             "speed_label": label, **result.to_dict()})
+        return runs
 
     def score(self, make_policy) -> dict[str, Any]:
-        from baselines import make_baseline
-        from stepdamp_env import leaderboard as lb
+        from stepdamp_env.bench import ZeroAction, iqm, reference_index, score_runs
+        from stepdamp_env.bench.protocol import REFERENCE_POLICY
 
         if self._reference is None:
-            src = lb.PolicySource("none", "none", lambda: make_baseline("none"))
-            self._reference = {(r["motor"], r["seed"], r["speed_rps"]): r
-                               for r in self._runs("none", src)}
-        src = lb.PolicySource("agent", "agent", make_policy)
-        runs = self._runs("agent", src)
-        scores = lb._scores(runs, self._reference, self.protocol)
+            self._reference = reference_index(self._runs(
+                lambda: ZeroAction(REFERENCE_POLICY, base_controller="none")))
+        runs = self._runs(make_policy)
+        scores = score_runs(runs, self._reference, self.protocol.failure_ratio)
         heads = [s["headline"] for s in scores]
-        return {"headline_iqm": lb.iqm(heads), "headline_mean": float(np.mean(heads)),
+        return {"headline_iqm": iqm(heads), "headline_mean": float(np.mean(heads)),
                 "per_motor": {s["motor"]: s["headline"] for s in scores},
                 "step_losses": int(sum(r["failed"] for r in runs))}
 
@@ -194,7 +206,7 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
             "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
                          "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
                          "wrapper_kwargs": wk, "hyperparams": args.hyperparams
-                         or f"agents/hyperparams/{args.algo}.yml"}}
+                         or f"stepdamp_agents/hyperparams/{args.algo}.yml"}}
 
 
 def save_agent(model: Any, path_zip: str, config: dict[str, Any]) -> None:
@@ -212,13 +224,14 @@ def train(args: Args) -> dict[str, Any]:
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
 
-    from .policy import ResidualAgent
+    from .policy import ResidualAgent, forget_model
     from .residual import ALGOS, make_residual_vec_env
 
     if args.algo not in ALGOS:
         raise ValueError(f"algo={args.algo!r} is not one of {list(ALGOS)}")
     if not 0 <= args.seed < 1000:
-        raise ValueError("seed must be in [0, 1000) (env seeds 1000*seed + k stay < 1_000_000)")
+        raise ValueError(f"seed must be in [0, 1000) (env seeds 1000*seed + k stay below "
+                         f"{TRAINING_SEED_LIMIT})")
     torch.set_num_threads(1)
     sp = split_hyperparams(load_hyperparams(args))
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
@@ -226,7 +239,7 @@ def train(args: Args) -> dict[str, Any]:
     wk = sp["wrapper_kwargs"]
     env_kwargs = dict(sp["env_kwargs"])
     env_kwargs.pop("motor", None)
-    max_steps = int(env_kwargs.pop("max_episode_steps", 300))
+    max_steps = int(env_kwargs.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
     env = make_residual_vec_env(args.motors, per_motor, 1000 * args.seed,
                                 max_episode_steps=max_steps, **wk, **env_kwargs)
     os.makedirs(args.out, exist_ok=True)
@@ -258,9 +271,7 @@ def train(args: Args) -> dict[str, Any]:
     def evaluate(tag: str) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
-        from . import policy as P
-
-        P._MODELS.pop(os.path.abspath(path), None)
+        forget_model(path)
         agent = ResidualAgent(path)
         res = validator.score(lambda: agent)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
@@ -368,7 +379,7 @@ def args_from_namespace(ns: argparse.Namespace) -> Args:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m stepdamp_agents.train", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(p)
     train(args_from_namespace(p.parse_args(argv)))

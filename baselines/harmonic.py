@@ -17,14 +17,16 @@ from typing import Any
 
 import numpy as np
 
-from stepdamp_env.params import FeedforwardModel, SystemParams
+from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_model,
+                                       resolve_estimate)
+from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
+from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
 from stepdamp_env.response import current_path, torque_to_velocity, velocity_filter
 
-from .base import MotorKnowledge, PolicyContext, resolve_estimate
+__all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS", "phasors", "torque_paths",
+           "harmonic_actions"]
 
-__all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS"]
-
-HARMONICS = (1, 2, 4)
+HARMONICS = DETENT_HARMONICS
 
 
 def phasors(model: FeedforwardModel) -> np.ndarray:
@@ -55,7 +57,7 @@ def torque_paths(system: SystemParams, mode: str, speed_rps: float,
     return out
 
 
-def _actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
+def harmonic_actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
     """Actions that turn the base feedforward ``base`` into ``applied``, clipped
     to the action range [-1, 1] (a policy cannot ask for more)."""
     delta = (applied - base) / scale
@@ -95,10 +97,10 @@ class DelayCompensatedFF(_HarmonicResidual):
         self._action = np.zeros(6, dtype=np.float32)
 
     def reset(self, context: PolicyContext) -> None:
-        model = _model(self.estimate, context.knowledge)
+        model = estimate_model(self.estimate, context.knowledge)
         base = phasors(model)
         g = torque_paths(context.knowledge.nominal, context.mode, context.speed_rps, model)
-        self._action = _actions(base / g, base, context.action_scale)
+        self._action = harmonic_actions(base / g, base, context.action_scale)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action
@@ -162,7 +164,7 @@ class AdaptiveFF(_HarmonicResidual):
         from filterpy.kalman import KalmanFilter
 
         system = context.knowledge.nominal
-        model = _model(self.estimate, context.knowledge)
+        model = estimate_model(self.estimate, context.knowledge)
         self._base = phasors(model)
         g = torque_paths(system, context.mode, context.speed_rps, model)
         w = 2.0 * math.pi * abs(context.speed_rps)
@@ -180,11 +182,10 @@ class AdaptiveFF(_HarmonicResidual):
         kf.F = np.eye(6)
         self._kf = kf
         self._row = np.zeros((1, 6))
-        self._action = _actions(self._base / g, self._base, self._scale)
+        self._action = harmonic_actions(self._base / g, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
         self._initial = self._applied.copy()
-        ramp_s = abs(context.speed_rps) / 50.0
-        self._start_step = int(round((ramp_s + self.start_s) * context.agent_hz))
+        self._start_step = int(round((context.ramp_s + self.start_s) * context.agent_hz))
         self._adapt_step = self._start_step + int(round(self.probe_s * context.agent_hz))
         self._reference_power = np.zeros(3)
         self._active = np.ones(3, dtype=bool)
@@ -195,11 +196,11 @@ class AdaptiveFF(_HarmonicResidual):
         if self._step <= self._start_step:
             return self._action
         row = self._row
-        row[0, 0::2] = observation[2:8:2]      # sin x, sin 2x, sin 4x
-        row[0, 1::2] = observation[3:8:2]      # cos x, cos 2x, cos 4x
+        row[0, 0::2] = observation[HARMONIC_SIN]      # sin x, sin 2x, sin 4x
+        row[0, 1::2] = observation[HARMONIC_COS]      # cos x, cos 2x, cos 4x
         kf = self._kf
         kf.predict()
-        kf.update(np.array([[float(observation[1]) * self._w_ref]]), H=row)
+        kf.update(np.array([[float(observation[OBS.velocity_error]) * self._w_ref]]), H=row)
         ripple = kf.x[0::2, 0] + 1j * kf.x[1::2, 0]
         power = np.abs(ripple) ** 2
         variance = kf.P[0::2, 0::2].diagonal() + kf.P[1::2, 1::2].diagonal()
@@ -217,13 +218,7 @@ class AdaptiveFF(_HarmonicResidual):
         weight = self._active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300),
                                         0.0, 1.0)
         target = self._applied + self.step_gain * weight * ripple * self._inverse_path
-        self._action = _actions(target, self._base, self._scale)
+        self._action = harmonic_actions(target, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
         return self._action
 
-
-def _model(which: str, knowledge: MotorKnowledge) -> FeedforwardModel:
-    est = resolve_estimate(which, knowledge)
-    if isinstance(est, FeedforwardModel):
-        return est
-    return knowledge.exact

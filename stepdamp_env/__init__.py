@@ -4,7 +4,7 @@ from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError,
                      SystemParams, get_preset, load_system, predicted_resonances,
                      preset_names)
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
-from .envs import StepperDampEnv, StepperDampVectorEnv, register_envs
+from .env import StepperDampEnv, StepperDampVectorEnv, register_envs
 
 __version__ = "0.1.0"
 

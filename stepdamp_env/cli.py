@@ -1,4 +1,9 @@
-"""``stepdamp`` command line: sweep, simulate, presets, leaderboard."""
+"""``stepdamp`` command line: sweep, simulate, identify, leaderboard, train, presets.
+
+The composition root: the only module of ``stepdamp_env`` that imports the
+baselines and the agents (``stepdamp_baselines``, ``stepdamp_agents``); it
+registers their policies with the leaderboard before any command runs.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +17,8 @@ import numpy as np
 
 from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
                      preset_names)
-from .simulation import DAMPINGS, MODES, RunSettings, SpeedProfile, simulate
+from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
+                         simulate)
 
 __all__ = ["main"]
 
@@ -27,7 +33,7 @@ def _add_system_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimate", default=None, metavar="NAME|FILE.json",
                    help="motor whose Km, Kd1/2/4, phi1/2, Fs the feedforward uses "
                         "(default: the plant's own, i.e. exact)")
-    p.add_argument("--accel", type=float, default=50.0, metavar="RPS2",
+    p.add_argument("--accel", type=float, default=DEFAULT_ACCEL_RPS2, metavar="RPS2",
                    help="command acceleration of the start-up ramp (rev/s^2)")
     p.add_argument("--substeps", type=int, default=1,
                    help="RK4 plant steps per PWM period")
@@ -141,10 +147,19 @@ def _cmd_presets(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_leaderboard(args: argparse.Namespace) -> int:
-    from .leaderboard import (SUITES, default_policy_names, full_protocol, quick_protocol,
-                              run_leaderboard, write_outputs)
+def _register_policies() -> None:
+    import stepdamp_agents
+    import stepdamp_baselines
 
+    stepdamp_baselines.register_policies()
+    stepdamp_agents.register_policies()
+
+
+def _cmd_leaderboard(args: argparse.Namespace) -> int:
+    from .bench import (SUITES, default_policy_names, full_protocol, quick_protocol,
+                        run_leaderboard, write_outputs)
+
+    _register_policies()
     protocol = quick_protocol() if args.quick else full_protocol()
     suites = SUITES if args.suite == "all" else (args.suite,)
     protocol = protocol.with_suites(suites)
@@ -172,7 +187,7 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from agents.train import args_from_namespace, train
+    from stepdamp_agents.train import args_from_namespace, train
 
     train(args_from_namespace(args))
     return 0
@@ -236,9 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train a residual RL agent (SAC, TD3, PPO) on "
                                      "StepperDamp-v0; see agents/train.py")
-    from agents.train import add_arguments as _add_train_arguments
+    from stepdamp_agents.train import add_arguments
 
-    _add_train_arguments(p)
+    add_arguments(p)
     p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("presets", help="list the motor presets")

@@ -51,6 +51,8 @@ __all__ = [
     "load_system",
     "parse_set_overrides",
     "predicted_resonances",
+    "DETENT_HARMONICS",
+    "RESONANCE_HARMONICS",
 ]
 
 
@@ -345,6 +347,12 @@ def delayed_loop_gain(bandwidth_per_sample: float) -> float:
     return a.real + math.sqrt(a.real ** 2 + abs(a) ** 2)
 
 
+# Detent harmonics of the model, in the order of its sin/cos coefficients.
+DETENT_HARMONICS = (1, 2, 4)
+# The same harmonics in the order of their resonant speeds (lowest speed first).
+RESONANCE_HARMONICS = (4, 2, 1)
+
+
 def predicted_resonances(system: SystemParams) -> dict[int, float]:
     """Speeds (rev/s) at which detent harmonic h excites the rotor resonance.
 
@@ -352,7 +360,7 @@ def predicted_resonances(system: SystemParams) -> dict[int, float]:
     w_shaft = wn/(h*Nr) (physics-notes.md section 4). Keys are h = 4, 2, 1.
     """
     wn = system.natural_frequency()
-    return {h: wn / (h * system.motor.Nr) / (2.0 * math.pi) for h in (4, 2, 1)}
+    return {h: wn / (h * system.motor.Nr) / (2.0 * math.pi) for h in RESONANCE_HARMONICS}
 
 
 @dataclass(frozen=True)

@@ -9,13 +9,14 @@ import numpy as np
 
 from .io import atomic_path
 from .params import SystemParams
-from .simulation import RunSettings, SpeedProfile, simulate
+from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 from .sweep import SweepResult
 
-__all__ = ["plot_sweep", "plot_velocity_error_traces"]
+__all__ = ["plot_sweep", "plot_velocity_error_traces", "pyplot", "save_figure", "trace_speeds"]
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no screen)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -24,7 +25,8 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str | os.PathLike[str]) -> None:
+def save_figure(fig, path: str | os.PathLike[str]) -> None:
+    """Save ``fig`` as a PNG, atomically."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
 
@@ -32,7 +34,7 @@ def _save(fig, path: str | os.PathLike[str]) -> None:
 def plot_sweep(sweeps: Sequence[SweepResult], path: str | os.PathLike[str],
                title: str | None = None) -> None:
     """RMS velocity error against command speed, predicted resonances marked."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for sw in sweeps:
         ax.semilogy(sw.speeds_rps, sw.column("rms_velocity_error_rad_s"), marker=".",
@@ -52,19 +54,19 @@ def plot_sweep(sweeps: Sequence[SweepResult], path: str | os.PathLike[str],
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
 def plot_velocity_error_traces(system: SystemParams, settings: RunSettings,
                                speeds_rps: Sequence[float], path: str | os.PathLike[str],
-                               accel_rps2: float = 50.0, span_s: float = 0.1,
+                               accel_rps2: float = DEFAULT_ACCEL_RPS2, span_s: float = 0.1,
                                title: str | None = None) -> None:
     """Velocity error against time at several speeds, stacked (patent Figs. 4-7).
 
     Each panel shows ``span_s`` seconds of the measuring window of one run.
     """
-    plt = _pyplot()
+    plt = pyplot()
     speeds = list(speeds_rps)
     fig, axes = plt.subplots(len(speeds), 1, figsize=(8, 1.5 + 1.3 * len(speeds)),
                              sharex=True, squeeze=False)
@@ -85,7 +87,7 @@ def plot_velocity_error_traces(system: SystemParams, settings: RunSettings,
     fig.suptitle(title or f"Velocity error w_cmd - w: {system.name}, {settings.mode}, "
                  f"{settings.damping}", fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 

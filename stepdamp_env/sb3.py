@@ -24,7 +24,7 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvIndices,
                                                            VecEnvStepReturn)
 
-from .envs import DEFAULT_EPISODE_STEPS, StepperDampVectorEnv
+from .env import DEFAULT_EPISODE_STEPS, StepperDampVectorEnv
 
 __all__ = ["StepperDampSB3VecEnv", "make_sb3_vec_env"]
 

@@ -20,6 +20,7 @@ from .params import FeedforwardModel, ParameterError, SystemParams, load_system
 __all__ = [
     "MODES",
     "DAMPINGS",
+    "DEFAULT_ACCEL_RPS2",
     "SpeedProfile",
     "RunSettings",
     "RunMetrics",
@@ -35,6 +36,8 @@ MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
 DAMPINGS = ("none", "patent-ff")
 VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN}
 TWO_PI = 2.0 * math.pi
+# Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
+DEFAULT_ACCEL_RPS2 = 50.0
 
 
 def _check_choice(name: str, value: str, choices) -> None:
@@ -61,7 +64,7 @@ class SpeedProfile:
     """
 
     speed_rps: float
-    accel_rps2: float = 50.0
+    accel_rps2: float = DEFAULT_ACCEL_RPS2
     kind: str = "constant"
     distance_rev: float = 0.0
 

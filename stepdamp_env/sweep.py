@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import math
-import multiprocessing
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
+from .parallel import default_workers, pool_map
 from .params import ParameterError, SystemParams
-from .simulation import RunSettings, SpeedProfile, simulate
+from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 
 __all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks"]
 
@@ -119,13 +117,8 @@ def _run_point(args: tuple[SystemParams, RunSettings, float, float]) -> dict[str
     return result.metrics.to_dict()
 
 
-def default_workers() -> int:
-    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-               else (os.cpu_count() or 1))
-
-
 def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
-              settings: RunSettings | None = None, accel_rps2: float = 50.0,
+              settings: RunSettings | None = None, accel_rps2: float = DEFAULT_ACCEL_RPS2,
               workers: int | None = None, progress: bool = True) -> SweepResult:
     """Simulate each speed (constant-speed profile) and collect its metrics.
 
@@ -142,21 +135,7 @@ def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
 
         bar = tqdm(total=len(jobs), desc=f"sweep {settings.mode}/{settings.damping}",
                    unit="run")
-    metrics: list[dict[str, Any]] = []
-    if workers <= 1 or len(jobs) < 4:
-        for job in jobs:
-            metrics.append(_run_point(job))
-            if bar:
-                bar.update()
-    else:
-        method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-        chunk = max(1, len(jobs) // (workers * 8))
-        with ProcessPoolExecutor(max_workers=workers,
-                                 mp_context=multiprocessing.get_context(method)) as pool:
-            for m in pool.map(_run_point, jobs, chunksize=chunk):
-                metrics.append(m)
-                if bar:
-                    bar.update()
+    metrics = pool_map(_run_point, jobs, workers, min_jobs=4, bar=bar)
     if bar:
         bar.close()
     return SweepResult(system=system, settings=settings, accel_rps2=float(accel_rps2),

@@ -10,14 +10,14 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from agents.policy import ResidualAgent, load_model  # noqa: E402
-from agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualWrapper,  # noqa: E402
+from stepdamp_agents.policy import ResidualAgent, forget_model, load_model  # noqa: E402
+from stepdamp_agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualWrapper,  # noqa: E402
                              context_features, make_residual_vec_env)
-from agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
-from baselines import make_baseline  # noqa: E402
-from baselines.base import MotorKnowledge, PolicyContext  # noqa: E402
+from stepdamp_agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
+from stepdamp_baselines import make_baseline  # noqa: E402
 from stepdamp_env import kernel as K  # noqa: E402
-from stepdamp_env.envs import StepperDampEnv  # noqa: E402
+from stepdamp_env.bench import MotorKnowledge, PolicyContext, run_episode  # noqa: E402
+from stepdamp_env.env import StepperDampEnv  # noqa: E402
 from stepdamp_env.params import FeedforwardModel, get_preset  # noqa: E402
 
 torch.set_num_threads(1)
@@ -44,15 +44,15 @@ def _context(system, speed, scale, mode="open-loop"):
 
 
 def _trajectory(policy, system, speed, steps=150, seed=3):
-    options = policy.env_options(_context(system, speed, 0.0).knowledge)
-    env = StepperDampEnv(motor=system, speed_rps=speed, **options)
-    obs, _ = env.reset(seed=seed)
-    policy.reset(_context(system, speed, env.unwrapped._factory.harmonic_scale_nm))
-    out = [obs]
-    for _ in range(steps):
-        obs, *_ = env.step(policy.act(obs))
-        out.append(obs)
-    return np.array(out), env.drive_state
+    """Observations after each of ``steps`` agent steps (1 kHz) and the final drive state."""
+    def record(env, obs, start):
+        return obs, env.drive_state
+
+    result = run_episode(policy, _context(system, speed, 0.0).knowledge, system,
+                         mode="open-loop", speed_rps=speed, seed=seed,
+                         until_s=(steps - 0.5) / 1000.0, on_step=record)
+    assert len(result.trace) == steps
+    return np.array([o for o, _ in result.trace]), result.trace[-1][1]
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
@@ -100,9 +100,9 @@ def test_wrapper_matches_vector_env_features():
                           base="ff-delay-comp", residual_scale=0.1)
     obs, info = env.reset(seed=5)
     inner = env.unwrapped
-    feats, dc = context_features(inner._factory.nominal,
+    feats, dc = context_features(inner.sampler.nominal,
                                  FeedforwardModel.from_motor(inner.system.motor), "open-loop",
-                                 info["speed_rps"], inner._factory.action_scale)
+                                 info["speed_rps"], inner.sampler.action_scales[0])
     assert obs.shape == (30,) and np.array_equal(obs[18:], feats)
     obs2, *_ = env.step(np.zeros(6, dtype=np.float32))
     assert np.allclose(obs2[11:17], dc)             # the base action was applied
@@ -157,9 +157,7 @@ def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     system = get_preset(MOTOR).replace(Kd4=1.1 * get_preset(MOTOR).motor.Kd4)
     speed = system.predicted_resonances_rps()[4]
     a, s_a = _trajectory(ResidualAgent(path), system, speed, steps=100)
-    from agents import policy as P
-
-    P._MODELS.clear()                                # reload from disk
+    forget_model(path)                               # reload from disk
     b, s_b = _trajectory(ResidualAgent(path), system, speed, steps=100)
     assert np.array_equal(a, b) and np.array_equal(s_a, s_b)
     assert load_model(path).policy.actor.mu.weight.abs().sum() > 0     # it did learn
@@ -217,9 +215,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
     assert obs_s[-1] > 0 and len(set(gains)) == decisions      # the gain really changed
     state_training = scalar.unwrapped.drive_state
 
-    from agents import policy as P
-
-    P._MODELS.clear()
+    forget_model(path)
     agent = ResidualAgent(path)
     system = get_preset(MOTOR).replace(current_noise_a=0.01)
     exact = FeedforwardModel.from_motor(system.motor)
@@ -228,7 +224,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
     assert options["action_mode"] == "harmonic+current" and options["agent_hz"] == 4000.0
     env = StepperDampEnv(motor=system, speed_rps=speed, **options)
     obs, _ = env.reset(seed=seed)
-    f = env._factory
+    f = env.sampler
     agent.reset(PolicyContext(knowledge=knowledge, estimate=exact, mode="open-loop",
                               speed_rps=speed, action_mode="harmonic+current",
                               action_scale=f.harmonic_scale_nm, agent_hz=4000.0,
@@ -244,8 +240,8 @@ def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
     damps below half of patent-ff-identified and below ff-delay-comp."""
     import dataclasses
 
-    from agents import reference_names
-    from stepdamp_env.leaderboard import default_policy_names, quick_protocol, run_leaderboard
+    from stepdamp_agents import reference_names
+    from stepdamp_env.bench import default_policy_names, quick_protocol, run_leaderboard
 
     assert "ppo-residual" in reference_names() and "ppo-residual" in default_policy_names()
     with open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),

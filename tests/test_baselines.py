@@ -7,11 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from baselines import BASELINE_NAMES, make_baseline
-from baselines.base import MotorKnowledge, PolicyContext
-from baselines.harmonic import phasors, torque_paths
+from stepdamp_baselines import BASELINE_NAMES, make_baseline
+from stepdamp_baselines.harmonic import phasors, torque_paths
 from stepdamp_env import kernel as K
-from stepdamp_env.envs import StepperDampEnv
+from stepdamp_env.bench import MotorKnowledge, run_episode
 from stepdamp_env.identify import identify
 from stepdamp_env.params import FeedforwardModel, get_preset
 from stepdamp_env.response import current_path
@@ -24,20 +23,10 @@ def run_policy(policy, plant, knowledge, mode, speed, extra_settle_s=0.0, window
     """RMS velocity error (rad/s) of one episode of ``policy`` over its window."""
     start, _ = measuring_window(plant, SpeedProfile(speed), RunSettings(mode=mode))
     start += extra_settle_s
-    options = policy.env_options(knowledge)
-    env = StepperDampEnv(motor=plant, mode=mode, speed_rps=speed, measure_from_s=start,
-                         **options)
-    obs, _ = env.reset(seed=1)
-    estimate = options.get("estimate")
-    policy.reset(PolicyContext(
-        knowledge=knowledge,
-        estimate=estimate if isinstance(estimate, FeedforwardModel) else None,
-        mode=mode, speed_rps=speed, action_mode=options["action_mode"],
-        action_scale=env._factory.action_scale, agent_hz=1000.0))
-    while env.time_s < start + window_s:
-        obs, _, terminated, _, _ = env.step(policy.act(obs))
-        assert not terminated
-    return env.run_metrics().rms_velocity_error_rad_s
+    result = run_episode(policy, knowledge, plant, mode=mode, speed_rps=speed, seed=1,
+                         measure_from_s=start, window_s=window_s, until_s=start + window_s)
+    assert not result.terminated
+    return result.metrics["rms_velocity_error_rad_s"]
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from gymnasium.vector import AutoresetMode
 
 import stepdamp_env
 from stepdamp_env import kernel as K
-from stepdamp_env.envs import (DEFAULT_EPISODE_STEPS, ENV_ID, StepperDampEnv,
+from stepdamp_env.env import (DEFAULT_EPISODE_STEPS, ENV_ID, StepperDampEnv,
                                StepperDampVectorEnv, register_envs)
 from stepdamp_env.params import FeedforwardModel, get_preset, predicted_resonances
 from stepdamp_env.simulation import simulate
@@ -79,10 +79,10 @@ def test_spaces_and_scaling():
     np.testing.assert_array_equal(obs[11:17], a)        # last action is observed
     # Default action scale: 2*max(Kd) of the patent motor (N*m).
     m = get_preset("patent").motor
-    assert env._factory.action_scale == pytest.approx(2 * max(m.Kd1, m.Kd2, m.Kd4))
+    assert env.sampler.action_scales[0] == pytest.approx(2 * max(m.Kd1, m.Kd2, m.Kd4))
     cur = StepperDampEnv(action_mode="current")
     assert cur.action_space.shape == (1,)
-    assert cur._factory.action_scale == pytest.approx(0.25 * 1.9)
+    assert cur.sampler.action_scales[0] == pytest.approx(0.25 * 1.9)
 
 
 @pytest.mark.parametrize("mode", ["open-loop", "servo"])
@@ -106,8 +106,8 @@ def test_harmonic_plus_current_is_both_modes_at_once(mode):
 
     both = StepperDampEnv(action_mode="harmonic+current", **kw)
     assert both.action_space.shape == (7,)
-    assert both._factory.action_scales == (both._factory.harmonic_scale_nm,) * 6 + (
-        both._factory.current_scale_a,)
+    assert both.sampler.action_scales == (both.sampler.harmonic_scale_nm,) * 6 + (
+        both.sampler.current_scale_a,)
     assert np.array_equal(states("harmonic+current", np.hstack([harmonic, zeros1])),
                           states("harmonic", harmonic))
     assert np.array_equal(states("harmonic+current", np.hstack([zeros6, current])),
@@ -409,7 +409,7 @@ def test_render_rgb_array():
 def test_measured_episode_gives_the_simulation_core_metrics():
     # The env, stepped with zero actions through a measuring window, reports the
     # very metrics simulate() computes for the same run.
-    from stepdamp_env.envs import StepperDampEnv
+    from stepdamp_env.env import StepperDampEnv
     from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window
 
     system = get_preset("patent")

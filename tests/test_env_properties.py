@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stepdamp_env.envs import StepperDampEnv, StepperDampVectorEnv
+from stepdamp_env.env import StepperDampEnv, StepperDampVectorEnv
 
 unit = st.floats(-1.0, 1.0, allow_nan=False, width=32)
 

@@ -12,7 +12,7 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import stepdamp_env  # noqa: F401
-from stepdamp_env.envs import ENV_ID, StepperDampVectorEnv
+from stepdamp_env.env import ENV_ID, StepperDampVectorEnv
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
 
 

@@ -10,21 +10,16 @@ import os
 import numpy as np
 import pytest
 
-from baselines import BASELINE_NAMES
+from stepdamp_baselines import BASELINE_NAMES
+from stepdamp_env.bench import (TRAINING_SEED_LIMIT, Protocol, full_protocol, iqm,
+                                protocol_motors, quick_protocol, run_leaderboard,
+                                stratified_bootstrap_ci)
 from stepdamp_env.cli import main
-from stepdamp_env.leaderboard import (TRAINING_SEED_LIMIT, Protocol, full_protocol, iqm,
-                                      protocol_motors, quick_protocol, run_leaderboard,
-                                      stratified_bootstrap_ci)
 from stepdamp_env.params import ParameterError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TEST_POLICY = "tests.leaderboard_policy:NominalFeedforward"
-
-
-@pytest.fixture(autouse=True)
-def _repo_on_path(monkeypatch):
-    # Module-path policies are imported as tests.leaderboard_policy (workers fork and inherit).
-    monkeypatch.syspath_prepend(ROOT)
+# A policy given by file path: found from any working directory.
+TEST_POLICY = os.path.join(ROOT, "tests", "leaderboard_policy.py") + ":NominalFeedforward"
 
 
 def tiny_protocol() -> Protocol:
@@ -146,11 +141,12 @@ def test_module_policy_runs(tiny_board):
             [r["metrics"] for r in e["patent-ff-oracle"]["runs"]]
 
 
-def test_policy_may_not_set_protocol_options():
+def test_policy_may_not_set_protocol_options(monkeypatch):
+    monkeypatch.syspath_prepend(ROOT)           # a package.module:attr spec
     with pytest.raises(ValueError, match="privileged"):
         run_leaderboard(tiny_protocol(), ["none", "tests.leaderboard_policy:Privileged"],
                         workers=1, progress=False)
-    with pytest.raises(ValueError, match="is not one of the baselines"):
+    with pytest.raises(ValueError, match="is not a registered policy"):
         run_leaderboard(tiny_protocol(), ["no-such-policy"], workers=1, progress=False)
 
 

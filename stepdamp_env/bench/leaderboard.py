@@ -1,0 +1,205 @@
+"""The leaderboard: every policy under a protocol, in a process pool, scored and ranked.
+
+:func:`run_leaderboard` identifies each (motor, seed) once, runs every policy
+(:mod:`.registry`) on every motor, seed, suite and speed of the protocol
+(:mod:`.protocol`, :mod:`.motors`) with the one episode runner
+(:func:`.runner.run_episode`), scores the runs against the reference policy
+(:mod:`.scoring`, :mod:`.stats`) and returns the board as a JSON-ready dict;
+:func:`.report.write_outputs` writes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import math
+import platform
+import sys
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..env.scalar import StepperDampEnv
+from ..identify import identify
+from ..parallel import default_workers, pool_map
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..simulation import RunSettings, SpeedProfile, simulate
+from .motors import ProtocolMotor, protocol_motors
+from .policy import MotorKnowledge, policy_env_options
+from .protocol import REFERENCE_POLICY, Protocol
+from .registry import PolicySource, default_policy_names, resolve_policy
+from .runner import run_episode
+from .scoring import make_entry, reference_index
+
+__all__ = ["LeaderboardJob", "run_leaderboard", "package_versions"]
+
+
+@dataclass(frozen=True)
+class LeaderboardJob:
+    """One run of the leaderboard (indices into the protocol's motors and grids)."""
+
+    spec: str
+    suite: str
+    motor_index: int
+    seed: int
+    speed_index: int
+
+
+# What a worker process needs; set once per process by _init_worker.
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(motors: tuple[ProtocolMotor, ...], knowledge: dict, protocol: Protocol,
+                 sources: dict[str, PolicySource] | None) -> None:
+    _WORKER["motors"] = motors
+    _WORKER["knowledge"] = knowledge
+    _WORKER["protocol"] = protocol
+    _WORKER["sources"] = dict(sources or {})
+    if "torch" in sys.modules:     # one thread per process: both cores, no oversubscription
+        sys.modules["torch"].set_num_threads(1)
+
+
+def _source(spec: str) -> PolicySource:
+    sources = _WORKER.setdefault("sources", {})
+    if spec not in sources:
+        sources[spec] = resolve_policy(spec)
+    return sources[spec]
+
+
+def _identify_job(args: tuple[int, int]) -> FeedforwardModel:
+    motor_index, seed = args
+    motor = _WORKER["motors"][motor_index]
+    return identify(motor.system, method=_WORKER["protocol"].identification_method,
+                    noise_seed=seed).model
+
+
+def _run_job(job: LeaderboardJob) -> dict[str, Any]:
+    protocol: Protocol = _WORKER["protocol"]
+    motor: ProtocolMotor = _WORKER["motors"][job.motor_index]
+    speed = motor.speeds_rps[job.speed_index]
+    result = run_episode(_source(job.spec).make(),
+                         _WORKER["knowledge"][(job.motor_index, job.seed)], motor.system,
+                         mode=job.suite, speed_rps=speed, seed=job.seed,
+                         accel_rps2=protocol.accel_rps2, window_s=protocol.window_s)
+    return {"motor": motor.name, "seed": job.seed, "speed_rps": speed,
+            "speed_label": motor.speed_labels[job.speed_index], **result.to_dict()}
+
+
+def _warm_up(system: SystemParams) -> None:
+    """Load the compiled kernel and env helpers once, before forking, so that the
+    workers inherit them instead of each loading the numba cache again."""
+    simulate(system, settings=RunSettings(settle_s=0.0, window_s=0.001), trace=True,
+             profile=SpeedProfile(speed_rps=0.5, accel_rps2=1000.0))
+    env = StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0)
+    env.reset(seed=0)
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    env.run_metrics()
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of this package, Python and the numerical dependencies."""
+    from .. import __version__
+
+    out = {"package": __version__, "python": platform.python_version()}
+    for dist, key in (("numpy", "numpy"), ("numba", "numba"), ("gymnasium", "gymnasium"),
+                      ("stable-baselines3", "stable-baselines3"), ("torch", "torch")):
+        try:
+            out[key] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            out[key] = "not installed"
+    return out
+
+
+def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, Any]:
+    """Oracle flag and the env options of a policy, JSON-ready."""
+    policy = source.make()
+    raw = dict(policy.env_options(knowledge))
+    options = policy_env_options(policy, knowledge)
+    est = raw.get("estimate", "exact")
+    if isinstance(est, FeedforwardModel):
+        # Nominal is checked before exact: for a preset the two are equal.
+        est = ("identified" if est == knowledge.identified else
+               "nominal" if est == FeedforwardModel.from_motor(knowledge.nominal.motor) else
+               "exact" if est == knowledge.exact else "model")
+    options["estimate"] = est
+    oracle = est == "exact" and options.get("base_controller", "patent-ff") != "none"
+    return {"oracle": bool(oracle), "env_options": options}
+
+
+def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *,
+                    workers: int | None = None, progress: bool = True) -> dict[str, Any]:
+    """Evaluate policies (registered names, module paths, model files) under ``protocol``.
+
+    ``policies`` defaults to :func:`.registry.default_policy_names`; the
+    reference policy (``none``) always runs (it is the reference of every
+    ratio). Returns the leaderboard as a JSON-ready dict. Runs are independent
+    and deterministic: the result does not depend on ``workers`` (default:
+    every core this process may use). If torch is loaded (SB3 policies), it is
+    set to one thread in this process too, so that a serial run computes
+    exactly what a worker does.
+    """
+    specs = list(dict.fromkeys([REFERENCE_POLICY, *(policies if policies is not None
+                                                    else default_policy_names())]))
+    sources = {spec: resolve_policy(spec) for spec in specs}
+    names = [s.name for s in sources.values()]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ParameterError(f"two policies share the name(s) {dupes}; names must be unique")
+    workers = default_workers() if workers is None else max(1, int(workers))
+    motors = protocol_motors(protocol)
+    pairs = [(i, seed) for i in range(len(motors)) for seed in protocol.eval_seeds]
+    _warm_up(motors[0].system)
+
+    def progress_bar(total: int, desc: str, unit: str) -> Any:
+        if not progress:
+            return None
+        from tqdm.auto import tqdm
+
+        return tqdm(total=total, desc=desc, unit=unit)
+
+    bar = progress_bar(len(pairs), "identify", "motor")
+    init = (motors, {}, protocol, None)
+    identified = pool_map(_identify_job, pairs, workers, initializer=_init_worker,
+                          initargs=init, max_chunk=16, bar=bar)
+    if bar is not None:
+        bar.close()
+    knowledge = {(i, seed): MotorKnowledge(nominal=motors[i].nominal, identified=model,
+                                           exact=FeedforwardModel.from_motor(motors[i].system.motor))
+                 for (i, seed), model in zip(pairs, identified)}
+
+    # Options and oracle flag per policy, for the record; the last motor is a drawn
+    # one in the full protocol, where nominal, identified and exact all differ.
+    meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
+
+    jobs = [LeaderboardJob(spec, suite, i, seed, j)
+            for spec in specs for suite in protocol.suites
+            for i, m in enumerate(motors) for seed in protocol.eval_seeds
+            for j in range(len(m.speeds_rps))]
+    bar = progress_bar(len(jobs), "leaderboard", "run")
+    # SB3 models are loaded in the parent and inherited by the forked workers.
+    results = pool_map(_run_job, jobs, workers, initializer=_init_worker,
+                       initargs=(motors, knowledge, protocol, sources), max_chunk=16, bar=bar)
+    if bar is not None:
+        bar.close()
+
+    by_entry: dict[tuple[str, str], list[dict]] = {}
+    for job, res in zip(jobs, results):
+        by_entry.setdefault((job.spec, job.suite), []).append(res)
+    entries = []
+    for suite in protocol.suites:
+        reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
+        suite_entries = [make_entry(sources[spec].name, sources[spec].spec, suite,
+                                    by_entry[(spec, suite)], reference, protocol, meta[spec])
+                         for spec in specs]
+        suite_entries.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
+                                          e["headline"]["iqm"], e["name"]))
+        for rank, e in enumerate(suite_entries, 1):
+            e["rank"] = rank
+        entries += suite_entries
+    identification = [{"motor": motors[i].name, "seed": seed,
+                       "model": dataclasses.asdict(m) if m is not None else None}
+                      for (i, seed), m in zip(pairs, identified)]
+    return {"protocol": {**protocol.to_dict(), "motors": [m.to_dict() for m in motors]},
+            "versions": package_versions(), "identification": identification,
+            "entries": entries}

@@ -1,0 +1,197 @@
+"""The policy contract: what every entry of the benchmark implements and is told.
+
+A policy runs in ``StepperDamp-v0`` (observation in, action out). It states the
+environment options it needs (base controller, its model, action mode) through
+:meth:`Policy.env_options`, given what the drive may know about its motor
+(:class:`MotorKnowledge`: the datasheet values and an identified detent model,
+never the true plant), and is told the episode's context by :meth:`Policy.reset`.
+Read observation entries by name (:mod:`stepdamp_env.env.layout`). Baselines
+(``stepdamp_baselines``) and agents (``stepdamp_agents``) implement it; the
+leaderboard runs every policy through :func:`stepdamp_env.bench.runner.run_episode`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Protocol as TypingProtocol, runtime_checkable
+
+import numpy as np
+
+from ..env.options import ESTIMATES, EnvOptions, default_action_scales
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..simulation import DEFAULT_ACCEL_RPS2
+from .protocol import POLICY_OPTIONS
+
+__all__ = ["MotorKnowledge", "PolicyContext", "Policy", "ZeroAction", "KNOWLEDGE_ESTIMATES",
+           "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
+           "check_policy"]
+
+# What a policy may name as its base controller's model.
+KNOWLEDGE_ESTIMATES = ("exact", "identified", "nominal")
+
+
+@dataclass(frozen=True)
+class MotorKnowledge:
+    """What a drive knows of the motor it runs.
+
+    Attributes:
+        nominal: the datasheet system (motor, drive, servo); for a randomised
+            motor this is the preset it was drawn around, not the draw.
+        identified: the detent model identified on this very motor
+            (``stepdamp_env.identify``), or ``None`` when not available.
+        exact: the plant's own detent model, for oracle baselines only.
+    """
+
+    nominal: SystemParams
+    identified: FeedforwardModel | None
+    exact: FeedforwardModel
+
+
+@dataclass(frozen=True)
+class PolicyContext:
+    """The episode a policy is about to act in (known to the drive).
+
+    Attributes:
+        knowledge: see :class:`MotorKnowledge`.
+        estimate: the base controller's detent model in this episode (None
+            without a base feedforward).
+        mode: "open-loop" or "servo".
+        speed_rps: the held command speed (rev/s).
+        action_mode: "harmonic", "current" or "harmonic+current".
+        action_scale: physical size of action 1.0 of the first action entry
+            (N*m per harmonic coefficient, or A in "current" mode).
+        agent_hz: decision rate (Hz).
+        current_scale_a: physical size of a q-current action of 1.0 (A).
+        accel_rps2: the start-up ramp's acceleration (rev/s^2); the speed is
+            held from ``speed_rps / accel_rps2`` seconds on.
+    """
+
+    knowledge: MotorKnowledge
+    estimate: FeedforwardModel | None
+    mode: str
+    speed_rps: float
+    action_mode: str
+    action_scale: float
+    agent_hz: float
+    current_scale_a: float = 0.0
+    accel_rps2: float = DEFAULT_ACCEL_RPS2
+
+    @property
+    def ramp_s(self) -> float:
+        """Duration of the start-up ramp (s)."""
+        return abs(self.speed_rps) / self.accel_rps2
+
+
+@runtime_checkable
+class Policy(TypingProtocol):
+    """A policy of the benchmark (see the module docstring)."""
+
+    name: str
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        """StepperDamp-v0 keyword options this policy needs (base_controller,
+        estimate, action_mode, ...); only ``POLICY_OPTIONS`` are allowed."""
+
+    def reset(self, context: PolicyContext) -> None:
+        """Called after each ``env.reset``."""
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        """Action in [-1, 1] (float32) for one observation."""
+
+
+def check_policy(obj: Any, spec: str) -> None:
+    """A ParameterError unless ``obj`` has the Policy interface."""
+    for attr in ("name", "env_options", "reset", "act"):
+        if not hasattr(obj, attr):
+            raise ParameterError(f"policy {spec!r} has no {attr!r}: a Policy needs name, "
+                                 "env_options(knowledge), reset(context) and act(obs)")
+
+
+class ZeroAction:
+    """The base controller alone: a zero action every step.
+
+    ``base_controller`` is "none" or "patent-ff"; ``estimate`` picks the
+    feedforward's model: "exact" (oracle), "identified" or "nominal".
+    """
+
+    def __init__(self, name: str, base_controller: str = "patent-ff",
+                 estimate: str = "exact") -> None:
+        if base_controller not in ("none", "patent-ff"):
+            raise ValueError(f"base_controller={base_controller!r} is not one of "
+                             "['none', 'patent-ff']")
+        if estimate not in KNOWLEDGE_ESTIMATES:
+            raise ValueError(f"estimate={estimate!r} is not one of "
+                             f"{list(KNOWLEDGE_ESTIMATES)}")
+        self.name = name
+        self.base_controller = base_controller
+        self.estimate = estimate
+        self._zero = np.zeros(1, dtype=np.float32)
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": self.base_controller, "action_mode": "current",
+                "estimate": resolve_estimate(self.estimate, knowledge)}
+
+    def reset(self, context: PolicyContext) -> None:
+        self._zero = np.zeros(1, dtype=np.float32)
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self._zero
+
+
+def resolve_estimate(which: str, knowledge: MotorKnowledge) -> str | FeedforwardModel:
+    """The env's ``estimate`` option for "exact", "identified" or "nominal"."""
+    if which == "exact":
+        return "exact"
+    if which == "nominal":
+        return FeedforwardModel.from_motor(knowledge.nominal.motor)
+    if which != "identified":
+        raise ValueError(f"estimate={which!r} is not one of {list(KNOWLEDGE_ESTIMATES)}")
+    if knowledge.identified is None:
+        raise ValueError("this policy needs an identified motor model "
+                         "(MotorKnowledge.identified is None)")
+    return knowledge.identified
+
+
+def estimate_model(which: str, knowledge: MotorKnowledge) -> FeedforwardModel:
+    """The model named ``which`` as a FeedforwardModel ("exact" is the plant's)."""
+    est = resolve_estimate(which, knowledge)
+    return est if isinstance(est, FeedforwardModel) else knowledge.exact
+
+
+def policy_env_options(policy: Policy, knowledge: MotorKnowledge) -> dict[str, Any]:
+    """The policy's env options, checked against ``POLICY_OPTIONS`` and made fair:
+    "nominal" is the nominal preset and unset action scales come from it."""
+    options = dict(policy.env_options(knowledge))
+    bad = sorted(set(options) - set(POLICY_OPTIONS))
+    if bad:
+        raise ParameterError(f"policy {policy.name!r} sets env option(s) {bad} that the "
+                             f"protocol fixes; a policy may set only {list(POLICY_OPTIONS)}")
+    if options.get("estimate") == "nominal":
+        options["estimate"] = FeedforwardModel.from_motor(knowledge.nominal.motor)
+    harmonic, current = default_action_scales(knowledge.nominal)
+    if options.get("harmonic_scale_nm") is None:
+        options["harmonic_scale_nm"] = harmonic
+    if options.get("current_scale_a") is None:
+        options["current_scale_a"] = current
+    return options
+
+
+def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: str,
+                   speed_rps: float, accel_rps2: float = DEFAULT_ACCEL_RPS2) -> PolicyContext:
+    """The :class:`PolicyContext` of a run with the checked ``options``
+    (:func:`policy_env_options`)."""
+    base = options.get("base_controller", EnvOptions.base_controller)
+    est = options.get("estimate", EnvOptions.estimate)
+    action_mode = options.get("action_mode", EnvOptions.action_mode)
+    return PolicyContext(
+        knowledge=knowledge,
+        estimate=None if base == "none" else (knowledge.exact if est == "exact" else est),
+        mode=mode, speed_rps=speed_rps, action_mode=action_mode,
+        action_scale=float(options["current_scale_a"] if action_mode == "current"
+                           else options["harmonic_scale_nm"]),
+        agent_hz=float(options.get("agent_hz", EnvOptions.agent_hz)),
+        current_scale_a=float(options["current_scale_a"]),
+        accel_rps2=float(accel_rps2))
+
+
+assert set(ESTIMATES) <= set(KNOWLEDGE_ESTIMATES)

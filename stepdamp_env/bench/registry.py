@@ -1,0 +1,245 @@
+"""Which policies exist, and how a policy spec becomes fresh policy instances.
+
+Baselines and agents fill the registry themselves: each package registers its
+policies with :func:`register_policy` (and file loaders with
+:func:`register_loader`) in a function published under the entry-point group
+``stepdamp.policies``; :func:`load_plugins` calls those once. The leaderboard
+names no baseline and no agent: it asks the registry.
+
+A policy spec (``stepdamp leaderboard --policy SPEC``) is one of:
+
+* a registered name (``stepdamp leaderboard --help`` lists them);
+* ``package.module:attr`` or ``path/to/file.py:attr``: a Policy class or factory
+  (called without arguments for every run) or a Policy instance (deep-copied
+  for every run). **This imports and runs code: use trusted sources only.**
+* a model file that a registered loader accepts (for example a ``.zip`` that
+  ``stepdamp train`` wrote, with its ``.agent.json`` beside it), else a bare
+  stable-baselines3 ``.zip`` (:class:`SB3Policy`). **SB3 files unpickle Python
+  objects: load only files you trust.**
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import importlib.metadata
+import importlib.util
+import json
+import os
+import sys
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ..params import ParameterError
+from .policy import (MotorKnowledge, Policy, PolicyContext, ZeroAction, check_policy,
+                     resolve_estimate)
+from .protocol import REFERENCE_POLICY
+
+__all__ = ["ENTRY_POINT_GROUP", "PolicySource", "RegisteredPolicy", "register_policy",
+           "register_loader", "registered_policies", "default_policy_names", "load_plugins",
+           "resolve_policy", "SB3Policy"]
+
+ENTRY_POINT_GROUP = "stepdamp.policies"
+
+
+@dataclass(frozen=True)
+class RegisteredPolicy:
+    """A named policy: its factory, its kind and whether the leaderboard runs it by default."""
+
+    name: str
+    make: Callable[[], Policy]
+    kind: str = "baseline"           # "baseline" or "agent"
+    default: bool = True
+    description: str = ""
+
+
+@dataclass
+class PolicySource:
+    """Makes fresh policy instances for one leaderboard entry."""
+
+    spec: str
+    name: str
+    make: Callable[[], Any]
+
+
+_REGISTRY: dict[str, RegisteredPolicy] = {}
+# (loader name, accepts(path) -> bool, load(path) -> PolicySource), tried in order.
+_LOADERS: list[tuple[str, Callable[[str], bool], Callable[[str], PolicySource]]] = []
+_PLUGINS_LOADED = False
+
+
+def register_policy(name: str, make: Callable[[], Policy], *, kind: str = "baseline",
+                    default: bool = True, description: str = "") -> None:
+    """Make ``name`` resolvable. Registering the same name again with another
+    factory is an error (names never collide silently); the same factory again
+    is a no-op."""
+    old = _REGISTRY.get(name)
+    if old is not None:
+        if old.make is make:
+            return
+        raise ParameterError(f"policy name {name!r} is registered twice "
+                             f"({old.description or old.kind} and {description or kind})")
+    if kind not in ("baseline", "agent"):
+        raise ValueError(f"kind={kind!r} is not one of ['baseline', 'agent']")
+    _REGISTRY[name] = RegisteredPolicy(name, make, kind, default, description)
+
+
+def register_loader(name: str, accepts: Callable[[str], bool],
+                    load: Callable[[str], PolicySource]) -> None:
+    """A loader for policy files: ``accepts(path)`` says whether it reads it."""
+    if all(n != name for n, _, _ in _LOADERS):
+        _LOADERS.append((name, accepts, load))
+
+
+def load_plugins() -> None:
+    """Call every ``stepdamp.policies`` entry point once (in name order)."""
+    global _PLUGINS_LOADED
+    if _PLUGINS_LOADED:
+        return
+    _PLUGINS_LOADED = True
+    for ep in sorted(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP),
+                     key=lambda e: e.name):
+        ep.load()()
+
+
+def registered_policies() -> dict[str, RegisteredPolicy]:
+    """Every registered policy by name, in registration order (a copy)."""
+    load_plugins()
+    return dict(_REGISTRY)
+
+
+def default_policy_names() -> tuple[str, ...]:
+    """What a leaderboard runs by default: every registered default policy."""
+    return tuple(n for n, p in registered_policies().items() if p.default)
+
+
+class SB3Policy:
+    """A bare stable-baselines3 model as a :class:`~.policy.Policy`: deterministic predict.
+
+    Env options: the JSON file beside the model with the same stem if present
+    (``estimate`` may be "exact", "identified" or "nominal"), else harmonic
+    residuals on top of the patent feedforward with the identified model.
+    """
+
+    def __init__(self, name: str, model: Any, options: Mapping[str, Any] | None) -> None:
+        self.name = name
+        self.model = model
+        self.options = dict(options) if options else {"base_controller": "patent-ff",
+                                                      "estimate": "identified",
+                                                      "action_mode": "harmonic"}
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        out = dict(self.options)
+        if isinstance(out.get("estimate"), str):
+            out["estimate"] = resolve_estimate(out["estimate"], knowledge)
+        return out
+
+    def reset(self, context: PolicyContext) -> None:
+        pass
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+
+def _sb3_algo_class(path: str) -> list[Any]:
+    """The SB3 algorithm class of a saved model, from the policy class in its metadata."""
+    import zipfile
+
+    import stable_baselines3 as sb3
+
+    module = ""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data").decode("utf-8"))
+        module = str(data.get("policy_class", {}).get("__module__", ""))
+    except (KeyError, ValueError, zipfile.BadZipFile, AttributeError):
+        pass
+    for key, algo in ((".sac.", "SAC"), (".td3.", "TD3"), (".ddpg.", "DDPG"),
+                      (".dqn.", "DQN"), (".ppo.", "PPO"), (".a2c.", "A2C")):
+        if key in module + ".":
+            return [getattr(sb3, algo)]
+    # ActorCriticPolicy lives in common.policies (PPO and A2C); else try them all.
+    return [sb3.PPO, sb3.SAC, sb3.TD3, sb3.A2C]
+
+
+def _load_sb3_zip(spec: str) -> PolicySource:
+    path = os.path.abspath(spec)
+    side = os.path.splitext(path)[0] + ".json"
+    options = None
+    if os.path.isfile(side):
+        with open(side, encoding="utf-8") as fh:
+            options = json.load(fh)
+        if not isinstance(options, dict):
+            raise ParameterError(f"{side!r} must hold a JSON object of env options")
+    errors = []
+    model = None
+    for algo in _sb3_algo_class(path):
+        try:
+            model = algo.load(path, device="cpu")
+            break
+        except Exception as exc:  # noqa: BLE001 - try the next algorithm
+            errors.append(f"{algo.__name__}: {exc}")
+    if model is None:
+        raise ParameterError(f"cannot load SB3 model {spec!r}: {'; '.join(errors)}")
+    name = os.path.splitext(os.path.basename(path))[0]
+    return PolicySource(spec, name, lambda: SB3Policy(name, model, options))
+
+
+def _import_attr(spec: str) -> Any:
+    target, _, attr = spec.rpartition(":")
+    try:
+        if target.endswith(".py"):
+            path = os.path.abspath(target)
+            if not os.path.isfile(path):
+                raise ImportError(f"no file {target!r}")
+            module_name = "stepdamp_user_policy_" + \
+                os.path.splitext(os.path.basename(path))[0].replace("-", "_")
+            module_spec = importlib.util.spec_from_file_location(module_name, path)
+            if module_spec is None or module_spec.loader is None:
+                raise ImportError(f"cannot import {target!r}")
+            module = importlib.util.module_from_spec(module_spec)
+            sys.modules[module_name] = module    # forked workers and pickling find it
+            module_spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(target)
+        return getattr(module, attr)
+    except (ImportError, AttributeError, SyntaxError) as exc:
+        raise ParameterError(f"policy {spec!r}: {exc}") from None
+
+
+def resolve_policy(spec: str) -> PolicySource:
+    """A registered name, ``module:attr``, ``file.py:attr`` or a model file
+    (see the module docstring)."""
+    registry = registered_policies()
+    if spec in registry:
+        return PolicySource(spec, spec, registry[spec].make)
+    if os.path.isfile(spec):
+        for _, accepts, load in _LOADERS:
+            if accepts(spec):
+                return load(spec)
+        if spec.endswith(".zip"):
+            return _load_sb3_zip(spec)
+    elif spec.endswith(".zip"):
+        raise ParameterError(f"policy file {spec!r} does not exist")
+    if ":" in spec:
+        obj = _import_attr(spec)
+        if isinstance(obj, type) or (callable(obj) and not hasattr(obj, "act")):
+            probe = obj()
+            check_policy(probe, spec)
+            return PolicySource(spec, str(probe.name), obj)
+        check_policy(obj, spec)
+        return PolicySource(spec, str(obj.name), lambda: copy.deepcopy(obj))
+    raise ParameterError(f"policy {spec!r} is not a registered policy {list(registry)}, "
+                         "a 'package.module:attr' or 'file.py:attr' path or a model file")
+
+
+def _reference_policy() -> Policy:
+    return ZeroAction(REFERENCE_POLICY, base_controller="none")
+
+
+# The protocol's reference (every score is a ratio to it) is always registered.
+register_policy(REFERENCE_POLICY, _reference_policy, kind="baseline",
+                description="no damping: the base controller without feedforward (reference)")

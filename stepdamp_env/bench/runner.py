@@ -1,0 +1,114 @@
+"""The one episode runner: a policy on a motor at one speed, measured as the protocol says.
+
+Used by the leaderboard, the figures, the training validator and the tests::
+
+    result = run_episode(policy, knowledge, system, mode="open-loop", speed_rps=0.67,
+                         seed=1_000_000)
+    result.metrics["rms_velocity_error_rad_s"]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..env.scalar import StepperDampEnv
+from ..params import SystemParams
+from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
+from .policy import MotorKnowledge, Policy, policy_context, policy_env_options
+
+__all__ = ["EpisodeResult", "run_episode", "episode_window"]
+
+
+@dataclass
+class EpisodeResult:
+    """What one run gives.
+
+    Attributes:
+        terminated: the env ended the episode (step loss, over-current, non-finite).
+        termination: "step_loss", "overcurrent", "non_finite" or "".
+        failed: terminated, or the core's metrics report a step loss.
+        steps: agent steps taken.
+        window_start_s, window_s: the measuring window (s).
+        metrics: the simulation core's metrics over the window
+            (``RunMetrics.to_dict()``), None if the run ended before it opened.
+        trace: what ``on_step`` collected (empty without it).
+    """
+
+    terminated: bool
+    termination: str
+    failed: bool
+    steps: int
+    window_start_s: float
+    window_s: float
+    metrics: dict[str, Any] | None
+    trace: list[Any] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The leaderboard's record of the run (without the trace)."""
+        return {"terminated": self.terminated, "termination": self.termination,
+                "failed": self.failed, "steps": self.steps,
+                "window_start_s": self.window_start_s, "window_s": self.window_s,
+                "metrics": self.metrics}
+
+
+def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
+                   window_s: float) -> tuple[float, float]:
+    """(start, length) of the measuring window in s: the core's settling after the
+    ramp, ``window_s`` rounded up to whole periods of the first detent harmonic."""
+    return measuring_window(system, SpeedProfile(speed_rps=speed_rps, accel_rps2=accel_rps2),
+                            RunSettings(window_s=window_s))
+
+
+def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams, *,
+                mode: str, speed_rps: float, seed: int,
+                accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
+                measure_from_s: float | None = None, until_s: float | None = None,
+                on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None
+                ) -> EpisodeResult:
+    """Run ``policy`` in ``StepperDamp-v0`` on the true plant ``system``.
+
+    The env gets the policy's options (checked, :func:`policy_env_options`),
+    is reset with ``seed`` (which also seeds the sensor noise), the policy is
+    reset with its :class:`PolicyContext` and stepped until the agent step in
+    which the simulated time reaches the end of the measuring window (or
+    ``until_s``), or until the env terminates. The window opens a settling time
+    after the ramp (:func:`episode_window`) unless ``measure_from_s`` says
+    when. ``on_step(env, observation, window_start_s)`` is called after every
+    step; what it returns (if not None) is kept in ``trace``.
+    """
+    start, length = episode_window(system, speed_rps, accel_rps2, window_s)
+    if measure_from_s is not None:
+        start, length = float(measure_from_s), float(window_s)
+    options = policy_env_options(policy, knowledge)
+    env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps, accel_rps2=accel_rps2,
+                         measure_from_s=start, **options)
+    obs, _ = env.reset(seed=seed)
+    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
+    # Half a PWM period of slack: time_s is a float multiple of the period.
+    end = start + length - 0.5 / system.drive.pwm_hz if until_s is None else until_s
+    steps, terminated, reason = 0, False, ""
+    trace: list[Any] = []
+    while env.time_s < end:
+        obs, _, terminated, _, info = env.step(policy.act(obs))
+        steps += 1
+        if on_step is not None:
+            item = on_step(env, obs, start)
+            if item is not None:
+                trace.append(item)
+        if terminated:
+            reason = ("step_loss" if info["step_loss"] else
+                      "overcurrent" if info["overcurrent"] else "non_finite")
+            break
+    try:
+        metrics: dict[str, Any] | None = env.run_metrics().to_dict()
+    except ValueError:                  # terminated before the window opened
+        metrics = None
+    env.close()
+    failed = terminated or (metrics is not None and bool(metrics["step_loss"]))
+    return EpisodeResult(terminated=bool(terminated), termination=reason, failed=bool(failed),
+                         steps=steps, window_start_s=start, window_s=length, metrics=metrics,
+                         trace=trace)
+

@@ -1,0 +1,237 @@
+"""Constructor options of the StepperDamp environments, validated, with their defaults."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..simulation import DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
+from .layout import ACTION_MODES
+
+__all__ = ["EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
+           "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
+           "check_number", "check_choice", "OPTIONS_DOC"]
+
+TWO_PI = 2.0 * math.pi
+
+# Default domain randomisation: multiplicative factors drawn uniformly in
+# [low, high] for the magnitudes, absolute values (rad) drawn uniformly for the phases.
+DEFAULT_RANDOMIZATION: dict[str, tuple[float, float]] = {
+    "R": (0.8, 1.25),
+    "L": (0.8, 1.25),
+    "Km": (0.85, 1.15),
+    "J": (0.5, 2.0),
+    "Kd1": (0.5, 1.5),
+    "Kd2": (0.5, 1.5),
+    "Kd4": (0.5, 1.5),
+    "Fs": (0.5, 1.5),
+    "phi1": (-math.pi, math.pi),
+    "phi2": (-math.pi, math.pi),
+}
+SCALED_FIELDS = ("R", "L", "Km", "J", "D", "Kd1", "Kd2", "Kd4", "Fs")
+PHASE_FIELDS = ("phi1", "phi2")
+# The fixed order in which a draw consumes the generator: determinism.
+RANDOMIZABLE_FIELDS = SCALED_FIELDS + PHASE_FIELDS
+
+# The base controller is the simulation core's damping ("patent-ff" first: the default).
+BASE_CONTROLLERS = tuple(sorted(DAMPINGS, key=lambda d: d != "patent-ff"))
+# Named models of the base controller ("exact": the episode's plant; "nominal": the
+# un-randomised motor); a FeedforwardModel is accepted too.
+ESTIMATES = ("exact", "nominal")
+
+
+def default_action_scales(nominal: SystemParams) -> tuple[float, float]:
+    """(harmonic_scale_nm, current_scale_a): the physical size of action 1.0 when
+    not given, from the nominal motor: 2*max(Kd1, Kd2, Kd4) N*m (2 % of the
+    holding torque for a motor without detent) and a quarter of the holding
+    current (A)."""
+    m, drive = nominal.motor, nominal.drive
+    harmonic = 2.0 * max(m.Kd1, m.Kd2, m.Kd4)
+    if harmonic <= 0.0:
+        harmonic = 0.02 * m.Km * drive.holding_current
+    return float(harmonic), float(0.25 * drive.holding_current)
+
+
+def _bad(name: str, value: Any, allowed: str) -> ParameterError:
+    return ParameterError(f"{name}={value!r} is outside its allowed range {allowed}")
+
+
+def check_number(name: str, value: Any, low: float, high: float, *, low_open: bool = False,
+                 high_open: bool = False) -> float:
+    """``value`` as a float, or a ParameterError naming ``name`` and the range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ParameterError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    ok = math.isfinite(v) and (v > low if low_open else v >= low) and \
+        (v < high if high_open else v <= high)
+    if not ok:
+        raise _bad(name, value, f"{'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}")
+    return v
+
+
+def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
+    if value not in choices:
+        raise ParameterError(f"{name}={value!r} is not one of {list(choices)}")
+    return value
+
+
+def _pair(name: str, value: Any) -> tuple[float, float]:
+    try:
+        low, high = value
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} must be a (low, high) pair, got {value!r}") from None
+    return check_number(f"{name}[0]", low, -1e9, 1e9), check_number(f"{name}[1]", high, -1e9, 1e9)
+
+
+@dataclass(frozen=True)
+class EnvOptions:
+    """Validated constructor options of ``StepperDamp-v0``; see :class:`StepperDampEnv`."""
+
+    motor: Any = "patent"
+    overrides: Mapping[str, Any] | None = None
+    randomize: bool | Mapping[str, tuple[float, float]] = False
+    mode: str = "open-loop"
+    base_controller: str = "patent-ff"
+    estimate: str | FeedforwardModel = "exact"
+    speed_rps: float | None = None
+    speed_range_rps: tuple[float, float] = (0.25, 3.0)
+    resonance_prob: float = 0.5
+    resonance_spread: float = 0.1
+    accel_rps2: float = DEFAULT_ACCEL_RPS2
+    action_mode: str = "harmonic"
+    agent_hz: float = 1000.0
+    harmonic_scale_nm: float | None = None
+    current_scale_a: float | None = None
+    current_penalty: float = 0.1
+    termination_penalty: float = 100.0
+    current_limit_factor: float = 3.0
+    privileged: bool = False
+    substeps: int = 1
+    velocity_estimator: str = "lowpass"
+    measure_from_s: float | None = None
+
+    @classmethod
+    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = "StepperDamp-v0"
+                    ) -> "EnvOptions":
+        """Options from keyword arguments; unknown names raise ``ValueError``."""
+        allowed = list(cls.__dataclass_fields__)
+        unknown = sorted(set(kwargs) - set(allowed))
+        if unknown:
+            raise ParameterError(f"unknown option(s) {unknown} for {env_id}; allowed: {allowed}")
+        return cls(**kwargs)
+
+    def __post_init__(self) -> None:
+        check_choice("mode", self.mode, tuple(MODES))
+        check_choice("base_controller", self.base_controller, BASE_CONTROLLERS)
+        check_choice("action_mode", self.action_mode, ACTION_MODES)
+        if not isinstance(self.estimate, FeedforwardModel):
+            if self.estimate not in ESTIMATES:
+                raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
+                                     "'nominal'] or a FeedforwardModel")
+        if self.speed_rps is not None:
+            check_number("speed_rps", self.speed_rps, 0.0, 100.0, low_open=True)
+        lo, hi = _pair("speed_range_rps", self.speed_range_rps)
+        if not 0.0 < lo <= hi <= 100.0:
+            raise _bad("speed_range_rps", self.speed_range_rps, "0 < low <= high <= 100 (rev/s)")
+        check_number("resonance_prob", self.resonance_prob, 0.0, 1.0)
+        check_number("resonance_spread", self.resonance_spread, 0.0, 0.9)
+        check_number("accel_rps2", self.accel_rps2, 0.0, 1e5, low_open=True)
+        check_number("agent_hz", self.agent_hz, 0.0, 1e6, low_open=True)
+        if self.harmonic_scale_nm is not None:
+            check_number("harmonic_scale_nm", self.harmonic_scale_nm, 0.0, 100.0, low_open=True)
+        if self.current_scale_a is not None:
+            check_number("current_scale_a", self.current_scale_a, 0.0, 100.0, low_open=True)
+        check_number("current_penalty", self.current_penalty, 0.0, 1e6)
+        check_number("termination_penalty", self.termination_penalty, 0.0, 1e9)
+        check_number("current_limit_factor", self.current_limit_factor, 1.0, 100.0,
+                     low_open=True)
+        if not isinstance(self.privileged, (bool, np.bool_)):
+            raise ParameterError(f"privileged must be True or False, got {self.privileged!r}")
+        check_choice("velocity_estimator", self.velocity_estimator, tuple(VELOCITY_ESTIMATORS))
+        if self.measure_from_s is not None:
+            check_number("measure_from_s", self.measure_from_s, 0.0, 1e6)
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
+                or not 1 <= self.substeps <= 1000:
+            raise _bad("substeps", self.substeps, "[1, 1000] (integer)")
+        if self.overrides is not None and not isinstance(self.overrides, Mapping):
+            raise ParameterError(f"overrides must be a mapping of parameter names to values, "
+                                 f"got {self.overrides!r}")
+        if not isinstance(self.randomize, (bool, np.bool_)):
+            if not isinstance(self.randomize, Mapping):
+                raise ParameterError("randomize must be True, False or a mapping "
+                                     f"{{field: (low, high)}}, got {self.randomize!r}")
+            unknown = sorted(set(self.randomize) - set(RANDOMIZABLE_FIELDS))
+            if unknown:
+                raise ParameterError(f"randomize: unknown field(s) {unknown}; allowed: "
+                                     f"{list(RANDOMIZABLE_FIELDS)}")
+            for name, rng in self.randomize.items():
+                lo, hi = _pair(f"randomize[{name!r}]", rng)
+                if name in PHASE_FIELDS:
+                    ok = -TWO_PI <= lo <= hi <= TWO_PI
+                    allowed = "-2*pi <= low <= high <= 2*pi (rad)"
+                else:
+                    ok = 0.0 < lo <= hi <= 100.0
+                    allowed = "0 < low <= high <= 100 (factor)"
+                if not ok:
+                    raise _bad(f"randomize[{name!r}]", rng, allowed)
+
+    @property
+    def randomization(self) -> dict[str, tuple[float, float]]:
+        """The ranges in use ({} when off)."""
+        if isinstance(self.randomize, Mapping):
+            return {k: tuple(map(float, v)) for k, v in self.randomize.items()}
+        return dict(DEFAULT_RANDOMIZATION) if self.randomize else {}
+
+
+# The options section of the environments' docstrings.
+OPTIONS_DOC = """
+    ## Arguments
+
+    All are keyword arguments with defaults; an unknown name or a value out of
+    its range raises ``ValueError`` naming it.
+
+    * ``motor`` ("patent"): preset name (``stepdamp_env.preset_names()``), path of a
+      motor JSON file, flat mapping or ``SystemParams``; ``overrides`` (None): flat
+      field overrides applied to it (``SystemParams.replace``).
+    * ``randomize`` (False): domain randomisation. ``True`` uses
+      ``DEFAULT_RANDOMIZATION``: R and L scaled by U(0.8, 1.25), Km by U(0.85, 1.15),
+      J by U(0.5, 2.0), Kd1, Kd2, Kd4 and Fs by U(0.5, 1.5), phases phi1 and phi2
+      drawn U(-pi, pi) rad; a mapping ``{field: (low, high)}`` over R, L, Km, J, D,
+      Kd1, Kd2, Kd4, Fs (factors) and phi1, phi2 (rad) gives your own ranges. Each
+      episode's motor is validated through ``SystemParams``.
+    * ``mode`` ("open-loop"): "open-loop" (eqs. 7-8) or "servo" (eqs. 14-15).
+    * ``base_controller`` ("patent-ff"): "patent-ff" (harmonic detent feedforward) or
+      "none".
+    * ``estimate`` ("exact"): the base controller's motor model: "exact" (the
+      episode's plant), "nominal" (the un-randomised motor) or a
+      ``FeedforwardModel`` (an identified set), to pose model mismatch on purpose.
+    * ``speed_rps`` (None): a fixed command speed (rev/s, > 0); None draws one per
+      episode: with probability ``resonance_prob`` (0.5) one of the three predicted
+      resonant speeds (h = 4, 2, 1, equally likely, of the episode's motor) times
+      U(1 - ``resonance_spread``, 1 + ``resonance_spread``) (0.1), else
+      U(``speed_range_rps``) ((0.25, 3.0) rev/s).
+    * ``accel_rps2`` (50.0): ramp acceleration (rev/s^2) from rest to the command,
+      which is then held.
+    * ``action_mode`` ("harmonic"): see Action Space.
+    * ``agent_hz`` (1000.0): decision rate (Hz); ``pwm_hz/agent_hz`` must be a whole
+      number of PWM periods.
+    * ``harmonic_scale_nm`` (None -> 2*max(Kd1, Kd2, Kd4) of the nominal motor,
+      0.024 N*m for "patent"), ``current_scale_a`` (None -> 0.25*holding current
+      of the nominal motor, 0.475 A for "patent"): physical size of action 1.0.
+    * ``current_penalty`` (0.1), ``termination_penalty`` (100.0),
+      ``current_limit_factor`` (3.0): see Rewards and Episode End.
+    * ``privileged`` (False): append the true states to the observation.
+    * ``substeps`` (1): RK4 plant steps per PWM period.
+    * ``velocity_estimator`` ("lowpass"): the drive's encoder velocity estimate,
+      "lowpass" (difference + first-order low-pass, the patent's) or "kalman".
+    * ``measure_from_s`` (None; scalar env only): open the simulation core's
+      measuring window at this time (s) so that ``env.run_metrics()`` returns the
+      core's metrics of the episode (used by the leaderboard).
+    * Sensor noise and offsets are motor-file fields (``current_noise_a``,
+      ``current_offset_a``, ``current_offset_b``, via ``overrides``); each
+      episode draws its own noise seed.
+"""

@@ -1,0 +1,191 @@
+"""Episode sampling, shared by the scalar and the vector environment.
+
+:class:`EpisodeSampler` is public and read-only: ``env.sampler`` tells a
+baseline or an agent the nominal system, the action layout and its physical
+scales, the decision period and the model the base controller uses in an
+episode, without reaching into the environment.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from .. import kernel as K
+from ..params import (RESONANCE_HARMONICS, FeedforwardModel, ParameterError, SystemParams,
+                      load_system, predicted_resonances)
+from ..simulation import RunSettings, SpeedProfile, build_config, initial_state
+from . import compiled as C
+from .layout import ACTION_NAMES, OBS
+from .options import PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_action_scales
+
+__all__ = ["EpisodeSampler"]
+
+TWO_PI = 2.0 * math.pi
+
+
+class EpisodeSampler:
+    """Draws one episode (system, speed) from a Generator and writes its arrays.
+
+    Read-only attributes (properties): ``options``, ``nominal`` (the
+    un-randomised system), ``randomization``, ``n_periods`` (PWM periods per
+    agent step), ``seconds_per_step``, ``action_mode``, ``action_names``,
+    ``action_scales`` (physical size of each action entry at 1.0: N*m or A),
+    ``harmonic_scale_nm``, ``current_scale_a``, ``act_dim``, ``obs_dim``,
+    ``speed_scale`` (rad/s), ``nominal_estimate``.
+    """
+
+    def __init__(self, options: EnvOptions) -> None:
+        self._options = o = options
+        self._nominal: SystemParams = load_system(o.motor, o.overrides)
+        self._ranges = o.randomization
+        drive = self._nominal.drive
+        ratio = drive.pwm_hz / o.agent_hz
+        self._n_periods = int(round(ratio))
+        if abs(ratio - self._n_periods) > 1e-9 * ratio or self._n_periods < 1:
+            raise ParameterError(
+                f"agent_hz={o.agent_hz!r} must divide pwm_hz={drive.pwm_hz!r} into a whole "
+                "number (>= 1) of PWM periods per agent step; allowed range: pwm_hz/k, k = 1, 2, ...")
+        default_harmonic, default_current = default_action_scales(self._nominal)
+        harmonic_scale = default_harmonic if o.harmonic_scale_nm is None else o.harmonic_scale_nm
+        current_scale = default_current if o.current_scale_a is None else o.current_scale_a
+        self._harmonic_scale_nm = float(harmonic_scale)
+        self._current_scale_a = float(current_scale)
+        # The kernel's inputs ds1..dc4 and iq are adjacent (U_DS1..U_IQ).
+        if o.action_mode == "harmonic":
+            self._offset, scales = K.U_DS1, (harmonic_scale,) * 6
+        elif o.action_mode == "current":
+            self._offset, scales = K.U_IQ, (current_scale,)
+        else:
+            self._offset, scales = K.U_DS1, (harmonic_scale,) * 6 + (current_scale,)
+        self._action_scales = tuple(float(x) for x in scales)
+        self._act_dim = len(scales)
+        self._obs_dim = C.N_BASE_OBS + self._act_dim + (C.N_PRIVILEGED if o.privileged else 0)
+        hi_speed = max(o.speed_range_rps[1], o.speed_rps or 0.0)
+        self._speed_scale = TWO_PI * hi_speed
+        self._nominal_estimate = FeedforwardModel.from_motor(self._nominal.motor)
+        self._seconds_per_step = self._n_periods / drive.pwm_hz
+
+    # -- read-only view ----------------------------------------------------------
+    options = property(lambda self: self._options, doc="The validated options.")
+    nominal = property(lambda self: self._nominal, doc="The un-randomised system.")
+    n_periods = property(lambda self: self._n_periods, doc="PWM periods per agent step.")
+    seconds_per_step = property(lambda self: self._seconds_per_step,
+                                doc="Simulated time of one agent step (s).")
+    action_scales = property(lambda self: self._action_scales,
+                             doc="Physical size of each action entry at 1.0 (N*m or A).")
+    harmonic_scale_nm = property(lambda self: self._harmonic_scale_nm,
+                                 doc="Size of a harmonic action entry at 1.0 (N*m).")
+    current_scale_a = property(lambda self: self._current_scale_a,
+                               doc="Size of a q-current action entry at 1.0 (A).")
+    act_dim = property(lambda self: self._act_dim, doc="Number of action entries.")
+    obs_dim = property(lambda self: self._obs_dim, doc="Number of observation entries.")
+    input_offset = property(lambda self: self._offset,
+                            doc="Kernel input (U_*) that the first action entry drives.")
+    speed_scale = property(lambda self: self._speed_scale,
+                           doc="Normaliser of the speed-command observation (rad/s).")
+    nominal_estimate = property(lambda self: self._nominal_estimate,
+                                doc="The nominal motor's feedforward model.")
+
+    @property
+    def randomization(self) -> dict[str, tuple[float, float]]:
+        """The randomisation ranges in use ({} when off); a copy."""
+        return dict(self._ranges)
+
+    @property
+    def action_mode(self) -> str:
+        return self._options.action_mode
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        """Names of the action entries (:data:`.layout.ACTION_NAMES`)."""
+        return ACTION_NAMES[self._options.action_mode]
+
+    def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
+        """The model the base controller uses in an episode of ``system``."""
+        est = self._options.estimate
+        if isinstance(est, FeedforwardModel):
+            return est
+        if est == "nominal":
+            return self._nominal_estimate
+        return FeedforwardModel.from_motor(system.motor)
+
+    # -- spaces ------------------------------------------------------------------
+    def observation_space(self) -> spaces.Box:
+        n_act = self._act_dim
+        high = np.full(self._obs_dim, C.OBS_BOUND, dtype=np.float32)
+        high[OBS.sin_x:OBS.cos_4x + 1] = 1.0
+        high[C.N_BASE_OBS:C.N_BASE_OBS + n_act] = 1.0
+        return spaces.Box(-high, high, dtype=np.float32)
+
+    def action_space(self) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, shape=(self._act_dim,), dtype=np.float32)
+
+    # -- drawing -----------------------------------------------------------------
+    def draw_system(self, rng: np.random.Generator) -> SystemParams:
+        if not self._ranges:
+            return self._nominal
+        m = self._nominal.motor
+        changes: dict[str, float] = {}
+        for name in RANDOMIZABLE_FIELDS:
+            if name in self._ranges:
+                lo, hi = self._ranges[name]
+                x = float(rng.uniform(lo, hi))
+                changes[name] = x if name in PHASE_FIELDS else getattr(m, name) * x
+        return self._nominal.replace(**changes)
+
+    def draw_speed(self, rng: np.random.Generator, system: SystemParams) -> tuple[float, int]:
+        """(speed in rev/s, targeted detent harmonic h or 0 for a uniform draw)."""
+        o = self._options
+        if o.speed_rps is not None:
+            return float(o.speed_rps), 0
+        if rng.random() < o.resonance_prob:
+            h = RESONANCE_HARMONICS[int(rng.integers(3))]
+            f = predicted_resonances(system)[h]
+            spread = o.resonance_spread
+            return float(min(f * rng.uniform(1.0 - spread, 1.0 + spread), 100.0)), h
+        lo, hi = o.speed_range_rps
+        return float(rng.uniform(lo, hi)), 0
+
+    def new_episode(self, rng: np.random.Generator, c: np.ndarray, s: np.ndarray,
+                    par: np.ndarray) -> tuple[dict[str, Any], SystemParams]:
+        """Draw an episode into the rows ``c``, ``s``, ``par``; returns (reset info, system)."""
+        o = self._options
+        system = self.draw_system(rng)
+        speed, h = self.draw_speed(rng, system)
+        if isinstance(o.estimate, FeedforwardModel):
+            estimate = o.estimate
+        elif o.estimate == "nominal":
+            estimate = self._nominal_estimate
+        else:
+            estimate = None                 # the plant's exact values
+        # The sensor noise of the episode: its own stream, drawn after the speed.
+        noise_seed = int(rng.integers(2 ** 53))
+        settings = RunSettings(mode=o.mode, damping=o.base_controller, substeps=int(o.substeps),
+                               estimate=estimate, velocity_estimator=o.velocity_estimator,
+                               noise_seed=noise_seed)
+        profile = SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2)
+        # Without measure_from_s no metrics window: the env reads per-step sums
+        # only, and the window's lock-in sums would cost a sincos per PWM period.
+        window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
+        c[:] = build_config(system, profile, settings, window_start_s=window)
+        s[:] = initial_state(c)
+        par[C.P_FULL_STEP] = system.motor.full_step_rad
+        par[C.P_W_REF] = TWO_PI * speed
+        par[C.P_HOLD] = system.drive.holding_current
+        par[C.P_SPEED_SCALE] = self._speed_scale
+        par[C.P_I_LIMIT] = o.current_limit_factor * system.drive.holding_current
+        par[C.P_CUR_PEN] = o.current_penalty
+        par[C.P_TERM_PEN] = o.termination_penalty
+        par[C.P_ACT_SCALE:C.P_ACT_SCALE + self._act_dim] = self._action_scales
+        return {"speed_rps": speed, "target_harmonic": h}, system
+
+    def initial_observation(self, s: np.ndarray, par: np.ndarray, obs: np.ndarray) -> None:
+        """Observation before the first step into ``obs``; arguments are (1, n) rows."""
+        acc = np.zeros((1, K.N_ACC))
+        acc[0, K.A_COUNT_ALL] = 1.0
+        C.observe(s, acc, np.zeros((1, self._act_dim), dtype=np.float32), par, C.KERNEL_INDEX,
+                  bool(self._options.privileged), obs, np.zeros((1, C.N_OUT)))

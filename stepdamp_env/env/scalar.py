@@ -1,0 +1,251 @@
+"""The scalar environment ``StepperDamp-v0``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from .. import kernel as K
+from ..params import ParameterError, SystemParams
+from ..simulation import RunMetrics, merge_accumulators, metrics_from_accumulators, new_accumulators
+from . import compiled as C
+from .actions import action_error, as_action
+from .options import OPTIONS_DOC, EnvOptions
+from .registration import ENV_ID
+from .sampler import EpisodeSampler
+
+__all__ = ["StepperDampEnv"]
+
+TWO_PI = 2.0 * np.pi
+
+
+class StepperDampEnv(gym.Env):
+    __doc__ = """Residual active damping of a hybrid stepper drive (US 7,733,051).
+
+    ## Description
+
+    One episode is one operating point of one drive: a motor (a preset, a motor
+    file, or a domain-randomised draw around one), a mode (open loop by default,
+    or servo), and a speed command that ramps from rest and is then held. A base
+    controller (the patent's harmonic detent feedforward by default) runs in
+    the drive; the agent adds a residual to it. Inside one agent step the PWM
+    period, the DQ current loops and the plant run at ``pwm_hz`` (20 kHz for the
+    presets), so at the default ``agent_hz`` = 1 kHz one step is 20 PWM periods.
+    A zero action reproduces the base controller alone, bit for bit.
+
+    ## Action Space
+
+    ``Box(-1, 1, (k,), float32)``, scaled inside and held for one agent step:
+
+    * ``action_mode="harmonic"`` (k = 6): corrections (N*m) to the feedforward's
+      sin/cos coefficients of the electrical-angle harmonics 1, 2, 4, in the order
+      ds1, dc1, ds2, dc2, ds4, dc4, each ``action * harmonic_scale_nm``;
+    * ``action_mode="current"`` (k = 1): a residual q-axis current (A),
+      ``action * current_scale_a``;
+    * ``action_mode="harmonic+current"`` (k = 7): both, the six harmonic
+      corrections first, then the q current.
+
+    An action of the wrong shape, non-finite or outside [-1, 1] raises ValueError.
+
+    ## Observation Space
+
+    ``Box(float32)``, what a drive senses at the last PWM sample of the step,
+    scaled to about unit range and clipped to [-10, 10]:
+
+    | idx | observation                                                    |
+    |-----|----------------------------------------------------------------|
+    | 0   | (theta_cmd - encoder angle) / full step                        |
+    | 1   | (omega_cmd - filtered encoder velocity) / held command speed   |
+    | 2-7 | sin, cos of the electrical (Park) angle x, of 2x and of 4x     |
+    | 8   | omega_cmd / (2*pi*max(speed_range_rps[1], speed_rps))          |
+    | 9   | measured id / holding current                                  |
+    | 10  | measured iq / holding current                                  |
+    | 11- | last action (k entries)                                        |
+
+    With ``privileged=True`` four more entries: true (theta_cmd - theta) / full
+    step, (omega_cmd - omega) / held command speed, ia / holding current, ib /
+    holding current (true angle, speed, currents at the end of the step).
+
+    ## Rewards
+
+    ``-mean((w_cmd - w)^2) / w_ref^2 - current_penalty * mean(iq_inj^2) / I_hold^2``,
+    means over the PWM periods of the step, w_ref the held command speed (rad/s),
+    iq_inj the injected q current (feedforward plus residual, A), I_hold the
+    holding current. A terminating step also subtracts ``termination_penalty``
+    (100: more than the whole return of a healthy default episode, about -0.02 with
+    the patent feedforward to -35 undamped at the h = 4 resonance, so ending an
+    episode early does not pay). ``info`` holds the step's physics: ``velocity_error_rms_rad_s``,
+    ``lag_rad`` (max |theta_cmd - theta|), ``injected_current_rms_a``,
+    ``peak_current_a`` and the flags ``step_loss``, ``overcurrent``.
+
+    ## Starting State
+
+    Rotor at rest at 0 rad, command at rest; in open loop the holding current
+    already flows. ``reset`` info: ``speed_rps`` and ``target_harmonic`` (h of the
+    resonance drawn, 0 for a uniform or fixed speed).
+
+    ## Episode End
+
+    Terminated on step loss (lag past one full step, 2*pi/(4*Nr) rad), on an
+    unsafe phase current (past ``current_limit_factor`` = 3 times the holding
+    current), or if the simulation stops being finite. Truncated by the
+    ``TimeLimit`` after ``max_episode_steps`` = 300 steps (0.3 s at 1 kHz: the
+    longest default ramp takes 60 ms, leaving at least 240 ms held). If you
+    change ``agent_hz``, pass ``max_episode_steps`` to ``gym.make`` to match.
+    """ + OPTIONS_DOC + """
+    ## Version History
+
+    * v0: initial version (``action_mode="harmonic+current"`` added later;
+      the other modes are unchanged).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ParameterError(f"render_mode={render_mode!r} is not one of "
+                                 f"{[None] + self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.options = EnvOptions.from_kwargs(options)
+        self._sampler = f = EpisodeSampler(self.options)
+        self.observation_space = f.observation_space()
+        self.action_space = f.action_space()
+        self._act_shape = (f.act_dim,)
+        self._n = f.n_periods
+        self._offset = f.input_offset
+        self._privileged = bool(self.options.privileged)
+        self._measuring = self.options.measure_from_s is not None
+        # One-row 2-D arrays for the compiled helpers, 1-D views of them for the kernel.
+        self._c2 = np.zeros((1, K.N_CONFIG))
+        self._s2 = np.zeros((1, K.N_STATE))
+        self._acc2 = np.zeros((1, K.N_ACC))
+        self._u2 = np.zeros((1, K.N_INPUT))
+        self._par2 = np.zeros((1, C.N_PAR))
+        self._a2 = np.zeros((1, f.act_dim))
+        self._obs2 = np.zeros((1, f.obs_dim), dtype=np.float32)
+        self._out2 = np.zeros((1, C.N_OUT))
+        self._c, self._s, self._acc, self._u = self._c2[0], self._s2[0], self._acc2[0], self._u2[0]
+        self._par, self._obs, self._out = self._par2[0], self._obs2[0], self._out2[0]
+        self._trace = np.zeros((self._n if render_mode else 0, K.N_TRACE))
+        self._history: list[np.ndarray] = []
+        self._run_acc = new_accumulators()
+        self.system: SystemParams | None = None
+        self._speed_rps = 0.0
+        self._ready = False
+
+    # -- public read-outs ------------------------------------------------------
+    @property
+    def drive_state(self) -> np.ndarray:
+        """Copy of the kernel's state vector (``kernel.S_*``; SI units)."""
+        return self._s.copy()
+
+    @property
+    def drive_config(self) -> np.ndarray:
+        """Copy of the kernel's configuration vector (``kernel.C_*``) of this episode."""
+        return self._c.copy()
+
+    @property
+    def sampler(self) -> EpisodeSampler:
+        """The episode sampler: nominal system, action layout and scales (read-only)."""
+        return self._sampler
+
+    @property
+    def speed_rps(self) -> float:
+        """The held command speed of the current episode (rev/s; 0 before reset)."""
+        return self._speed_rps
+
+    @property
+    def seconds_per_step(self) -> float:
+        """Simulated time of one agent step (s)."""
+        return self._sampler.seconds_per_step
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the episode started (s)."""
+        return float(self._s[K.S_PERIOD] * self._c[K.C_DT])
+
+    def run_metrics(self) -> RunMetrics:
+        """The simulation core's metrics of the episode so far, over the window
+        that opens at ``measure_from_s`` (lag, current peak: whole episode).
+
+        Needs ``measure_from_s``; raises ``ValueError`` if the window is empty.
+        """
+        if not self._measuring:
+            raise ParameterError("run_metrics() needs the option measure_from_s")
+        if self.system is None:
+            raise gym.error.ResetNeeded("call reset() before run_metrics()")
+        return metrics_from_accumulators(self._run_acc, self.system, self._speed_rps)
+
+    # -- API ----------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        info, self.system = self._sampler.new_episode(self.np_random, self._c, self._s,
+                                                      self._par)
+        self._u[:] = 0.0
+        self._sampler.initial_observation(self._s2, self._par2, self._obs2)
+        self._history = []
+        self._run_acc[:] = 0.0
+        self._speed_rps = info["speed_rps"]
+        self._ready = True
+        return self._obs.copy(), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self._ready:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        self._a2[0] = as_action(action, self._act_shape)
+        if C.load_actions(self._a2, self._u2, self._acc2, self._par2, self._offset) >= 0:
+            raise action_error(action, self._act_shape)
+        K.run_periods(self._c, self._s, self._acc, self._u, self._n, self._trace, 1)
+        if self._measuring:
+            merge_accumulators(self._run_acc, self._acc)
+        out = self._out
+        C.observe(self._s2, self._acc2, self._a2, self._par2, C.KERNEL_INDEX, self._privileged, self._obs2,
+                 self._out2)
+        if self.render_mode is not None:
+            self._record()
+        terminated = out[C.O_TERMINATED] != 0.0
+        info = {"velocity_error_rms_rad_s": float(out[C.O_VEL_RMS]),
+                "lag_rad": float(out[C.O_LAG]),
+                "injected_current_rms_a": float(out[C.O_IINJ_RMS]),
+                "peak_current_a": float(out[C.O_PEAK_I]),
+                "step_loss": bool(out[C.O_STEP_LOSS]), "overcurrent": bool(out[C.O_OVERCURRENT])}
+        return self._obs.copy(), float(out[C.O_REWARD]), bool(terminated), False, info
+
+    # -- rendering ------------------------------------------------------------------
+    def _record(self) -> None:
+        tr = self._trace
+        # t, velocity error, ia, ib, injected iq: every PWM period of the step.
+        self._history.append(np.stack([tr[:, K.T_T], tr[:, K.T_OMEGA_CMD] - tr[:, K.T_OMEGA],
+                                       tr[:, K.T_IA], tr[:, K.T_IB], tr[:, K.T_IQ_FF]]))
+
+    def render(self) -> np.ndarray | None:
+        """RGB array (H, W, 3) of velocity error and currents of the episode so far."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass "
+                            "render_mode='rgb_array' to the constructor")
+            return None
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6.4, 4.8), dpi=80)
+        canvas = FigureCanvasAgg(fig)
+        ax1, ax2 = fig.subplots(2, 1, sharex=True)
+        if self._history:
+            h = np.concatenate(self._history, axis=1)
+            t_ms = 1e3 * h[0]
+            ax1.plot(t_ms, h[1], lw=0.8)
+            ax2.plot(t_ms, h[2], lw=0.8, label="ia")
+            ax2.plot(t_ms, h[3], lw=0.8, label="ib")
+            ax2.plot(t_ms, h[4], lw=0.8, label="iq injected")
+            ax2.legend(loc="upper right", fontsize=7)
+        speed = self._par[C.P_W_REF] / TWO_PI
+        ax1.set_title(f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}", fontsize=9)
+        ax1.set_ylabel("w_cmd - w (rad/s)")
+        ax2.set_ylabel("current (A)")
+        ax2.set_xlabel("t (ms)")
+        fig.tight_layout()
+        canvas.draw()
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()

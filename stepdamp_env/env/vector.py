@@ -1,0 +1,234 @@
+"""The native vectorised environment: N drives stepped by one compiled call."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .. import kernel as K
+from ..params import ParameterError, SystemParams
+from . import compiled as C
+from .actions import action_error, as_action
+from .options import OPTIONS_DOC, EnvOptions
+from .registration import DEFAULT_EPISODE_STEPS
+from .sampler import EpisodeSampler
+
+__all__ = ["StepperDampVectorEnv"]
+
+TWO_PI = 2.0 * np.pi
+
+
+class StepperDampVectorEnv(VectorEnv):
+    __doc__ = """Native vectorised ``StepperDamp-v0``: N drives stepped by one ``kernel.run_batch``.
+
+    Spaces, rewards and episode ends are those of :class:`StepperDampEnv` (see
+    there for every option); the same seeds give the same episodes as N scalar
+    environments reset with ``seed + i``. Episodes are truncated after
+    ``max_episode_steps`` (300; ``gym.make_vec`` passes the registered value) and
+    drives reset automatically: ``autoreset_mode`` NEXT_STEP (default, Gymnasium's
+    convention: the step after an episode end resets that drive, its action is
+    ignored, reward 0) or SAME_STEP (reset at once, the final observation and info
+    in ``infos["final_obs"]``, ``infos["final_info"]``). ``infos`` holds arrays
+    ``velocity_error_rms_rad_s``, ``lag_rad``, ``injected_current_rms_a``,
+    ``peak_current_a``, ``step_loss``, ``overcurrent`` with ``_key`` masks.
+    Rendering is not supported (``render_mode`` must be None).
+    """ + OPTIONS_DOC
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 render_mode: str | None = None, **options: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
+                or not 1 <= num_envs <= 1_000_000:
+            raise ParameterError(f"num_envs={num_envs!r} is outside its allowed range "
+                                 "[1, 1000000] (integer)")
+        if max_episode_steps is not None and (
+                isinstance(max_episode_steps, bool)
+                or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
+            raise ParameterError(f"max_episode_steps={max_episode_steps!r} is outside its "
+                                 "allowed range [1, inf) (integer) or None")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ParameterError(f"autoreset_mode={autoreset_mode!r} is not one of "
+                                 f"{[m.value for m in AutoresetMode]}") from None
+        if mode == AutoresetMode.DISABLED:
+            raise ParameterError("autoreset_mode='Disabled' is not supported; allowed: "
+                                 "NextStep, SameStep")
+        if render_mode is not None:
+            raise ParameterError(f"render_mode={render_mode!r}: the vector environment does "
+                                 "not render; allowed: None (render a scalar env instead)")
+        self.render_mode = None
+        self.metadata = {**type(self).metadata, "autoreset_mode": mode}
+        self.autoreset_mode = mode
+        self.options = EnvOptions.from_kwargs(options)
+        if self.options.measure_from_s is not None:
+            raise ParameterError("measure_from_s is an option of the scalar env only; allowed "
+                                 "here: None")
+        self._sampler = f = EpisodeSampler(self.options)
+        n = self.num_envs = int(num_envs)
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.single_observation_space = f.observation_space()
+        self.single_action_space = f.action_space()
+        self.observation_space = batch_space(self.single_observation_space, n)
+        self.action_space = batch_space(self.single_action_space, n)
+        self._act_shape = (n, f.act_dim)
+        self._steps_per_call = f.n_periods
+        self._offset = f.input_offset
+        self._privileged = bool(self.options.privileged)
+        self._c = np.zeros((n, K.N_CONFIG))
+        self._s = np.zeros((n, K.N_STATE))
+        self._acc = np.zeros((n, K.N_ACC))
+        self._u = np.zeros((n, K.N_INPUT))
+        self._par = np.zeros((n, C.N_PAR))
+        self._obs = np.zeros((n, f.obs_dim), dtype=np.float32)
+        self._out = np.zeros((n, C.N_OUT))
+        self._t = np.zeros(n, dtype=np.int64)
+        self._autoreset = np.zeros(n, dtype=bool)
+        self._all = np.ones(n, dtype=bool)
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self.systems: list[SystemParams | None] = [None] * n
+        self._ready = False
+
+    @property
+    def sampler(self) -> EpisodeSampler:
+        """The episode sampler: nominal system, action layout and scales (read-only)."""
+        return self._sampler
+
+    @property
+    def speeds_rps(self) -> np.ndarray:
+        """The held command speed of each drive's current episode (rev/s); a copy."""
+        return self._par[:, C.P_W_REF] / TWO_PI
+
+    @property
+    def drive_states(self) -> np.ndarray:
+        """Copy of the kernel's state rows (``kernel.S_*``; SI units), one per drive."""
+        return self._s.copy()
+
+    def _reset_drive(self, i: int) -> dict[str, Any]:
+        rng = self._rngs[i]
+        if rng is None:
+            rng, _ = seeding.np_random(None)
+            self._rngs[i] = rng
+        info, self.systems[i] = self._sampler.new_episode(rng, self._c[i], self._s[i],
+                                                          self._par[i])
+        self._u[i] = 0.0
+        self._t[i] = 0
+        self._sampler.initial_observation(self._s[i:i + 1], self._par[i:i + 1],
+                                          self._obs[i:i + 1])
+        return info
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        n = self.num_envs
+        if seed is None:
+            seeds: list[int | None] = [None] * n
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != n:
+                raise ParameterError(f"seed: a list of seeds must have num_envs={n} entries, "
+                                     f"got {len(seeds)}")
+        mask = self._all
+        if options and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+            if mask.shape != (n,):
+                raise ParameterError(f"options['reset_mask'] must have shape ({n},), got "
+                                     f"{mask.shape}")
+        if seed is not None or not self._ready:
+            # Gymnasium's convention: seed i seeds drive i; None draws fresh entropy
+            # only where no generator exists yet.
+            for i, sd in enumerate(seeds):
+                if mask[i] and (sd is not None or self._rngs[i] is None):
+                    self._rngs[i], _ = seeding.np_random(sd)
+        speeds = np.zeros(n)
+        harm = np.zeros(n, dtype=np.int64)
+        for i in np.flatnonzero(mask):
+            info = self._reset_drive(int(i))
+            speeds[i], harm[i] = info["speed_rps"], info["target_harmonic"]
+        self._autoreset[mask] = False
+        self._ready = True
+        return self._obs.copy(), {"speed_rps": speeds, "_speed_rps": mask.copy(),
+                                  "target_harmonic": harm, "_target_harmonic": mask.copy()}
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          dict[str, Any]]:
+        if not self._ready:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = as_action(actions, self._act_shape)
+        bad = C.load_actions(a, self._u, self._acc, self._par, self._offset)
+        if bad >= 0:
+            raise action_error(actions, self._act_shape)
+        K.run_batch(self._c, self._s, self._acc, self._u, self._steps_per_call)
+        out = self._out
+        C.observe(self._s, self._acc, a, self._par, C.KERNEL_INDEX, self._privileged, self._obs, out)
+        self._t += 1
+        # One copy of the outputs; the returned arrays are views of it, never reused.
+        out = out.copy()
+        rewards = out[:, C.O_REWARD]
+        terminated = out[:, C.O_TERMINATED] != 0.0
+        if self.max_episode_steps is None:
+            truncated = np.zeros(self.num_envs, dtype=bool)
+        else:
+            truncated = (self._t >= self.max_episode_steps) & ~terminated
+        valid = self._all
+        infos: dict[str, Any] = {}
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            if self._autoreset.any():
+                # These drives ended last step: they start over now (their stepped
+                # rows above are discarded).
+                valid = ~self._autoreset
+                for i in np.flatnonzero(self._autoreset):
+                    self._reset_drive(int(i))
+                rewards[~valid] = 0.0
+                terminated &= valid
+                truncated &= valid
+            self._autoreset = terminated | truncated
+            obs = self._obs.copy()
+        else:
+            done = terminated | truncated
+            obs_now = self._obs.copy()
+            if done.any():
+                idx = np.flatnonzero(done)
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                final_info = np.full(self.num_envs, None, dtype=object)
+                for i in idx:
+                    final_obs[i] = obs_now[i].copy()
+                    final_info[i] = self._single_info(int(i))
+                    self._reset_drive(int(i))
+                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+                infos["final_info"], infos["_final_info"] = final_info, done.copy()
+                obs = self._obs.copy()
+            else:
+                obs = obs_now
+        mask = valid.copy()
+        infos["velocity_error_rms_rad_s"] = out[:, C.O_VEL_RMS]
+        infos["_velocity_error_rms_rad_s"] = mask
+        infos["lag_rad"] = out[:, C.O_LAG]
+        infos["_lag_rad"] = mask
+        infos["injected_current_rms_a"] = out[:, C.O_IINJ_RMS]
+        infos["_injected_current_rms_a"] = mask
+        infos["peak_current_a"] = out[:, C.O_PEAK_I]
+        infos["_peak_current_a"] = mask
+        infos["step_loss"] = out[:, C.O_STEP_LOSS] != 0.0
+        infos["_step_loss"] = mask
+        infos["overcurrent"] = out[:, C.O_OVERCURRENT] != 0.0
+        infos["_overcurrent"] = mask
+        return obs, rewards, terminated, truncated, infos
+
+    def _single_info(self, i: int) -> dict[str, Any]:
+        out = self._out[i]
+        return {"velocity_error_rms_rad_s": float(out[C.O_VEL_RMS]), "lag_rad": float(out[C.O_LAG]),
+                "injected_current_rms_a": float(out[C.O_IINJ_RMS]),
+                "peak_current_a": float(out[C.O_PEAK_I]), "step_loss": bool(out[C.O_STEP_LOSS]),
+                "overcurrent": bool(out[C.O_OVERCURRENT])}
+
+    def render(self) -> None:
+        return None
