@@ -1,8 +1,8 @@
 """StepperDamp: active electronic damping of hybrid stepper motors (US 7,733,051)."""
 
 from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams,
-                     SystemParams, get_preset, load_system, predicted_resonances,
-                     preset_names)
+                     SystemParams, load_system, predicted_resonances)
+from .presets import PRESETS, get_preset, preset_names
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
 from .env import StepperDampEnv, StepperDampVectorEnv, register_envs
 
@@ -14,6 +14,7 @@ __all__ = [
     "FeedforwardModel",
     "MotorParams",
     "ParameterError",
+    "PRESETS",
     "RunMetrics",
     "RunResult",
     "RunSettings",

@@ -101,6 +101,63 @@ PROFILE_CONSTANT = 0
 PROFILE_MOVE = 1
 
 # ---------------------------------------------------------------------------
+# Positions in the tuple of plant_params (per drive, float64). The kernel reads
+# it by these names; numba folds module-level ints to constants, so a named
+# read compiles exactly like a literal index.
+# ---------------------------------------------------------------------------
+P_R = 0            # winding resistance (Ohm)
+P_INV_L = 1        # inverse winding inductance (1/H)
+P_KM = 2           # torque constant (N*m/A)
+P_NR = 3           # rotor teeth (electrical angle per shaft angle)
+P_INV_J = 4        # inverse inertia (1/(kg*m^2))
+P_D = 5            # viscous damping (N*m*s/rad)
+P_DET_S1 = 6       # detent as sin/cos coefficients of harmonics 1, 2, 4 (N*m)
+P_DET_C1 = 7
+P_DET_S2 = 8
+P_DET_C2 = 9
+P_DET_S4 = 10
+P_DET_C4 = 11
+P_FS = 12          # Coulomb/breakaway friction (N*m)
+P_LOAD = 13        # constant load torque (N*m)
+
+# ---------------------------------------------------------------------------
+# Positions in the tuple of controller_params (per drive, float64).
+# ---------------------------------------------------------------------------
+Q_DT = 0           # PWM period (s)
+Q_NR = 1           # rotor teeth (electrical angle per shaft angle)
+Q_HOLD = 2         # open-loop holding current (A)
+Q_MICROSTEP = 3    # shaft angle of one microstep (rad)
+Q_KP_I = 4         # current PI proportional gain (V/A)
+Q_KI_I = 5         # current PI integral gain (V/(A*s))
+Q_ENCODER = 6      # shaft angle of one encoder count (rad)
+Q_VEL_ALPHA = 7    # velocity low-pass coefficient per period (dimensionless)
+Q_KP_VEL = 8       # servo velocity gain (N*m*s/rad)
+Q_KP_POS = 9       # servo position gain (N*m/rad)
+Q_KI_POS = 10      # servo position integral gain (N*m/(rad*s))
+Q_MODE = 11        # MODE_OPEN_LOOP or MODE_SERVO
+Q_FF_ON = 12       # 1.0 if the base harmonic feedforward is on, else 0.0
+Q_KM_EST = 13      # controller's estimate of Km (N*m/A)
+Q_FS_EST = 14      # controller's estimate of Fs (N*m)
+Q_FF_S1 = 15       # controller's detent estimate, sin/cos coefficients (N*m)
+Q_FF_C1 = 16
+Q_FF_S2 = 17
+Q_FF_C2 = 18
+Q_FF_S4 = 19
+Q_FF_C4 = 20
+Q_VDC = 21         # bus voltage (V)
+Q_PROFILE = 22     # PROFILE_CONSTANT or PROFILE_MOVE
+Q_SPEED = 23       # command speed (rad/s, signed)
+Q_ACCEL = 24       # command acceleration (rad/s^2)
+Q_DISTANCE = 25    # move distance (rad, signed)
+Q_I_NOISE = 26     # current-sensor noise, standard deviation per sample (A)
+Q_I_OFFSET_A = 27  # current-sensor offsets of phases A and B (A)
+Q_I_OFFSET_B = 28
+Q_NOISE_SEED = 29  # seed of the sensor noise (integer-valued)
+Q_VEL_EST = 30     # VEL_EST_LOWPASS or VEL_EST_KALMAN
+Q_KF_K0 = 31       # Kalman gain on the innovation, position (dimensionless)
+Q_KF_K1 = 32       # Kalman gain on the innovation, velocity (1/s)
+
+# ---------------------------------------------------------------------------
 # State vector (per drive, float64).
 # ---------------------------------------------------------------------------
 S_PERIOD = 0       # PWM periods done (exact integer in a float64)
@@ -271,7 +328,8 @@ def harmonic_series(s1, c1, a1, b1, a2, b2, a4, b4):
 def plant_params(c):
     """The plant's constants as a tuple, the form the derivative takes.
 
-    (R, 1/L, Km, Nr, 1/J, D, detent s1, c1, s2, c2, s4, c4, Fs, load_torque)
+    Positions are the ``P_*`` names: (R, 1/L, Km, Nr, 1/J, D, detent s1, c1,
+    s2, c2, s4, c4, Fs, load_torque).
     """
     return (c[C_R], 1.0 / c[C_L], c[C_KM], c[C_NR], 1.0 / c[C_J], c[C_D],
             c[C_DET_S1], c[C_DET_C1], c[C_DET_S2], c[C_DET_C2], c[C_DET_S4], c[C_DET_C4],
@@ -281,19 +339,21 @@ def plant_params(c):
 @_jit
 def detent_torque(theta, p):
     """Detent torque (N*m): -Kd4 sin 4x - Kd2 sin(2x + phi2) - Kd1 sin(x + phi1), x = Nr*theta."""
-    s1, c1 = sincos(p[3] * theta)
-    return -harmonic_series(s1, c1, p[6], p[7], p[8], p[9], p[10], p[11])
+    s1, c1 = sincos(p[P_NR] * theta)
+    return -harmonic_series(s1, c1, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2], p[P_DET_C2],
+                            p[P_DET_S4], p[P_DET_C4])
 
 
 @_jit
 def detent_potential(theta, p):
     """Potential energy V(theta) (J) of the detent torque: torque = -dV/dtheta."""
-    nr = p[3]
+    nr = p[P_NR]
     s1, c1 = sincos(nr * theta)
     s2, c2, s4, c4 = harmonics(s1, c1)
     # a sin hx + b cos hx integrates over theta to -(a cos hx - b sin hx)/(h Nr).
-    return -((p[6] * c1 - p[7] * s1) / nr + (p[8] * c2 - p[9] * s2) / (2.0 * nr)
-             + (p[10] * c4 - p[11] * s4) / (4.0 * nr))
+    return -((p[P_DET_S1] * c1 - p[P_DET_C1] * s1) / nr
+             + (p[P_DET_S2] * c2 - p[P_DET_C2] * s2) / (2.0 * nr)
+             + (p[P_DET_S4] * c4 - p[P_DET_C4] * s4) / (4.0 * nr))
 
 
 @_jit_inline
@@ -320,9 +380,11 @@ def friction_torque(omega, tau_drive, fs):
 @_jit
 def driving_torque(theta, omega, ia, ib, p):
     """Every torque on the rotor except friction (N*m)."""
-    s1, c1 = sincos(p[3] * theta)
-    det = harmonic_series(s1, c1, p[6], p[7], p[8], p[9], p[10], p[11])
-    return electromagnetic_torque(ia, ib, s1, c1, p[2]) - det - p[5] * omega - p[13]
+    s1, c1 = sincos(p[P_NR] * theta)
+    det = harmonic_series(s1, c1, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2], p[P_DET_C2],
+                          p[P_DET_S4], p[P_DET_C4])
+    return (electromagnetic_torque(ia, ib, s1, c1, p[P_KM]) - det - p[P_D] * omega
+            - p[P_LOAD])
 
 
 # Cody-Waite split of pi/2 for the argument reduction of sincos.
@@ -387,16 +449,18 @@ def sincos_shifted(x0, s0, c0, delta):
 @_jit_inline
 def motor_derivative_sc(sin_x, cos_x, omega, ia, ib, va, vb, p):
     """:func:`motor_derivative` given sin and cos of x = Nr*theta."""
-    r, inv_l, km, d = p[0], p[1], p[2], p[5]
-    tau_det = harmonic_series(sin_x, cos_x, p[6], p[7], p[8], p[9], p[10], p[11])
-    tau_drive = electromagnetic_torque(ia, ib, sin_x, cos_x, km) - tau_det - d * omega - p[13]
-    fric = friction_torque(omega, tau_drive, p[12])
+    r, inv_l, km, d = p[P_R], p[P_INV_L], p[P_KM], p[P_D]
+    tau_det = harmonic_series(sin_x, cos_x, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2],
+                              p[P_DET_C2], p[P_DET_S4], p[P_DET_C4])
+    tau_drive = (electromagnetic_torque(ia, ib, sin_x, cos_x, km) - tau_det - d * omega
+                 - p[P_LOAD])
+    fric = friction_torque(omega, tau_drive, p[P_FS])
     # Back-EMF ea = -Km w sin x, eb = Km w cos x (eq. 2 with the cosine).
     dia = (va - r * ia + km * omega * sin_x) * inv_l
     dib = (vb - r * ib - km * omega * cos_x) * inv_l
-    return (omega, (tau_drive - fric) * p[4], dia, dib,
+    return (omega, (tau_drive - fric) * p[P_INV_J], dia, dib,
             va * ia + vb * ib, r * (ia * ia + ib * ib), d * omega * omega,
-            fric * omega, p[13] * omega)
+            fric * omega, p[P_LOAD] * omega)
 
 
 @_jit
@@ -408,7 +472,7 @@ def motor_derivative(theta, omega, ia, ib, va, vb, p):
     supplied to the windings, lost in copper, in viscous damping, in friction
     and delivered to the load torque.
     """
-    s1, c1 = sincos(p[3] * theta)
+    s1, c1 = sincos(p[P_NR] * theta)
     return motor_derivative_sc(s1, c1, omega, ia, ib, va, vb, p)
 
 
@@ -421,7 +485,7 @@ def rk4_step(x, va, vb, p, h):
     the integrator's accuracy. Returns the new ``x``.
     """
     th, w, ia, ib = x[0], x[1], x[2], x[3]
-    nr = p[3]
+    nr = p[P_NR]
     hh = 0.5 * h
     x0 = nr * th
     s0, c0 = sincos(x0)
@@ -457,7 +521,7 @@ def plant_step(x, va, vb, p, h, w_stick):
     friction holds it for the step. Returns the new ``x`` (see rk4_step).
     """
     w = x[1]
-    if abs(w) < w_stick and abs(driving_torque(x[0], 0.0, x[2], x[3], p)) <= p[12]:
+    if abs(w) < w_stick and abs(driving_torque(x[0], 0.0, x[2], x[3], p)) <= p[P_FS]:
         return rk4_step_stuck(x, va, vb, p, h)
     return rk4_step(x, va, vb, p, h)
 
@@ -471,8 +535,8 @@ def rk4_step_stuck(x, va, vb, p, h):
     put for the step; only the currents and the electrical energies move.
     """
     w = x[1]
-    e_fric = x[7] + 0.5 * w * w / p[4]
-    r, inv_l = p[0], p[1]
+    e_fric = x[7] + 0.5 * w * w / p[P_INV_J]
+    r, inv_l = p[P_R], p[P_INV_L]
     ia, ib = x[2], x[3]
     hh = 0.5 * h
     a1, b1 = (va - r * ia) * inv_l, (vb - r * ib) * inv_l
@@ -568,10 +632,11 @@ def command(t, kind, speed, accel, distance):
 def controller_params(c):
     """The controller's constants as a tuple, the form :func:`control_step` takes.
 
-    (dt, Nr, holding current, microstep angle, Kp_i, Ki_i, encoder angle,
-    velocity filter alpha, Kp_vel, Kp_pos, Ki_pos, mode, ff_on, Km_est, Fs_est,
-    ff s1, c1, s2, c2, s4, c4, Vdc, profile kind, speed, accel, distance,
-    current noise, offset a, offset b, noise seed, velocity estimator, Kalman k0, k1)
+    Positions are the ``Q_*`` names: (dt, Nr, holding current, microstep angle,
+    Kp_i, Ki_i, encoder angle, velocity filter alpha, Kp_vel, Kp_pos, Ki_pos,
+    mode, ff_on, Km_est, Fs_est, ff s1, c1, s2, c2, s4, c4, Vdc, profile kind,
+    speed, accel, distance, current noise, offset a, offset b, noise seed,
+    velocity estimator, Kalman k0, k1).
     """
     return (c[C_DT], c[C_NR], c[C_HOLD], c[C_MICROSTEP], c[C_KP_I], c[C_KI_I],
             c[C_ENCODER], c[C_VEL_ALPHA], c[C_KP_VEL], c[C_KP_POS], c[C_KI_POS],
@@ -589,10 +654,11 @@ def feedforward_torque(sin_x, cos_x, q, u):
     The base model (eq. 8 / eq. 15 harmonics, scaled by ff_on) plus the
     external coefficient corrections in ``u`` (see ``U_*``).
     """
-    on = q[12]
-    return harmonic_series(sin_x, cos_x, on * q[15] + u[0], on * q[16] + u[1],
-                           on * q[17] + u[2], on * q[18] + u[3],
-                           on * q[19] + u[4], on * q[20] + u[5])
+    on = q[Q_FF_ON]
+    return harmonic_series(sin_x, cos_x,
+                           on * q[Q_FF_S1] + u[U_DS1], on * q[Q_FF_C1] + u[U_DC1],
+                           on * q[Q_FF_S2] + u[U_DS2], on * q[Q_FF_C2] + u[U_DC2],
+                           on * q[Q_FF_S4] + u[U_DS4], on * q[Q_FF_C4] + u[U_DC4])
 
 
 @_jit_inline
@@ -609,40 +675,41 @@ def control_step(period, theta, ia, ib, cs, q, u):
     (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle)).
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est = cs
-    dt, nr = q[0], q[1]
+    dt, nr = q[Q_DT], q[Q_NR]
     t = period * dt
-    theta_cmd, omega_cmd = command(t, q[22], q[23], q[24], q[25])
+    theta_cmd, omega_cmd = command(t, q[Q_PROFILE], q[Q_SPEED], q[Q_ACCEL], q[Q_DISTANCE])
     # Velocity estimate from the encoder (a drive senses it in either mode).
-    theta_fb = quantise(theta, q[6])
-    if q[30] == VEL_EST_KALMAN:
+    theta_fb = quantise(theta, q[Q_ENCODER])
+    if q[Q_VEL_EST] == VEL_EST_KALMAN:
         # Steady-state Kalman filter, constant-velocity model, measuring the
         # centre of the encoder count.
         predicted = theta_est + dt * omega_fb
-        innovation = theta_fb + 0.5 * q[6] - predicted
-        theta_est = predicted + q[31] * innovation
-        omega_fb = omega_fb + q[32] * innovation
+        innovation = theta_fb + 0.5 * q[Q_ENCODER] - predicted
+        theta_est = predicted + q[Q_KF_K0] * innovation
+        omega_fb = omega_fb + q[Q_KF_K1] * innovation
     else:
-        omega_fb = omega_fb + q[7] * ((theta_fb - theta_fb_prev) * (1.0 / dt) - omega_fb)
-    if q[26] != 0.0:
-        noise_a, noise_b = gaussian_pair(q[29], period)
-        ia = ia + q[27] + q[26] * noise_a
-        ib = ib + q[28] + q[26] * noise_b
+        omega_fb = omega_fb + q[Q_VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt)
+                                               - omega_fb)
+    if q[Q_I_NOISE] != 0.0:
+        noise_a, noise_b = gaussian_pair(q[Q_NOISE_SEED], period)
+        ia = ia + q[Q_I_OFFSET_A] + q[Q_I_NOISE] * noise_a
+        ib = ib + q[Q_I_OFFSET_B] + q[Q_I_NOISE] * noise_b
     else:
-        ia = ia + q[27]
-        ib = ib + q[28]
+        ia = ia + q[Q_I_OFFSET_A]
+        ib = ib + q[Q_I_OFFSET_B]
 
-    if q[11] == MODE_OPEN_LOOP:
+    if q[Q_MODE] == MODE_OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
-        angle = nr * quantise(theta_cmd, q[3])
+        angle = nr * quantise(theta_cmd, q[Q_MICROSTEP])
         sin_a, cos_a = sincos(angle)
-        id_cmd = q[2]
-        iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[13]) + u[6]
+        id_cmd = q[Q_HOLD]
+        iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[Q_KM_EST]) + u[U_IQ]
         iq_cmd = iq_inj
     else:
         # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
         # floored count lags by half a count on average); Fs is fed forward
         # with the command's sign.
-        theta_meas = theta_fb + 0.5 * q[6]
+        theta_meas = theta_fb + 0.5 * q[Q_ENCODER]
         angle = nr * theta_meas
         sin_a, cos_a = sincos(angle)
         id_cmd = 0.0
@@ -650,22 +717,24 @@ def control_step(period, theta, ia, ib, cs, q, u):
         pos_int = pos_int + theta_err * dt
         fs_ff = 0.0
         if omega_cmd > 0.0:
-            fs_ff = q[14]
+            fs_ff = q[Q_FS_EST]
         elif omega_cmd < 0.0:
-            fs_ff = -q[14]
-        iq_inj = (feedforward_torque(sin_a, cos_a, q, u) + q[12] * fs_ff) * (1.0 / q[13]) + u[6]
-        tau_fb = q[8] * (omega_cmd - omega_fb) + q[9] * theta_err + q[10] * pos_int
-        iq_cmd = tau_fb * (1.0 / q[13]) + iq_inj
+            fs_ff = -q[Q_FS_EST]
+        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[Q_FF_ON] * fs_ff)
+                  * (1.0 / q[Q_KM_EST]) + u[U_IQ])
+        tau_fb = (q[Q_KP_VEL] * (omega_cmd - omega_fb) + q[Q_KP_POS] * theta_err
+                  + q[Q_KI_POS] * pos_int)
+        iq_cmd = tau_fb * (1.0 / q[Q_KM_EST]) + iq_inj
 
     # Park, PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
     id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
-    kp, ki = q[4], q[5]
+    kp, ki = q[Q_KP_I], q[Q_KI_I]
     err_d = id_cmd - id_m
     err_q = iq_cmd - iq_m
     vd = pi_output(err_d, int_d, kp)
     vq = pi_output(err_q, int_q, kp)
     va_dem, vb_dem = inverse_park_sc(vd, vq, sin_a, cos_a)
-    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[21])
+    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[Q_VDC])
     va = v_alpha - v_gamma
     vb = v_beta - v_gamma
     vd_app, vq_app = park_sc(va, vb, sin_a, cos_a)
@@ -689,15 +758,12 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     p = plant_params(c)
     q = controller_params(c)
     u = (u_arr[0], u_arr[1], u_arr[2], u_arr[3], u_arr[4], u_arr[5], u_arr[6])
-    dt = q[0]
+    dt = q[Q_DT]
     n_sub = int(c[C_SUBSTEPS])
     h = dt / n_sub
     w_stick = c[C_W_STICK]
     win_start = c[C_WINDOW_START]
     ref_rate = c[C_NR] * c[C_REF_SPEED]
-    step_s, step_c = sincos(ref_rate * dt)
-    ref_s, ref_c = 0.0, 1.0
-    lockin_count = int(acc[A_COUNT])
     x = (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
          s[S_E_FRIC], s[S_E_LOAD])
     cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT],
@@ -741,11 +807,9 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
             sum_e2 += err * err
             sum_iff2 += iq_inj * iq_inj
             # Lock-in on the detent harmonics h*Nr*w_ref*t, timed from the window
-            # start: a phasor turned by one period's angle, recomputed exactly
-            # every 256 samples so rounding cannot accumulate.
-            ref_s, ref_c = sincos(ref_rate * (t - win_start))
-            lockin_count += 1
-            s1, c1 = ref_s, ref_c
+            # start; the reference angle is evaluated afresh each sample, so no
+            # rounding accumulates.
+            s1, c1 = sincos(ref_rate * (t - win_start))
             s2, c2, s4, c4 = harmonics(s1, c1)
             h1s += err * s1
             h1c += err * c1

@@ -3,8 +3,10 @@
 Parameters are what a domain randomiser changes; they never change during a run.
 Every field is SI (A, V, Ohm, H, N*m, rad, rad/s, kg*m^2, s, Hz) and is checked at
 construction: a bad value raises ``ValueError`` naming the field and its allowed
-range. The flat field names below are the public vocabulary of the API, of motor
-JSON files and of ``stepdamp ... --set FIELD=VALUE``.
+range, which sits beside the field as its metadata (:func:`allowed`). The flat
+field names below are the public vocabulary of the API, of motor JSON files and
+of ``stepdamp ... --set FIELD=VALUE``. The named presets are in
+:mod:`stepdamp_env.presets` (re-exported here).
 
 Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in physics-notes.md):
     R, L, Km, Nr, J, D, Kd1, Kd2, Kd4, phi1, phi2, Fs, load_torque
@@ -63,70 +65,54 @@ class ParameterError(ValueError):
 _INF = math.inf
 
 
-def _check_range(name: str, value: Any, low: float, high: float, *,
-                 low_open: bool = False, high_open: bool = False,
-                 integer: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{name} must be a number, got {value!r}")
-    if integer and float(value) != int(value):
-        raise ParameterError(f"{name} must be an integer, got {value!r}")
-    if not math.isfinite(value):
-        raise ParameterError(f"{name} must be finite, got {value!r}")
-    lo_ok = value > low if low_open else value >= low
-    hi_ok = value < high if high_open else value <= high
-    if not (lo_ok and hi_ok):
-        lo_b = "(" if low_open else "["
-        hi_b = ")" if high_open else "]"
-        raise ParameterError(
-            f"{name}={value!r} is outside its allowed range {lo_b}{low}, {high}{hi_b}")
+@dataclass(frozen=True)
+class Allowed:
+    """Allowed range of a field, [low, high] with either end open; integer-only if set."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise ``ParameterError`` naming ``name`` and this range if ``value`` is outside."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(f"{name} must be a number, got {value!r}")
+        if self.integer and float(value) != int(value):
+            raise ParameterError(f"{name} must be an integer, got {value!r}")
+        if not math.isfinite(value):
+            raise ParameterError(f"{name} must be finite, got {value!r}")
+        low, high = self.low, self.high
+        lo_ok = value > low if self.low_open else value >= low
+        hi_ok = value < high if self.high_open else value <= high
+        if not (lo_ok and hi_ok):
+            lo_b = "(" if self.low_open else "["
+            hi_b = ")" if self.high_open else "]"
+            raise ParameterError(
+                f"{name}={value!r} is outside its allowed range {lo_b}{low}, {high}{hi_b}")
 
 
-# (field, low, high, low_open, high_open, integer): the allowed range of each field.
-_RANGES: dict[str, tuple[float, float, bool, bool, bool]] = {
-    # motor
-    "R": (0.0, 1e3, True, False, False),
-    "L": (0.0, 10.0, True, False, False),
-    "Km": (0.0, 100.0, True, False, False),
-    "Nr": (1, 1000, False, False, True),
-    "J": (0.0, 10.0, True, False, False),
-    "D": (0.0, 100.0, False, False, False),
-    "Kd1": (0.0, 100.0, False, False, False),
-    "Kd2": (0.0, 100.0, False, False, False),
-    "Kd4": (0.0, 100.0, False, False, False),
-    "phi1": (-2 * math.pi, 2 * math.pi, False, False, False),
-    "phi2": (-2 * math.pi, 2 * math.pi, False, False, False),
-    "Fs": (0.0, 100.0, False, False, False),
-    "load_torque": (-100.0, 100.0, False, False, False),
-    # drive
-    "Vdc": (0.0, 1e4, True, False, False),
-    "pwm_hz": (1e3, 1e6, False, False, False),
-    "holding_current": (0.0, 100.0, True, False, False),
-    "microsteps": (1, 65536, False, False, True),
-    "current_bandwidth_hz": (0.0, _INF, True, True, False),
-    "Kp_current": (0.0, 1e6, True, False, False),
-    "Ki_current": (0.0, 1e9, False, False, False),
-    "current_noise_a": (0.0, 100.0, False, False, False),
-    "current_offset_a": (-100.0, 100.0, False, False, False),
-    "current_offset_b": (-100.0, 100.0, False, False, False),
-    # servo
-    "encoder_cpr": (1, 1 << 30, False, False, True),
-    "velocity_cutoff_hz": (0.0, _INF, True, True, False),
-    "Kp_vel": (0.0, 1e6, False, False, False),
-    "Kp_pos": (0.0, 1e9, False, False, False),
-    "Ki_pos": (0.0, 1e12, False, False, False),
-    "kalman_accel_std": (0.0, 1e9, True, False, False),
-}
+def allowed(low: float, high: float, *, low_open: bool = False, high_open: bool = False,
+            integer: bool = False) -> dict[str, Allowed]:
+    """Field metadata holding the field's allowed range: ``field(metadata=allowed(...))``."""
+    return {"allowed": Allowed(low, high, low_open, high_open, integer)}
+
+
+def _same_range_as(cls: type, name: str) -> Mapping[str, Allowed]:
+    """The metadata (allowed range) of field ``name`` of dataclass ``cls``."""
+    return next(f.metadata for f in fields(cls) if f.name == name)
 
 
 def _validate_fields(obj: Any) -> None:
+    """Check every set field against the range in its metadata; coerce to int or float."""
     for f in fields(obj):
         value = getattr(obj, f.name)
         if value is None:
             continue
-        low, high, low_open, high_open, integer = _RANGES[f.name]
-        _check_range(f.name, value, low, high, low_open=low_open,
-                     high_open=high_open, integer=integer)
-        if integer:
+        rng: Allowed = f.metadata["allowed"]
+        rng.check(f.name, value)
+        if rng.integer:
             object.__setattr__(obj, f.name, int(value))
         else:
             object.__setattr__(obj, f.name, float(value))
@@ -149,19 +135,19 @@ class MotorParams:
         load_torque: constant load torque opposing positive rotation (N*m).
     """
 
-    R: float
-    L: float
-    Km: float
-    Nr: int
-    J: float
-    D: float
-    Kd1: float
-    Kd2: float
-    Kd4: float
-    phi1: float
-    phi2: float
-    Fs: float
-    load_torque: float = 0.0
+    R: float = field(metadata=allowed(0.0, 1e3, low_open=True))
+    L: float = field(metadata=allowed(0.0, 10.0, low_open=True))
+    Km: float = field(metadata=allowed(0.0, 100.0, low_open=True))
+    Nr: int = field(metadata=allowed(1, 1000, integer=True))
+    J: float = field(metadata=allowed(0.0, 10.0, low_open=True))
+    D: float = field(metadata=allowed(0.0, 100.0))
+    Kd1: float = field(metadata=allowed(0.0, 100.0))
+    Kd2: float = field(metadata=allowed(0.0, 100.0))
+    Kd4: float = field(metadata=allowed(0.0, 100.0))
+    phi1: float = field(metadata=allowed(-2 * math.pi, 2 * math.pi))
+    phi2: float = field(metadata=allowed(-2 * math.pi, 2 * math.pi))
+    Fs: float = field(metadata=allowed(0.0, 100.0))
+    load_torque: float = field(default=0.0, metadata=allowed(-100.0, 100.0))
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -188,16 +174,18 @@ class DriveParams:
         current_offset_a, current_offset_b: current-sensor offsets (A).
     """
 
-    Vdc: float = 48.0
-    pwm_hz: float = 20_000.0
-    holding_current: float = 1.9
-    microsteps: int = 64
-    current_bandwidth_hz: float = 1_500.0
-    Kp_current: float | None = None
-    Ki_current: float | None = None
-    current_noise_a: float = 0.0
-    current_offset_a: float = 0.0
-    current_offset_b: float = 0.0
+    Vdc: float = field(default=48.0, metadata=allowed(0.0, 1e4, low_open=True))
+    pwm_hz: float = field(default=20_000.0, metadata=allowed(1e3, 1e6))
+    holding_current: float = field(default=1.9, metadata=allowed(0.0, 100.0, low_open=True))
+    microsteps: int = field(default=64, metadata=allowed(1, 65536, integer=True))
+    # Upper end pwm_hz/8 checked in __post_init__.
+    current_bandwidth_hz: float = field(
+        default=1_500.0, metadata=allowed(0.0, _INF, low_open=True, high_open=True))
+    Kp_current: float | None = field(default=None, metadata=allowed(0.0, 1e6, low_open=True))
+    Ki_current: float | None = field(default=None, metadata=allowed(0.0, 1e9))
+    current_noise_a: float = field(default=0.0, metadata=allowed(0.0, 100.0))
+    current_offset_a: float = field(default=0.0, metadata=allowed(-100.0, 100.0))
+    current_offset_b: float = field(default=0.0, metadata=allowed(-100.0, 100.0))
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -223,12 +211,14 @@ class ServoParams:
             model, per control period (rad/s^2); used when it is selected.
     """
 
-    encoder_cpr: int = 4000
-    velocity_cutoff_hz: float = 100.0
-    Kp_vel: float | None = None
-    Kp_pos: float | None = None
-    Ki_pos: float | None = None
-    kalman_accel_std: float = 2000.0
+    encoder_cpr: int = field(default=4000, metadata=allowed(1, 1 << 30, integer=True))
+    # Upper end pwm_hz/2 checked in SystemParams.
+    velocity_cutoff_hz: float = field(
+        default=100.0, metadata=allowed(0.0, _INF, low_open=True, high_open=True))
+    Kp_vel: float | None = field(default=None, metadata=allowed(0.0, 1e6))
+    Kp_pos: float | None = field(default=None, metadata=allowed(0.0, 1e9))
+    Ki_pos: float | None = field(default=None, metadata=allowed(0.0, 1e12))
+    kalman_accel_std: float = field(default=2000.0, metadata=allowed(0.0, 1e9, low_open=True))
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -238,6 +228,8 @@ MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
 DRIVE_FIELDS = tuple(f.name for f in fields(DriveParams))
 SERVO_FIELDS = tuple(f.name for f in fields(ServoParams))
 ALL_FIELDS = MOTOR_FIELDS + DRIVE_FIELDS + SERVO_FIELDS
+_INTEGER_FIELDS = frozenset(f.name for cls in (MotorParams, DriveParams, ServoParams)
+                            for f in fields(cls) if f.metadata["allowed"].integer)
 # Keys a motor file may carry besides the fields: where it starts from and what it is.
 META_KEYS = ("base", "name", "source", "notes")
 
@@ -287,6 +279,7 @@ class SystemParams:
                 f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)} "
                 f"and metadata keys {list(META_KEYS)}")
         if base is None:
+            from .presets import get_preset   # lazy: presets.py imports this module
             base = get_preset(str(values.get("base", "patent")))
         motor = {**dataclasses.asdict(base.motor),
                  **{k: values[k] for k in MOTOR_FIELDS if k in values}}
@@ -371,13 +364,14 @@ class FeedforwardModel:
     :class:`MotorParams`: Km (N*m/A), Kd1, Kd2, Kd4, Fs (N*m), phi1, phi2 (rad).
     """
 
-    Km: float
-    Kd1: float
-    Kd2: float
-    Kd4: float
-    phi1: float
-    phi2: float
-    Fs: float
+    # Each estimate has the allowed range of the motor field it estimates.
+    Km: float = field(metadata=_same_range_as(MotorParams, "Km"))
+    Kd1: float = field(metadata=_same_range_as(MotorParams, "Kd1"))
+    Kd2: float = field(metadata=_same_range_as(MotorParams, "Kd2"))
+    Kd4: float = field(metadata=_same_range_as(MotorParams, "Kd4"))
+    phi1: float = field(metadata=_same_range_as(MotorParams, "phi1"))
+    phi2: float = field(metadata=_same_range_as(MotorParams, "phi2"))
+    Fs: float = field(metadata=_same_range_as(MotorParams, "Fs"))
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -397,126 +391,6 @@ class FeedforwardModel:
         return (self.Kd1 * math.cos(self.phi1), self.Kd1 * math.sin(self.phi1),
                 self.Kd2 * math.cos(self.phi2), self.Kd2 * math.sin(self.phi2),
                 self.Kd4, 0.0)
-
-
-# ---------------------------------------------------------------------------
-# Presets
-# ---------------------------------------------------------------------------
-
-def _patent() -> SystemParams:
-    """The system of US 7,733,051.
-
-    From the patent: Km = 0.3 N*m/A and Nr = 50 (section A), D = 0.001 N*m*s/rad
-    (eq. 9), holding current 1.9 A (eq. 7), 20 kHz PWM and control rate, a
-    4000 count/rev encoder (section C), microstepping 1/64 (description).
-    Chosen here (the patent is silent), values of a 57 mm (NEMA 23) hybrid
-    stepper of that torque constant: R = 1.2 Ohm, L = 3.6 mH, 48 V bus;
-    J = 4.0e-5 kg*m^2, a rotor of about 1.2e-5 plus a rigidly coupled load of
-    2.8e-5, which puts the three resonances at about 0.58, 1.2 and 2.3 rev/s;
-    detent harmonics Kd4 = 0.012 N*m (2 % of the 0.57 N*m holding torque at
-    1.9 A), Kd2 = 0.006 N*m with phi2 = 0.6 rad, Kd1 = 0.004 N*m with
-    phi1 = -1.1 rad (the manufacturing imperfections that give a real motor its
-    2nd and 1st harmonic resonances); Fs = 0.004 N*m.
-    """
-    motor = MotorParams(R=1.2, L=3.6e-3, Km=0.3, Nr=50, J=4.0e-5, D=0.001,
-                        Kd1=0.004, Kd2=0.006, Kd4=0.012, phi1=-1.1, phi2=0.6,
-                        Fs=0.004, load_torque=0.0)
-    drive = DriveParams(Vdc=48.0, pwm_hz=20_000.0, holding_current=1.9, microsteps=64,
-                        current_bandwidth_hz=1_500.0)
-    return SystemParams(motor, drive, ServoParams(encoder_cpr=4000), name="patent")
-
-
-# Real motors. Datasheet figures are quoted beside the numbers; the rest is
-# marked ASSUMED. Conventions used for every datasheet preset:
-# * holding torque is taken with both phases at the rated RMS current, so the
-#   sinusoidal-microstep amplitude is sqrt(2)*I_rated (that is holding_current)
-#   and Km = T_hold / (sqrt(2)*I_rated), giving Km*holding_current = T_hold;
-# * the datasheet detent torque is the peak of the detent curve, split ASSUMED
-#   60 % / 25 % / 15 % over the 4th / 2nd / 1st harmonic, phases ASSUMED;
-# * J = rotor inertia plus an ASSUMED rigidly coupled load of nine times the
-#   rotor's (10:1 total to rotor, the usual upper end for open-loop steppers;
-#   lighter loads push the resonances to speeds where the drive's own
-#   electrical dynamics shift the peaks further from the rigid-spring formula);
-# * D ASSUMED so that the mechanical damping ratio D/(2*sqrt(Km*I*Nr*J)) is
-#   0.02, a lightly damped rig like the patent's; Fs ASSUMED about 1 % of T_hold.
-# The detent also modulates the spring by +-4*Nr*Kd4; past a modulation depth
-# eps = 4*Kd4/T_hold of about 4*zeta that drives a parametric (Mathieu)
-# resonance at the h=2 speed which no feedforward at the command angle removes
-# (README, "Known limits"): the QSH4218-35-10-027 (eps = 0.2) is left out for that.
-_SQRT2 = math.sqrt(2.0)
-
-
-def _datasheet_motor(*, name: str, i_rated: float, r: float, l: float, t_hold: float,
-                     detent: float, j_rotor: float, vdc: float,
-                     fs: float, phi1: float, phi2: float) -> SystemParams:
-    j = 10.0 * j_rotor
-    stiffness = t_hold * 50          # Km*holding_current*Nr, N*m/rad
-    d = 2.0 * 0.02 * math.sqrt(stiffness * j)
-    motor = MotorParams(R=r, L=l, Km=t_hold / (_SQRT2 * i_rated), Nr=50, J=j, D=d,
-                        Kd1=0.15 * detent, Kd2=0.25 * detent, Kd4=0.6 * detent,
-                        phi1=phi1, phi2=phi2, Fs=fs, load_torque=0.0)
-    drive = DriveParams(Vdc=vdc, pwm_hz=20_000.0, holding_current=_SQRT2 * i_rated,
-                        microsteps=64, current_bandwidth_hz=1_500.0)
-    return SystemParams(motor, drive, ServoParams(encoder_cpr=4000), name=name)
-
-
-def _qsh4218_51_10_049() -> SystemParams:
-    """Trinamic QSH4218-51-10-049, NEMA 17, 1.8 degree.
-
-    Source: Trinamic "QMot QSH4218 manual" V1.10, table 2.1: rated current
-    1.0 A RMS, 5.0 Ohm, 8.0 mH, holding torque 0.49 N*m, detent torque
-    28 mN*m, rotor inertia 68 g*cm^2; torque curve measured at 24 V (Vdc).
-    """
-    return _datasheet_motor(name="qsh4218-51-10-049", i_rated=1.0, r=5.0, l=8.0e-3,
-                            t_hold=0.49, detent=0.028, j_rotor=68e-7, vdc=24.0, fs=0.005, phi1=0.9, phi2=-0.5)
-
-
-def _qsh5718_56_28_126() -> SystemParams:
-    """Trinamic QSH5718-56-28-126, NEMA 23, 1.8 degree.
-
-    Source: Trinamic "QMot QSH5718 manual" V2.6, table 2.1: rated current
-    2.8 A RMS, 0.9 Ohm, 2.5 mH, holding torque 1.26 N*m, detent torque
-    0.039 N*m, rotor inertia 300 g*cm^2; torque curve measured at 30 V (Vdc).
-    """
-    return _datasheet_motor(name="qsh5718-56-28-126", i_rated=2.8, r=0.9, l=2.5e-3,
-                            t_hold=1.26, detent=0.039, j_rotor=300e-7, vdc=30.0, fs=0.012, phi1=0.3, phi2=2.0)
-
-
-def _qsh6018_65_28_210() -> SystemParams:
-    """Trinamic QSH6018-65-28-210, 60 mm flange, 1.8 degree.
-
-    Source: Trinamic "QMot QSH6018 manual" V1.20, table 1.1: rated current
-    2.8 A RMS, 1.2 Ohm, 4.6 mH, holding torque 2.1 N*m, rotor inertia
-    570 g*cm^2; torque curves measured at 30 V (Vdc). The datasheet leaves the
-    detent torque blank: ASSUMED 0.06 N*m (about 3 % of T_hold, in line with
-    the family's smaller motors).
-    """
-    return _datasheet_motor(name="qsh6018-65-28-210", i_rated=2.8, r=1.2, l=4.6e-3,
-                            t_hold=2.1, detent=0.06, j_rotor=570e-7, vdc=30.0, fs=0.02, phi1=-1.3, phi2=0.4)
-
-
-PRESETS: dict[str, Any] = {
-    "patent": _patent,
-    "qsh4218-51-10-049": _qsh4218_51_10_049,
-    "qsh5718-56-28-126": _qsh5718_56_28_126,
-    "qsh6018-65-28-210": _qsh6018_65_28_210,
-}
-
-
-def preset_names() -> list[str]:
-    """Names accepted by :func:`get_preset` and by ``--motor``."""
-    return sorted(PRESETS)
-
-
-def get_preset(name: str) -> SystemParams:
-    """A preset system by name; ``ParameterError`` lists the names on a miss."""
-    try:
-        factory = PRESETS[name]
-    except KeyError:
-        raise ParameterError(
-            f"unknown motor preset {name!r}; choose one of {preset_names()} "
-            "or give a path to a motor .json file") from None
-    return factory()
 
 
 def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
@@ -547,6 +421,7 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
             values.setdefault("name", os.path.splitext(os.path.basename(text))[0])
             system = SystemParams.from_dict(values)
         else:
+            from .presets import get_preset   # lazy: presets.py imports this module
             system = get_preset(text)
     if overrides:
         system = system.replace(**overrides)
@@ -568,5 +443,17 @@ def parse_set_overrides(items: Iterable[str]) -> dict[str, float]:
             value = float(raw)
         except ValueError:
             raise ParameterError(f"--set {name}: {raw!r} is not a number") from None
-        out[name] = int(value) if value.is_integer() and _RANGES[name][4] else value
+        out[name] = int(value) if value.is_integer() and name in _INTEGER_FIELDS else value
     return out
+
+
+# The preset API lives in stepdamp_env.presets, which imports this module; it is
+# re-exported here on first access (PEP 562) so neither import runs the other.
+_PRESET_API = ("PRESETS", "preset_names", "get_preset")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PRESET_API:
+        from . import presets
+        return getattr(presets, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -107,6 +107,27 @@ def _config(system=None):
     return build_config(system, SpeedProfile(1.0), RunSettings())
 
 
+def _positions(prefix):
+    return {name: getattr(K, name) for name in dir(K)
+            if name.startswith(prefix) and isinstance(getattr(K, name), int)}
+
+
+def test_parameter_tuples_are_read_by_their_named_positions():
+    # Distinct values everywhere, so a wrong position cannot pass by accident.
+    c = 1.5 + np.arange(K.N_CONFIG, dtype=np.float64)
+    p, q = K.plant_params(c), K.controller_params(c)
+    for names, tup in ((_positions("P_"), p), (_positions("Q_"), q)):
+        assert sorted(names.values()) == list(range(len(tup)))
+    inverted = {"P_INV_L": "C_L", "P_INV_J": "C_J"}
+    for name, pos in _positions("P_").items():
+        if name in inverted:
+            assert p[pos] == 1.0 / c[getattr(K, inverted[name])]
+        else:
+            assert p[pos] == c[getattr(K, "C_" + name[2:])], name
+    for name, pos in _positions("Q_").items():
+        assert q[pos] == c[getattr(K, "C_" + name[2:])], name
+
+
 def test_detent_torque_is_the_patent_expression_and_minus_gradient_of_potential():
     system = get_preset("patent")
     m = system.motor
@@ -123,24 +144,24 @@ def test_detent_torque_is_the_patent_expression_and_minus_gradient_of_potential(
 
 def test_back_emf_power_equals_torque_times_speed():
     p = K.plant_params(_config())
-    R, inv_l = p[0], p[1]
+    R, inv_l = p[K.P_R], p[K.P_INV_L]
     for th, w, ia, ib in RNG.uniform(-1, 1, (1000, 4)) * np.array([10, 50, 3, 3]):
         d = K.motor_derivative(th, w, ia, ib, 0.0, 0.0, p)
         # With va = vb = 0: L di/dt = -R i - e, so -e = L di/dt + R i.
         ea = -(d[2] / inv_l + R * ia)
         eb = -(d[3] / inv_l + R * ib)
-        x = p[3] * th
-        tau_em = p[2] * (-ia * math.sin(x) + ib * math.cos(x))
+        x = p[K.P_NR] * th
+        tau_em = p[K.P_KM] * (-ia * math.sin(x) + ib * math.cos(x))
         assert ea * ia + eb * ib == pytest.approx(tau_em * w, rel=1e-12, abs=1e-12)
 
 
 def test_winding_power_splits_into_copper_magnetic_and_mechanical():
     p = K.plant_params(_config())
-    R, L = p[0], 1.0 / p[1]
+    R, L = p[K.P_R], 1.0 / p[K.P_INV_L]
     for th, w, ia, ib, va, vb in RNG.uniform(-1, 1, (500, 6)) * np.array([5, 30, 2, 2, 40, 40]):
         d = K.motor_derivative(th, w, ia, ib, va, vb, p)
-        x = p[3] * th
-        tau_em = p[2] * (-ia * math.sin(x) + ib * math.cos(x))
+        x = p[K.P_NR] * th
+        tau_em = p[K.P_KM] * (-ia * math.sin(x) + ib * math.cos(x))
         p_in = va * ia + vb * ib
         assert d[4] == pytest.approx(p_in, rel=1e-14, abs=1e-14)
         rhs = R * (ia**2 + ib**2) + L * (ia * d[2] + ib * d[3]) + tau_em * w
