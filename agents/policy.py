@@ -87,10 +87,10 @@ class ResidualAgent:
         self._sq = 0.0
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        # "eval_estimate": the key of configs written before 0.2.
+        which = self.config.get("estimate", self.config.get("eval_estimate", "identified"))
         return {"base_controller": "patent-ff", "action_mode": self.action_mode,
-                **self.env_extra,
-                "estimate": resolve_estimate(self.config.get("eval_estimate", "identified"),
-                                             knowledge)}
+                **self.env_extra, "estimate": resolve_estimate(which, knowledge)}
 
     def reset(self, context: PolicyContext) -> None:
         est = context.estimate if context.estimate is not None else context.knowledge.exact

@@ -88,7 +88,7 @@ from stable_baselines3.td3.policies import TD3Policy
 
 from stepdamp_baselines.harmonic import harmonic_actions, phasors, torque_paths
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
-from stepdamp_env.env import OBS, StepperDampEnv, StepperDampVectorEnv
+from stepdamp_env.env import DEFAULT_EPISODE_STEPS, OBS, StepperDampEnv, StepperDampVectorEnv
 from stepdamp_env.params import FeedforwardModel, SystemParams
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
 
@@ -419,7 +419,7 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
                           base: str = "patent-ff", residual_scale: float = 0.25,
                           reward_scale: float = 1.0, residual_action: str = "harmonic",
                           hold_steps: int = 1, feedback_gain: float = 0.1,
-                          max_episode_steps: int = 300,
+                          max_episode_steps: int = DEFAULT_EPISODE_STEPS,
                           **options: Any) -> VecEnv:
     """A :class:`ResidualVecEnv` with ``envs_per_motor`` drives around each of
     ``motors`` (for ``residual_action="feedback"`` inside a

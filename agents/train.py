@@ -42,7 +42,7 @@ import numpy as np
 
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.env import DEFAULT_EPISODE_STEPS
-from stepdamp_env.params import preset_names
+from stepdamp_env.presets import preset_names
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
 ENV_ID = "StepperDamp-v0"
@@ -200,7 +200,7 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
             "residual_action": wk.get("residual_action", "harmonic"),
             "hold_steps": int(wk.get("hold_steps", 1)),
             "feedback_gain": float(wk.get("feedback_gain", 0.1)),
-            "eval_estimate": "identified",
+            "estimate": "identified",
             "env_options": {k: sp["env_kwargs"][k] for k in ("agent_hz", "velocity_estimator")
                             if k in sp["env_kwargs"]},
             "training": {"seed": args.seed, "env_seed": 1000 * args.seed,

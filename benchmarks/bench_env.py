@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 import stepdamp_env  # noqa: F401  (registers StepperDamp-v0)
-from stepdamp_env.envs import StepperDampEnv, StepperDampVectorEnv
+from stepdamp_env.env import StepperDampEnv, StepperDampVectorEnv
 
 
 def bench_scalar(env, seconds: float) -> float:
@@ -56,11 +56,23 @@ def bench_vector(env, seconds: float) -> float:
 
 def bench_kernel_only(num_envs: int, seconds: float) -> float:
     """kernel.run_batch alone on the env's drives: the ceiling of the vector env."""
+    import math
+
     from stepdamp_env import kernel as K
+    from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
+                                         new_accumulators)
+
     venv = StepperDampVectorEnv(num_envs=num_envs)
     venv.reset(seed=0)
-    c, s, acc, u = venv._c, venv._s, venv._acc, venv._u
-    n = venv._steps_per_call
+    # The same drives and speeds as the env's episodes, as plain kernel arrays.
+    settings = RunSettings(damping="patent-ff")
+    c = np.stack([build_config(system, SpeedProfile(speed_rps=float(v)), settings,
+                               window_start_s=math.inf)
+                  for system, v in zip(venv.systems, venv.speeds_rps)])
+    s = np.stack([initial_state(row) for row in c])
+    acc = new_accumulators(num_envs)
+    u = np.zeros((num_envs, K.N_INPUT))
+    n = venv.sampler.n_periods
     K.run_batch(c, s, acc, u, n)
     steps = 0
     t0 = time.perf_counter()

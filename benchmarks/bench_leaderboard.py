@@ -33,9 +33,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-full", action="store_true")
     args = parser.parse_args()
-    from baselines import BASELINE_NAMES
+    import stepdamp_env.bench as bench
 
-    print(f"baselines: {', '.join(BASELINE_NAMES)}; workers: {args.workers}")
+    print(f"policies: {', '.join(bench.default_policy_names())}; workers: {args.workers}")
     with tempfile.TemporaryDirectory() as tmp:
         variants = [("quick", True, 60.0)] + ([] if args.skip_full else [("full", False, 300.0)])
         for label, quick, target in variants:

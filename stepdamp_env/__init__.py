@@ -1,12 +1,18 @@
 """StepperDamp: active electronic damping of hybrid stepper motors (US 7,733,051)."""
 
+from .numba_cache import use_user_cache_dir
+
+# Before anything compiles: numba's on-disk cache goes to a per-user directory,
+# never into the installed package (an uninstall could not remove it).
+use_user_cache_dir()
+
 from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams,
                      SystemParams, load_system, predicted_resonances)
 from .presets import PRESETS, get_preset, preset_names
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
 from .env import StepperDampEnv, StepperDampVectorEnv, register_envs
+from .version import __version__
 
-__version__ = "0.1.0"
 
 __all__ = [
     "__version__",

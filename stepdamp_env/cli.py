@@ -195,7 +195,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stepdamp", description=__doc__)
-    from . import __version__
+    from .version import __version__
 
     parser.add_argument("--version", action="version", version=f"stepdamp {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)

@@ -38,14 +38,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import kernel as K
-from .params import FeedforwardModel, ParameterError, SystemParams, load_system
+from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams, load_system
 from .response import servo_loop
 from .simulation import RunSettings, SpeedProfile, build_config, initial_state, new_accumulators
 
 __all__ = ["IdentificationResult", "identify", "METHODS"]
 
 METHODS = ("least-squares", "iterative")
-HARMONICS = (1, 2, 4)
+HARMONICS = DETENT_HARMONICS
 
 
 @dataclass(frozen=True)

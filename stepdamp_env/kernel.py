@@ -465,7 +465,7 @@ def motor_derivative_sc(sin_x, cos_x, omega, ia, ib, va, vb, p):
 
 @_jit
 def motor_derivative(theta, omega, ia, ib, va, vb, p):
-    """Right-hand side of the plant (physics-notes.md section 2).
+    """Right-hand side of the plant (docs/model.md, "The plant").
 
     ``p`` is :func:`plant_params`. Returns (dtheta, domega, dia, dib, p_in,
     p_cu, p_damp, p_fric, p_load): the state derivatives and the powers (W)

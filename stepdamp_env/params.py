@@ -8,7 +8,7 @@ field names below are the public vocabulary of the API, of motor JSON files and
 of ``stepdamp ... --set FIELD=VALUE``. The named presets are in
 :mod:`stepdamp_env.presets` (re-exported here).
 
-Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in physics-notes.md):
+Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in docs/model.md):
     R, L, Km, Nr, J, D, Kd1, Kd2, Kd4, phi1, phi2, Fs, load_torque
 Drive: Vdc, pwm_hz, holding_current, microsteps, current_bandwidth_hz,
     Kp_current, Ki_current, current_noise_a, current_offset_a, current_offset_b
@@ -350,7 +350,7 @@ def predicted_resonances(system: SystemParams) -> dict[int, float]:
     """Speeds (rev/s) at which detent harmonic h excites the rotor resonance.
 
     Detent harmonic h acts at h*Nr*w_shaft; it meets wn when
-    w_shaft = wn/(h*Nr) (physics-notes.md section 4). Keys are h = 4, 2, 1.
+    w_shaft = wn/(h*Nr) (docs/model.md, "Frames, the holding spring and the resonances"). Keys are h = 4, 2, 1.
     """
     wn = system.natural_frequency()
     return {h: wn / (h * system.motor.Nr) / (2.0 * math.pi) for h in RESONANCE_HARMONICS}

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .parallel import default_workers, pool_map
-from .params import ParameterError, SystemParams
+from .params import DETENT_HARMONICS, ParameterError, SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 
 __all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks"]
@@ -54,7 +54,7 @@ class SweepResult:
                                     self.system.predicted_resonances_rps())
 
     def to_dict(self) -> dict[str, Any]:
-        from . import __version__
+        from .version import __version__
 
         predicted = self.system.predicted_resonances_rps()
         est = self.settings.estimate
@@ -64,7 +64,7 @@ class SweepResult:
             "motor": self.system.name,
             "mode": self.settings.mode,
             "damping": self.settings.damping,
-            "controller_estimate": None if est is None else est.__dict__,
+            "estimate": None if est is None else est.__dict__,
             "accel_rps2": self.accel_rps2,
             "substeps": self.settings.substeps,
             "velocity_estimator": self.settings.velocity_estimator,
@@ -78,7 +78,7 @@ class SweepResult:
             "rms_injected_current_a": self.column("rms_injected_current_a").tolist(),
             "harmonic_amplitude_rad_s": {
                 str(h): [m["harmonic_amplitude_rad_s"][str(h)] for m in self.metrics]
-                for h in (1, 2, 4)},
+                for h in DETENT_HARMONICS},
             "predicted_resonances_rps": {str(h): v for h, v in predicted.items()},
             "measured_resonances_rps": {str(h): v for h, v in self.peaks().items()},
             "parameters": self.system.to_dict(),

@@ -16,7 +16,8 @@ from stepdamp_agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualW
 from stepdamp_agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
 from stepdamp_baselines import make_baseline  # noqa: E402
 from stepdamp_env import kernel as K  # noqa: E402
-from stepdamp_env.bench import MotorKnowledge, PolicyContext, run_episode  # noqa: E402
+from stepdamp_env.bench import (MotorKnowledge, PolicyContext, policy_env_options,  # noqa: E402
+                                run_episode)
 from stepdamp_env.env import StepperDampEnv  # noqa: E402
 from stepdamp_env.params import FeedforwardModel, get_preset  # noqa: E402
 
@@ -44,13 +45,14 @@ def _context(system, speed, scale, mode="open-loop"):
 
 
 def _trajectory(policy, system, speed, steps=150, seed=3):
-    """Observations after each of ``steps`` agent steps (1 kHz) and the final drive state."""
+    """Observations after each of ``steps`` agent steps and the final drive state."""
     def record(env, obs, start):
         return obs, env.drive_state
 
-    result = run_episode(policy, _context(system, speed, 0.0).knowledge, system,
-                         mode="open-loop", speed_rps=speed, seed=seed,
-                         until_s=(steps - 0.5) / 1000.0, on_step=record)
+    knowledge = _context(system, speed, 0.0).knowledge
+    agent_hz = policy_env_options(policy, knowledge).get("agent_hz", 1000.0)
+    result = run_episode(policy, knowledge, system, mode="open-loop", speed_rps=speed,
+                         seed=seed, until_s=(steps - 0.5) / agent_hz, on_step=record)
     assert len(result.trace) == steps
     return np.array([o for o, _ in result.trace]), result.trace[-1][1]
 

@@ -192,7 +192,7 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
 def test_sb3_model_file_policy(tmp_path):
     from stable_baselines3 import PPO
 
-    from stepdamp_env.envs import StepperDampEnv
+    from stepdamp_env.env import StepperDampEnv
 
     env = StepperDampEnv(speed_rps=0.7, action_mode="harmonic")
     model = PPO("MlpPolicy", env, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu")

@@ -99,7 +99,7 @@ def scalar_rollout(options: dict[str, Any], seed: int = 11, steps: int = 120) ->
 def vector_rollout(options: dict[str, Any], seed: int = 21, steps: int = 90,
                    autoreset_mode: str = "NextStep") -> str:
     """Hash of the native vector env through autoresets (episodes of 40 steps)."""
-    from stepdamp_env.envs import StepperDampVectorEnv
+    from stepdamp_env.env import StepperDampVectorEnv
 
     venv = StepperDampVectorEnv(num_envs=4, max_episode_steps=40, autoreset_mode=autoreset_mode,
                                 **options)
@@ -116,7 +116,7 @@ def vector_rollout(options: dict[str, Any], seed: int = 21, steps: int = 90,
 
 def measured_rollout(seed: int = 5) -> dict[str, Any]:
     """Core metrics of a measured scalar episode (the leaderboard's way of running)."""
-    from stepdamp_env.envs import StepperDampEnv
+    from stepdamp_env.env import StepperDampEnv
 
     env = StepperDampEnv(motor="qsh5718-56-28-126", speed_rps=1.0, measure_from_s=0.2,
                          overrides={"current_noise_a": 0.01})
@@ -171,7 +171,7 @@ def canonical_runs(runs: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: (r["motor"], r["seed"], r["speed_rps"]))
 
 
-def _digest(obj: Any) -> str:
+def digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
 
 
@@ -184,15 +184,15 @@ def board_fingerprint(board: dict[str, Any], spot_motors: Iterable[str] = (),
     for e in board["entries"]:
         runs = canonical_runs(e["runs"])
         item = {k: e[k] for k in SUMMARY_KEYS}
-        item["runs_sha256"] = _digest(runs)
-        item["scores_sha256"] = _digest(sorted(e["scores"], key=lambda s: (s["motor"],
+        item["runs_sha256"] = digest(runs)
+        item["scores_sha256"] = digest(sorted(e["scores"], key=lambda s: (s["motor"],
                                                                            s["seed"])))
         if spot:
             item["spot_runs"] = [r for r in runs if r["motor"] in spot and r["seed"] == spot_seed]
         entries[f"{e['name']}|{e['suite']}"] = item
     ident = sorted(board["identification"], key=lambda x: (x["motor"], x["seed"]))
-    out = {"entries": entries, "identification_sha256": _digest(ident),
-           "motors_sha256": _digest([m for m in board["protocol"]["motors"]])}
+    out = {"entries": entries, "identification_sha256": digest(ident),
+           "motors_sha256": digest([m for m in board["protocol"]["motors"]])}
     if spot:
         out["spot_identification"] = [x for x in ident if x["motor"] in spot
                                       and x["seed"] == spot_seed]
@@ -200,7 +200,7 @@ def board_fingerprint(board: dict[str, Any], spot_motors: Iterable[str] = (),
 
 
 def run_v0_board(variant: str, workers: int | None = None) -> dict[str, Any]:
-    from stepdamp_env.leaderboard import full_protocol, quick_protocol, run_leaderboard
+    from stepdamp_env.bench import full_protocol, quick_protocol, run_leaderboard
 
     protocol = quick_protocol() if variant == "quick" else full_protocol()
     return run_leaderboard(protocol, None, workers=workers, progress=False)

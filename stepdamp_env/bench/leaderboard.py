@@ -99,7 +99,7 @@ def _warm_up(system: SystemParams) -> None:
 
 def package_versions() -> dict[str, str]:
     """Versions of this package, Python and the numerical dependencies."""
-    from .. import __version__
+    from ..version import __version__
 
     out = {"package": __version__, "python": platform.python_version()}
     for dist, key in (("numpy", "numpy"), ("numba", "numba"), ("gymnasium", "gymnasium"),

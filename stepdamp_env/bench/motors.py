@@ -7,7 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..params import ParameterError, SystemParams, get_preset
+from ..params import ParameterError, SystemParams
+from ..presets import get_preset
 from ..simulation import RunSettings, SpeedProfile, simulate
 from .protocol import PHASE_FIELDS, SUITES, Protocol
 

@@ -160,7 +160,7 @@ class Protocol:
     eval_seeds: tuple[int, ...] = tuple(TRAINING_SEED_LIMIT + k for k in range(5))
     resonance_harmonics: tuple[int, ...] = RESONANCE_HARMONICS
     off_resonance: tuple[tuple[int, float], ...] = _V0_OFF_RESONANCE
-    accel_rps2: float = 50.0
+    accel_rps2: float = 50.0          # frozen: not the core's default, which may change
     window_s: float = 0.3
     settle: str = "core default: simulation.default_settle_s (4/(zeta*wn) in [0.1, 0.6] s)"
     current_noise_a: float = 0.01

@@ -214,7 +214,7 @@ OPTIONS_DOC = """
       resonant speeds (h = 4, 2, 1, equally likely, of the episode's motor) times
       U(1 - ``resonance_spread``, 1 + ``resonance_spread``) (0.1), else
       U(``speed_range_rps``) ((0.25, 3.0) rev/s).
-    * ``accel_rps2`` (50.0): ramp acceleration (rev/s^2) from rest to the command,
+    * ``accel_rps2`` (``DEFAULT_ACCEL_RPS2`` = 50.0): ramp acceleration (rev/s^2) from rest to the command,
       which is then held.
     * ``action_mode`` ("harmonic"): see Action Space.
     * ``agent_hz`` (1000.0): decision rate (Hz); ``pwm_hz/agent_hz`` must be a whole

@@ -1,0 +1,48 @@
+"""Install hygiene: numba's compiled cache lives in a per-user directory, never in the package."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+
+def _run(code: str, env: dict) -> str:
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, check=True,
+                         capture_output=True, text=True)
+    return out.stdout.strip()
+
+
+def test_numba_cache_goes_to_the_user_cache_dir(tmp_path):
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    env.pop("NUMBA_CACHE_DIR", None)
+    module = tmp_path / "cached_mod.py"
+    module.write_text("from numba import njit\n\n@njit(cache=True)\ndef f(x):\n    return x + 1\n")
+    printed = _run(f"""
+        import sys
+        sys.path.insert(0, {str(tmp_path)!r})
+        import stepdamp_env, numba
+        import cached_mod
+        assert cached_mod.f(1) == 2
+        print(numba.config.CACHE_DIR)
+        """, env)
+    cache = tmp_path / "xdg" / "stepdamp" / "numba"
+    assert printed == str(cache)
+    written = [f for _, _, files in os.walk(cache) for f in files]
+    assert any(f.endswith(".nbi") for f in written)
+    assert not (tmp_path / "__pycache__").exists() or \
+        not any(f.endswith(".nbi") for f in os.listdir(tmp_path / "__pycache__"))
+
+
+def test_numba_cache_dir_can_be_chosen(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "mine")}
+    assert _run("import stepdamp_env, numba; print(numba.config.CACHE_DIR)", env) == \
+        str(tmp_path / "mine")
+
+
+def test_numba_imported_first_still_uses_the_user_cache_dir(tmp_path):
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    env.pop("NUMBA_CACHE_DIR", None)
+    assert _run("import numba, stepdamp_env; print(numba.config.CACHE_DIR)", env) == \
+        str(tmp_path / "xdg" / "stepdamp" / "numba")
