@@ -256,3 +256,14 @@ def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
     iqm = {e["name"]: e["headline"]["iqm"] for e in board["entries"]}
     assert iqm["ppo-residual"] < 0.5 * iqm["patent-ff-identified"]
     assert iqm["ppo-residual"] < iqm["ff-delay-comp"]
+
+
+def test_training_seeds_stay_below_the_protocol_limit():
+    """Training seeds seed .. seed + n - 1 must all lie below TRAINING_SEED_LIMIT
+    (the evaluation seeds start there); the guard once never fired."""
+    from stepdamp_env.bench import TRAINING_SEED_LIMIT
+
+    for seed in (TRAINING_SEED_LIMIT, TRAINING_SEED_LIMIT - 1, -1):
+        with pytest.raises(ValueError, match="training seeds"):
+            make_residual_vec_env([MOTOR], 2, seed, randomize=True)
+    make_residual_vec_env([MOTOR], 2, TRAINING_SEED_LIMIT - 2, randomize=True).close()

@@ -51,6 +51,17 @@ def _modules() -> dict[str, str]:
 MODULES = _modules()
 
 
+def test_benchmarks_read_no_private_attributes():
+    for name in sorted(os.listdir(os.path.join(ROOT, "benchmarks"))):
+        if not name.endswith(".py"):
+            continue
+        tree = ast.parse(open(os.path.join(ROOT, "benchmarks", name), encoding="utf-8").read())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") \
+                    and not node.attr.startswith("__"):
+                assert False, f"benchmarks/{name}:{node.lineno} reads {ast.unparse(node)}"
+
+
 def _floor(module: str) -> int:
     best = max((p for p in FLOORS if module == p or module.startswith(p + ".")), key=len)
     return FLOORS[best]

@@ -46,3 +46,13 @@ def test_numba_imported_first_still_uses_the_user_cache_dir(tmp_path):
     env.pop("NUMBA_CACHE_DIR", None)
     assert _run("import numba, stepdamp_env; print(numba.config.CACHE_DIR)", env) == \
         str(tmp_path / "xdg" / "stepdamp" / "numba")
+
+
+def test_pytest_runs_from_any_directory(tmp_path):
+    """The leaderboard tests once failed when pytest ran from outside the checkout."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          os.path.join(root, "tests", "test_leaderboard.py"),
+                          "-k", "cli_writes or may_not_set"],
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
