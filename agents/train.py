@@ -87,10 +87,52 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
     return hp
 
 
-def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
-    """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs)."""
+def parse_policy_kwargs(text: str) -> dict[str, Any]:
+    """The zoo's ``policy_kwargs`` string, e.g. ``"dict(net_arch=[64, 64], log_std_init=-1.5,
+    activation_fn=nn.Tanh)"``, parsed without running it: literals, ``dict(...)``
+    with keywords, and torch.nn module classes named ``nn.X`` or ``th.nn.X``."""
+    import ast
+
     import torch
 
+    def bad(node: ast.AST) -> ValueError:
+        return ValueError(f"policy_kwargs: {ast.unparse(node)!r} is not allowed; use literals, "
+                          "dict(...) and torch.nn classes (nn.ReLU, nn.Tanh, ...)")
+
+    def value(node: ast.AST) -> Any:
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id == "dict" and not node.args:
+            return {kw.arg: value(kw.value) for kw in node.keywords if kw.arg is not None}
+        if isinstance(node, ast.Attribute):
+            path = ast.unparse(node)
+            for prefix in ("th.nn.", "torch.nn.", "nn."):
+                if path.startswith(prefix) and "." not in path[len(prefix):]:
+                    cls = getattr(torch.nn, path[len(prefix):], None)
+                    if isinstance(cls, type) and issubclass(cls, torch.nn.Module):
+                        return cls
+            raise bad(node)
+        if isinstance(node, ast.Dict):
+            return {value(k): value(v) for k, v in zip(node.keys, node.values) if k is not None}
+        if isinstance(node, (ast.List, ast.Tuple)):
+            items = [value(x) for x in node.elts]
+            return items if isinstance(node, ast.List) else tuple(items)
+        try:
+            return ast.literal_eval(node)
+        except ValueError:
+            raise bad(node) from None
+
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ValueError(f"policy_kwargs: cannot parse {text!r}: {exc.msg}") from None
+    out = value(tree.body)
+    if not isinstance(out, dict):
+        raise ValueError(f"policy_kwargs must be a dict, got {text!r}")
+    return out
+
+
+def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
+    """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs)."""
     hp = dict(hp)
     n_envs = int(hp.pop("n_envs", 16))
     n_timesteps = int(float(hp.pop("n_timesteps", 1e5)))
@@ -106,8 +148,7 @@ def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
             wrapper_kwargs = dict(kwargs or {})
     policy = hp.pop("policy", "ResidualMlpPolicy")
     if isinstance(hp.get("policy_kwargs"), str):
-        hp["policy_kwargs"] = eval(hp["policy_kwargs"], {"dict": dict, "nn": torch.nn,
-                                                         "th": torch})  # zoo's convention
+        hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])   # zoo's convention
     for key in ("train_freq",):
         if isinstance(hp.get(key), list):
             hp[key] = tuple(hp[key])

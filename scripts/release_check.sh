@@ -10,7 +10,8 @@ set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
-export MPLBACKEND=Agg NUMBA_CACHE_DIR="$work/numba-cache"
+export MPLBACKEND=Agg XDG_CACHE_HOME="$work/cache"   # numba cache: a per-user directory
+unset NUMBA_CACHE_DIR
 python3 -m venv "$work/venv"
 . "$work/venv/bin/activate"
 step() { printf '\n== %s\n' "$*"; }

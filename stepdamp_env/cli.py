@@ -15,6 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .io import check_writable
 from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
                      preset_names)
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
@@ -57,6 +58,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .plots import plot_sweep, plot_velocity_error_traces, trace_speeds
     from .sweep import parse_speed_range, run_sweep
 
+    check_writable(args.out, "--out", directory=True)
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     settings = _settings(args, system)
     speeds = parse_speed_range(args.speeds)
@@ -81,6 +83,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    if args.trace is not None:
+        check_writable(args.trace, "--trace", directory=False)
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     settings = _settings(args, system)
     if args.move is not None:
@@ -111,6 +115,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from .identify import identify
     from .io import write_json
 
+    check_writable(args.out, "--out", directory=True)
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     result = identify(system, method=args.method, noise_seed=args.seed)
     model = result.model
@@ -158,7 +163,9 @@ def _register_policies() -> None:
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench import (SUITES, default_policy_names, full_protocol, quick_protocol,
                         run_leaderboard, write_outputs)
+    from .bench.report import format_summary
 
+    check_writable(args.out, "--out", directory=True)
     _register_policies()
     protocol = quick_protocol() if args.quick else full_protocol()
     suites = SUITES if args.suite == "all" else (args.suite,)
@@ -178,10 +185,9 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
         rows = sorted((e for e in board["entries"] if e["suite"] == suite),
                       key=lambda e: e["rank"])
         for e in rows:
-            lo, hi = e["headline"]["ci95"]
-            print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM {e['headline']['iqm']:.4f} "
-                  f"[{lo:.4f}, {hi:.4f}]  step losses {e['step_losses']['runs_lost']}/"
-                  f"{e['step_losses']['runs']}")
+            print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM "
+                  f"{format_summary(e['headline']):28s} step losses "
+                  f"{e['step_losses']['runs_lost']}/{e['step_losses']['runs']}")
     print("wrote " + ", ".join(written))
     return 0
 

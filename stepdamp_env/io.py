@@ -10,7 +10,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-__all__ = ["atomic_path", "write_json", "write_npz"]
+__all__ = ["atomic_path", "write_json", "write_npz", "check_writable"]
 
 
 @contextmanager
@@ -68,3 +68,23 @@ def write_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
             np.savez_compressed(fh, **arrays)
             fh.flush()
             os.fsync(fh.fileno())
+
+
+def check_writable(path: str | os.PathLike[str], option: str, *, directory: bool) -> None:
+    """Before any work: make sure ``path`` (a directory, or a file's directory) can
+    be written, else a one-line ``ParameterError`` naming ``option``."""
+    from .params import ParameterError
+
+    path = os.fspath(path)
+    target = path if directory else (os.path.dirname(os.path.abspath(path)) or ".")
+    if not directory and os.path.isdir(path):
+        raise ParameterError(f"{option} {path!r} is a directory; give a file name")
+    try:
+        os.makedirs(target, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=target)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ParameterError(f"{option} {path!r} is not writable: {exc.strerror or exc}") \
+            from None
+

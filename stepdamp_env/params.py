@@ -36,9 +36,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import os
 from dataclasses import dataclass, field, fields
 from typing import Any, Iterable, Mapping
+
+import numpy as np
 
 __all__ = [
     "MotorParams",
@@ -77,12 +80,13 @@ class Allowed:
 
     def check(self, name: str, value: Any) -> None:
         """Raise ``ParameterError`` naming ``name`` and this range if ``value`` is outside."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        # numbers.Real admits numpy scalars; bool is a number only by accident.
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             raise ParameterError(f"{name} must be a number, got {value!r}")
-        if self.integer and float(value) != int(value):
-            raise ParameterError(f"{name} must be an integer, got {value!r}")
         if not math.isfinite(value):
             raise ParameterError(f"{name} must be finite, got {value!r}")
+        if self.integer and float(value) != int(value):
+            raise ParameterError(f"{name} must be an integer, got {value!r}")
         low, high = self.low, self.high
         lo_ok = value > low if self.low_open else value >= low
         hi_ok = value < high if self.high_open else value <= high
@@ -108,7 +112,7 @@ def _validate_fields(obj: Any) -> None:
     """Check every set field against the range in its metadata; coerce to int or float."""
     for f in fields(obj):
         value = getattr(obj, f.name)
-        if value is None:
+        if value is None and f.default is None:      # an optional gain: derived
             continue
         rng: Allowed = f.metadata["allowed"]
         rng.check(f.name, value)

@@ -267,3 +267,21 @@ def test_training_seeds_stay_below_the_protocol_limit():
         with pytest.raises(ValueError, match="training seeds"):
             make_residual_vec_env([MOTOR], 2, seed, randomize=True)
     make_residual_vec_env([MOTOR], 2, TRAINING_SEED_LIMIT - 2, randomize=True).close()
+
+
+def test_policy_kwargs_are_parsed_never_executed(tmp_path):
+    """`--set policy_kwargs=...` and the YAML key once went through eval()."""
+    from stepdamp_agents.train import parse_policy_kwargs
+
+    out = parse_policy_kwargs("dict(net_arch=[64, 64], log_std_init=-1.5, "
+                              "activation_fn=nn.Tanh, extra={'a': (1, 2)})")
+    assert out == {"net_arch": [64, 64], "log_std_init": -1.5,
+                   "activation_fn": torch.nn.Tanh, "extra": {"a": (1, 2)}}
+    assert parse_policy_kwargs("dict(activation_fn=th.nn.ReLU)")["activation_fn"] is torch.nn.ReLU
+    marker = tmp_path / "ran"
+    for text in (f"__import__('pathlib').Path({str(marker)!r}).touch()",
+                 "dict(x=open('/etc/passwd'))", "dict(x=nn.Module.__subclasses__)",
+                 "dict(x=nn.functional)", "[1, 2]"):
+        with pytest.raises(ValueError, match="policy_kwargs"):
+            parse_policy_kwargs(text)
+    assert not marker.exists()

@@ -96,3 +96,20 @@ def test_result_files_get_the_usual_mode(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (path.stat().st_mode & 0o777) == (0o666 & ~mask)
+
+
+@pytest.mark.parametrize("argv", [
+    ["leaderboard", "--quick", "--out", "/proc/no-such-dir/x"],
+    ["sweep", "--speeds", "0.5:0.6:0.1", "--out", "/proc/no-such-dir/x"],
+    ["identify", "--out", "/proc/no-such-dir/x"],
+    ["simulate", "--speed", "0.5", "--trace", "/proc/no-such-dir/t.npz"],
+])
+def test_unwritable_output_is_refused_before_any_work(argv, capsys):
+    """An unwritable --out was once found only after the whole computation."""
+    import time
+
+    t0 = time.perf_counter()
+    assert main(argv) == 2
+    assert time.perf_counter() - t0 < 5.0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not writable" in err[0] and ("--out" in err[0] or "--trace" in err[0])

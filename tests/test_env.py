@@ -431,3 +431,37 @@ def test_measured_episode_gives_the_simulation_core_metrics():
     for h in (1, 2, 4):
         assert got.harmonic_amplitude_rad_s[h] == pytest.approx(
             ref.harmonic_amplitude_rad_s[h], rel=1e-9)
+
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_a_copied_env_has_the_same_future(how):
+    """A pickled or deep-copied env once froze: its arrays stopped sharing memory."""
+    import copy
+    import pickle
+
+    env = StepperDampEnv(randomize=True, mode="servo")
+    env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        env.step(rng.uniform(-0.3, 0.3, size=env.action_space.shape).astype(np.float32))
+    twin = pickle.loads(pickle.dumps(env)) if how == "pickle" else copy.deepcopy(env)
+    actions = rng.uniform(-0.3, 0.3, size=(30,) + env.action_space.shape).astype(np.float32)
+    a = [env.step(x)[:2] for x in actions]
+    b = [twin.step(x)[:2] for x in actions]
+    assert all(np.array_equal(oa, ob) and ra == rb for (oa, ra), (ob, rb) in zip(a, b))
+    assert len({float(r) for _, r in b}) > 1                # not frozen
+
+
+def test_stepping_a_terminated_episode_needs_a_reset():
+    env = StepperDampEnv(speed_rps=1.0, current_limit_factor=1.01, action_mode="current")
+    env.reset(seed=0)
+    terminated = False
+    for _ in range(300):
+        _, _, terminated, _, _ = env.step(np.ones(1, dtype=np.float32))
+        if terminated:
+            break
+    assert terminated
+    with pytest.raises(gym.error.ResetNeeded, match="terminated"):
+        env.step(np.zeros(1, dtype=np.float32))
+    env.reset(seed=1)
+    env.step(np.zeros(1, dtype=np.float32))

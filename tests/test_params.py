@@ -136,3 +136,28 @@ def test_construct_directly_with_dataclasses():
     system = SystemParams(motor, DriveParams(holding_current=1.0))
     assert system.drive.Vdc == 48.0
     assert motor.full_step_rad == pytest.approx(math.radians(1.8))
+
+
+def test_required_fields_refuse_none_and_accept_numpy_scalars():
+    """JSON null once passed for required fields and gave NaN metrics with exit 0."""
+    import numpy as np
+
+    from stepdamp_env.params import SystemParams
+
+    base = get_preset("patent")
+    for name in ("Kd4", "R", "J", "load_torque", "Vdc", "holding_current", "encoder_cpr"):
+        with pytest.raises(ParameterError, match=f"{name} must be a number, got None"):
+            SystemParams.from_dict({name: None}, base=base)
+    # Optional gains may be None: they are derived.
+    assert base.replace(Kp_current=None).current_gains() == base.current_gains()
+    s = base.replace(J=np.float32(2e-4), Nr=np.int64(50), Kd4=np.float64(0.01))
+    assert s.motor.J == pytest.approx(2e-4) and s.motor.Nr == 50 and type(s.motor.Nr) is int
+    with pytest.raises(ParameterError, match="must be a number"):
+        base.replace(R=np.bool_(True))
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_integer_fields_refuse_non_finite_values_with_one_line(value):
+    for name in ("encoder_cpr", "Nr", "microsteps"):
+        with pytest.raises(ParameterError, match=f"{name} must be finite"):
+            get_preset("patent").replace(**{name: value})

@@ -17,13 +17,17 @@ from .protocol import REFERENCE_POLICY, Protocol
 from .registry import resolve_policy
 from .runner import episode_window, run_episode
 
-__all__ = ["render_markdown", "plot_ripple", "plot_resonance_traces", "trace_run",
+__all__ = ["format_summary", "render_markdown", "plot_ripple", "plot_resonance_traces", "trace_run",
            "write_outputs"]
 
 
-def _fmt_ci(s: Mapping[str, Any], digits: int = 3) -> str:
+def format_summary(s: Mapping[str, Any]) -> str:
+    """``IQM [low, high]`` to four significant digits; the IQM alone where the
+    interval has no width (one run per motor, as in ``--quick``): there is none."""
     lo, hi = s["ci95"]
-    return f"{s['iqm']:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    if not lo < hi:
+        return f"{s['iqm']:.4g} (no interval)"
+    return f"{s['iqm']:.4g} [{lo:.4g}, {hi:.4g}]"
 
 
 def render_markdown(board: Mapping[str, Any]) -> str:
@@ -47,10 +51,10 @@ def render_markdown(board: Mapping[str, Any]) -> str:
             name = e["name"] + (" (oracle)" if e.get("oracle") else "")
             sw = e["sweep_worst_ratio"]
             sl = e["step_losses"]
-            lines.append(f"| {e['rank']} | {name} | {_fmt_ci(e['headline'])} | "
-                         f"{_fmt_ci(e['sweep_mean_ratio'])} | {sw['iqm']:.3f} / {sw['max']:.3f} | "
-                         f"{sl['runs_lost']}/{sl['runs']} | "
-                         f"{e['rms_injected_current_a']['iqm']:.4f} |")
+            lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
+                         f"{format_summary(e['sweep_mean_ratio'])} | "
+                         f"{sw['iqm']:.4g} / {sw['max']:.4g} | {sl['runs_lost']}/{sl['runs']} | "
+                         f"{e['rms_injected_current_a']['iqm']:.4g} |")
         lines.append("")
     v = board["versions"]
     lines.append("Versions: " + ", ".join(f"{k} {val}" for k, val in v.items()))

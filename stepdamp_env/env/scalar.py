@@ -94,11 +94,14 @@ class StepperDampEnv(gym.Env):
     ``TimeLimit`` after ``max_episode_steps`` = 300 steps (0.3 s at 1 kHz: the
     longest default ramp takes 60 ms, leaving at least 240 ms held). If you
     change ``agent_hz``, pass ``max_episode_steps`` to ``gym.make`` to match.
+    Stepping a terminated episode raises ``gymnasium.error.ResetNeeded``.
+    A copy (``pickle``, ``copy.deepcopy``) is a working env with the same future.
     """ + OPTIONS_DOC + """
     ## Version History
 
     * v0: initial version (``action_mode="harmonic+current"`` added later;
-      the other modes are unchanged).
+      the other modes are unchanged). Package 0.2: stepping after termination
+      raises instead of going on silently; copies work (rollouts unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -126,14 +129,29 @@ class StepperDampEnv(gym.Env):
         self._a2 = np.zeros((1, f.act_dim))
         self._obs2 = np.zeros((1, f.obs_dim), dtype=np.float32)
         self._out2 = np.zeros((1, C.N_OUT))
-        self._c, self._s, self._acc, self._u = self._c2[0], self._s2[0], self._acc2[0], self._u2[0]
-        self._par, self._obs, self._out = self._par2[0], self._obs2[0], self._out2[0]
+        self._bind_views()
         self._trace = np.zeros((self._n if render_mode else 0, K.N_TRACE))
         self._history: list[np.ndarray] = []
         self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
         self._speed_rps = 0.0
         self._ready = False
+        self._ended = False
+
+    _VIEWS = ("_c", "_s", "_acc", "_u", "_par", "_obs", "_out")
+
+    def _bind_views(self) -> None:
+        self._c, self._s, self._acc, self._u = self._c2[0], self._s2[0], self._acc2[0], self._u2[0]
+        self._par, self._obs, self._out = self._par2[0], self._obs2[0], self._out2[0]
+
+    # A copy (pickle, deepcopy) gets its own arrays: the views are bound again to
+    # them, never left pointing at copies of their own.
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._bind_views()
 
     # -- public read-outs ------------------------------------------------------
     @property
@@ -190,11 +208,15 @@ class StepperDampEnv(gym.Env):
         self._run_acc[:] = 0.0
         self._speed_rps = info["speed_rps"]
         self._ready = True
+        self._ended = False
         return self._obs.copy(), info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._ready:
             raise gym.error.ResetNeeded("call reset() before step()")
+        if self._ended:
+            raise gym.error.ResetNeeded("the episode has terminated (step loss, over-current or "
+                                        "a non-finite state); call reset() before step()")
         self._a2[0] = as_action(action, self._act_shape)
         if C.load_actions(self._a2, self._u2, self._acc2, self._par2, self._offset) >= 0:
             raise action_error(action, self._act_shape)
@@ -202,11 +224,12 @@ class StepperDampEnv(gym.Env):
         if self._measuring:
             merge_accumulators(self._run_acc, self._acc)
         out = self._out
-        C.observe(self._s2, self._acc2, self._a2, self._par2, C.KERNEL_INDEX, self._privileged, self._obs2,
-                 self._out2)
+        C.observe(self._s2, self._acc2, self._a2, self._par2, C.KERNEL_INDEX, self._privileged,
+                  self._obs2, self._out2)
         if self.render_mode is not None:
             self._record()
         terminated = out[C.O_TERMINATED] != 0.0
+        self._ended = bool(terminated)
         info = {"velocity_error_rms_rad_s": float(out[C.O_VEL_RMS]),
                 "lag_rad": float(out[C.O_LAG]),
                 "injected_current_rms_a": float(out[C.O_IINJ_RMS]),
