@@ -210,6 +210,6 @@ def test_summaries_show_four_digits_and_no_interval_they_do_not_have():
     from stepdamp_env.bench.report import format_summary
 
     assert format_summary({"iqm": 0.0178123, "ci95": [0.0175, 0.01804]}) == \
-        "0.01781 [0.0175, 0.01804]"
+        "0.01781 [0.01750, 0.01804]"
     # --quick: one run per motor, the stratified interval has no width.
-    assert format_summary({"iqm": 0.25, "ci95": [0.25, 0.25]}) == "0.25 (no interval)"
+    assert format_summary({"iqm": 0.25, "ci95": [0.25, 0.25]}) == "0.2500 (no interval)"

@@ -93,3 +93,22 @@ def test_sensor_fields_are_validated():
         RunSettings(velocity_estimator="magic")
     with pytest.raises(ValueError, match="noise_seed"):
         RunSettings(noise_seed=-1)
+
+
+def test_a_too_slow_kalman_filter_is_refused_at_once():
+    """kalman_accel_std=1e-6 once iterated 14 s and then raised 'did not converge'."""
+    import math
+    import time
+
+    from stepdamp_env.estimators import kalman_velocity_gains, min_kalman_accel_std
+    from stepdamp_env.params import ParameterError
+
+    dt, count = 1 / 20000, 2 * math.pi / 4000
+    low = min_kalman_accel_std(dt, count)
+    assert 0.1 < low < 1.0                     # rad/s^2 for the patent's encoder at 20 kHz
+    t0 = time.perf_counter()
+    with pytest.raises(ParameterError, match=r"kalman_accel_std=1e-06 is outside its allowed"):
+        kalman_velocity_gains(dt, count, 1e-6)
+    assert time.perf_counter() - t0 < 0.1
+    k0, k1 = kalman_velocity_gains(dt, count, 1.001 * low)       # the edge still designs
+    assert 0 < k0 < 1 and k1 > 0

@@ -26,8 +26,8 @@ def format_summary(s: Mapping[str, Any]) -> str:
     interval has no width (one run per motor, as in ``--quick``): there is none."""
     lo, hi = s["ci95"]
     if not lo < hi:
-        return f"{s['iqm']:.4g} (no interval)"
-    return f"{s['iqm']:.4g} [{lo:.4g}, {hi:.4g}]"
+        return f"{s['iqm']:#.4g} (no interval)"
+    return f"{s['iqm']:#.4g} [{lo:#.4g}, {hi:#.4g}]"
 
 
 def render_markdown(board: Mapping[str, Any]) -> str:
