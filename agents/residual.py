@@ -365,18 +365,18 @@ class ResidualVecEnv(_WholeVecEnv):
             self.constants.set(k0 + i, f.nominal, f.episode_estimate(v.systems[i]),
                                v.options.mode, float(speeds[i]), f.harmonic_scale_nm, self.base)
 
-    def seed(self, seed: int | None = None) -> Sequence[None | int]:
-        """Drive k is seeded ``seed + k`` at the next reset (each part seeds its own)."""
-        seeds = super().seed(seed)          # draws one if None, as SB3 does
-        k0 = 0
-        for p in self.parts:
-            p.seed(seeds[k0])
-            k0 += p.num_envs
-        return seeds
-
     def reset(self) -> np.ndarray:
+        seeds = self._seeds                 # set by seed(): drive k gets seeds[k]
+        if any(s is not None and not 0 <= s < TRAINING_SEED_LIMIT for s in seeds):
+            raise ValueError(f"training seeds must be in [0, {TRAINING_SEED_LIMIT}), got "
+                             f"{min(seeds)}..{max(seeds)}")
         obs_parts, k0 = [], 0
         for p in self.parts:
+            if seeds[k0] is not None:
+                # seed(None) first, as 0.1 did: it draws from numpy's global stream,
+                # which SB3's sampling shares, so training runs repeat 0.1's.
+                p.seed(None)
+                p.seed(seeds[k0])           # the part's drives: seeds[k0] + i
             obs_parts.append(p.reset())
             self._update(k0, p, range(p.num_envs))
             k0 += p.num_envs
@@ -425,6 +425,10 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     ``motors`` (for ``residual_action="feedback"`` inside a
     :class:`HeldFeedbackVecEnv` of ``hold_steps``); drive k is seeded ``seed + k``
     (seeds must stay below ``TRAINING_SEED_LIMIT``)."""
+    n = len(motors) * envs_per_motor
+    if not 0 <= seed <= TRAINING_SEED_LIMIT - n:
+        raise ValueError(f"training seeds must be in [0, {TRAINING_SEED_LIMIT}), got "
+                         f"{seed}..{seed + n - 1}")
     opts = {"estimate": "exact", **options,
             "action_mode": RESIDUAL_ACTIONS[_check_residual_action(residual_action)]}
     parts = [make_sb3_vec_env(num_envs=envs_per_motor, max_episode_steps=max_episode_steps,
@@ -435,10 +439,6 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
                          else residual_action)
     if residual_action == "feedback":
         env = HeldFeedbackVecEnv(env, hold_steps, feedback_gain)
-    n = env.num_envs
-    if not 0 <= seed <= TRAINING_SEED_LIMIT - n:
-        raise ValueError(f"training seeds must be in [0, {TRAINING_SEED_LIMIT}), got "
-                         f"{seed}..{seed + n - 1}")
     env.seed(seed)
     return env
 
@@ -479,12 +479,9 @@ class HeldFeedbackVecEnv(_WholeVecEnv):
         self._gain = np.zeros(self.num_envs)
         self._last: np.ndarray | None = None
 
-    def seed(self, seed: int | None = None) -> Sequence[None | int]:
-        seeds = super().seed(seed)
-        self.inner.seed(seeds[0])
-        return seeds
-
     def reset(self) -> np.ndarray:
+        if self._seeds[0] is not None:
+            self.inner.seed(self._seeds[0])
         self._last = self.inner.reset()
         self._reset_seeds()
         self._reset_options()

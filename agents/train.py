@@ -214,17 +214,15 @@ class Validator:
                 result = run_episode(make_policy(), knowledge, m.system, mode="open-loop",
                                      speed_rps=speed, seed=self.seed, accel_rps2=p.accel_rps2,
                                      window_s=p.window_s)
-                runs.append({"motor": m.name, "seed": self.seed, "speed_rps": speed,
-                             "speed_label": label, **result.to_dict()})
+                runs.append(result.record(m.name, self.seed, speed, label))
         return runs
 
     def score(self, make_policy) -> dict[str, Any]:
-        from stepdamp_env.bench import ZeroAction, iqm, reference_index, score_runs
-        from stepdamp_env.bench.protocol import REFERENCE_POLICY
+        from stepdamp_env.bench import iqm, reference_index, score_runs
+        from stepdamp_env.bench.policy import reference_policy
 
         if self._reference is None:
-            self._reference = reference_index(self._runs(
-                lambda: ZeroAction(REFERENCE_POLICY, base_controller="none")))
+            self._reference = reference_index(self._runs(reference_policy))
         runs = self._runs(make_policy)
         scores = score_runs(runs, self._reference, self.protocol.failure_ratio)
         heads = [s["headline"] for s in scores]
@@ -247,7 +245,7 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
             "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
                          "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
                          "wrapper_kwargs": wk, "hyperparams": args.hyperparams
-                         or f"stepdamp_agents/hyperparams/{args.algo}.yml"}}
+                         or f"agents/hyperparams/{args.algo}.yml"}}
 
 
 def save_agent(model: Any, path_zip: str, config: dict[str, Any]) -> None:

@@ -17,7 +17,7 @@ puts them into the leaderboard's registry. A new baseline: a class in this
 package, a line in ``BASELINE_NAMES`` and :func:`make_baseline`.
 """
 
-from stepdamp_env.bench.policy import Policy, ZeroAction
+from stepdamp_env.bench.policy import Policy, ZeroAction, reference_policy
 from stepdamp_env.bench.protocol import REFERENCE_POLICY
 from stepdamp_env.bench.registry import register_policy
 
@@ -40,7 +40,7 @@ _DESCRIPTIONS = {
 def make_baseline(name: str) -> Policy:
     """A fresh baseline policy by name (one of ``BASELINE_NAMES``)."""
     if name == REFERENCE_POLICY:
-        return ZeroAction(REFERENCE_POLICY, base_controller="none")
+        return reference_policy()
     if name == "patent-ff-oracle":
         return ZeroAction("patent-ff-oracle", estimate="exact")
     if name == "patent-ff-identified":
@@ -65,4 +65,4 @@ _FACTORIES = {name: _factory(name) for name in BASELINE_NAMES if name != REFEREN
 def register_policies() -> None:
     """Register every baseline with the leaderboard (idempotent)."""
     for name, make in _FACTORIES.items():
-        register_policy(name, make, kind="baseline", description=_DESCRIPTIONS[name])
+        register_policy(name, make, kind="baseline", description=_DESCRIPTIONS.get(name, ""))

@@ -243,8 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true",
                    help="reduced CI protocol: presets, one seed, resonant speeds, 0.1 s window")
     p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
-                   help="extra policy: package.module:attr (Policy class, factory or "
-                        "instance) or an SB3 model .zip; repeatable")
+                   help="extra policy: package.module:attr or path/file.py:attr (Policy "
+                        "class, factory or instance), a model `stepdamp train` wrote "
+                        "(DIR/best.zip) or an SB3 .zip; repeatable. These run code when "
+                        "loaded: use trusted sources only")
     p.add_argument("--baselines", action="append", nargs="+", default=None, metavar="NAME",
                    help="run only these baselines and reference agents (default: all; "
                         "'none' always runs)")

@@ -12,10 +12,11 @@ from .bench import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, SUITES,
                     write_outputs)
 from .bench.protocol import FAILURE_RATIO
 from .bench.registry import SB3Policy
+from .bench.report import plot_resonance_traces, plot_ripple, trace_run
 
 __all__ = ["POLICY_OPTIONS", "PROTOCOL_NAME", "PROTOCOL_VERSION", "SUITES",
            "TRAINING_SEED_LIMIT", "FAILURE_RATIO", "PolicySource", "Protocol", "ProtocolMotor",
            "SB3Policy", "default_policy_names", "full_protocol", "iqm", "policy_context",
            "policy_env_options", "protocol_motors", "quick_protocol", "render_markdown",
            "resolve_policy", "run_leaderboard", "speed_grid", "stratified_bootstrap_ci",
-           "write_outputs"]
+           "write_outputs", "plot_resonance_traces", "plot_ripple", "trace_run"]

@@ -2,7 +2,7 @@
 
 SB3 ships no adapter for Gymnasium vector environments, and its ``DummyVecEnv``
 would step N scalar envs one by one. :class:`StepperDampSB3VecEnv` drives a
-:class:`~stepdamp_env.envs.StepperDampVectorEnv` (all drives in one compiled
+:class:`~stepdamp_env.env.StepperDampVectorEnv` (all drives in one compiled
 call) in SAME_STEP autoreset mode, which is SB3's convention: a finished drive
 is reset within the step, its last observation goes to
 ``infos[i]["terminal_observation"]`` and ``infos[i]["TimeLimit.truncated"]``
@@ -118,7 +118,7 @@ def make_sb3_vec_env(num_envs: int = 16, max_episode_steps: int | None = DEFAULT
                      info_keys: Sequence[str] = (), **options: Any) -> StepperDampSB3VecEnv:
     """A native StepperDamp vector env of ``num_envs`` drives wrapped for SB3.
 
-    ``options`` are the environment's (see :class:`stepdamp_env.envs.StepperDampEnv`).
+    ``options`` are the environment's (see :class:`stepdamp_env.env.StepperDampEnv`).
     """
     venv = StepperDampVectorEnv(num_envs=num_envs, max_episode_steps=max_episode_steps,
                                 autoreset_mode=AutoresetMode.SAME_STEP, **options)

@@ -1,4 +1,5 @@
-"""A tiny policy module for the leaderboard tests (loaded as ``module:attr``)."""
+"""A tiny policy module for the leaderboard tests (loaded as ``file.py:attr`` and as
+``tests.leaderboard_policy:attr``)."""
 
 from __future__ import annotations
 

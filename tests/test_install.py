@@ -56,3 +56,15 @@ def test_pytest_runs_from_any_directory(tmp_path):
                           "-k", "cli_writes or may_not_set"],
                          cwd=tmp_path, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+
+
+def test_version_is_defined_once_and_cited_alike():
+    import re
+
+    import stepdamp_env
+    from stepdamp_env.version import __version__
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "CITATION.cff"), encoding="utf-8") as fh:
+        cited = re.search(r"^version: (\S+)$", fh.read(), re.M).group(1)
+    assert stepdamp_env.__version__ == __version__ == cited

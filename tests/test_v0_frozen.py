@@ -59,8 +59,7 @@ def _spot_run(job):
     result = run_episode(resolve_policy(spec).make(), _SPOT["knowledge"][motor_name],
                          motor.system, mode=suite, speed_rps=speed, seed=F.FULL_SPOT_SEED,
                          accel_rps2=p.accel_rps2, window_s=p.window_s)
-    return {"motor": motor.name, "seed": F.FULL_SPOT_SEED, "speed_rps": speed,
-            "speed_label": motor.speed_labels[speed_index], **result.to_dict()}
+    return result.record(motor.name, F.FULL_SPOT_SEED, speed, motor.speed_labels[speed_index])
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")

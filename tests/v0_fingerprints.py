@@ -45,6 +45,8 @@ ROLLOUT_CONFIGS: dict[str, dict[str, Any]] = {
 # Full-protocol runs stored one by one (a drawn motor and a preset, one seed).
 FULL_SPOT_MOTORS = ("qsh5718-56-28-126~r1", "patent")
 FULL_SPOT_SEED = 1_000_002
+V0_POLICIES = ("patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
+               "ppo-residual")
 
 
 class _Hash:
@@ -203,7 +205,8 @@ def run_v0_board(variant: str, workers: int | None = None) -> dict[str, Any]:
     from stepdamp_env.bench import full_protocol, quick_protocol, run_leaderboard
 
     protocol = quick_protocol() if variant == "quick" else full_protocol()
-    return run_leaderboard(protocol, None, workers=workers, progress=False)
+    # v0's default board, named: an installed plugin must not change it.
+    return run_leaderboard(protocol, V0_POLICIES, workers=workers, progress=False)
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..env.options import EnvOptions
 from ..env.scalar import StepperDampEnv
 from ..identify import identify
 from ..parallel import default_workers, pool_map
@@ -82,8 +83,7 @@ def _run_job(job: LeaderboardJob) -> dict[str, Any]:
                          _WORKER["knowledge"][(job.motor_index, job.seed)], motor.system,
                          mode=job.suite, speed_rps=speed, seed=job.seed,
                          accel_rps2=protocol.accel_rps2, window_s=protocol.window_s)
-    return {"motor": motor.name, "seed": job.seed, "speed_rps": speed,
-            "speed_label": motor.speed_labels[job.speed_index], **result.to_dict()}
+    return result.record(motor.name, job.seed, speed, motor.speed_labels[job.speed_index])
 
 
 def _warm_up(system: SystemParams) -> None:
@@ -123,7 +123,8 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
                "nominal" if est == FeedforwardModel.from_motor(knowledge.nominal.motor) else
                "exact" if est == knowledge.exact else "model")
     options["estimate"] = est
-    oracle = est == "exact" and options.get("base_controller", "patent-ff") != "none"
+    oracle = est == "exact" and \
+        options.get("base_controller", EnvOptions.base_controller) != "none"
     return {"oracle": bool(oracle), "env_options": options}
 
 

@@ -17,12 +17,13 @@ from typing import Any, Mapping, Protocol as TypingProtocol, runtime_checkable
 
 import numpy as np
 
-from ..env.options import ESTIMATES, EnvOptions, default_action_scales
+from ..env.options import BASE_CONTROLLERS, ESTIMATES, EnvOptions, default_action_scales
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
-from .protocol import POLICY_OPTIONS
+from .protocol import POLICY_OPTIONS, REFERENCE_POLICY
 
-__all__ = ["MotorKnowledge", "PolicyContext", "Policy", "ZeroAction", "KNOWLEDGE_ESTIMATES",
+__all__ = ["MotorKnowledge", "PolicyContext", "Policy", "ZeroAction", "reference_policy",
+           "KNOWLEDGE_ESTIMATES",
            "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
            "check_policy"]
 
@@ -116,9 +117,9 @@ class ZeroAction:
 
     def __init__(self, name: str, base_controller: str = "patent-ff",
                  estimate: str = "exact") -> None:
-        if base_controller not in ("none", "patent-ff"):
+        if base_controller not in BASE_CONTROLLERS:
             raise ValueError(f"base_controller={base_controller!r} is not one of "
-                             "['none', 'patent-ff']")
+                             f"{list(BASE_CONTROLLERS)}")
         if estimate not in KNOWLEDGE_ESTIMATES:
             raise ValueError(f"estimate={estimate!r} is not one of "
                              f"{list(KNOWLEDGE_ESTIMATES)}")
@@ -136,6 +137,11 @@ class ZeroAction:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._zero
+
+
+def reference_policy() -> ZeroAction:
+    """The protocol's reference: the base controller without feedforward, zero action."""
+    return ZeroAction(REFERENCE_POLICY, base_controller="none")
 
 
 def resolve_estimate(which: str, knowledge: MotorKnowledge) -> str | FeedforwardModel:

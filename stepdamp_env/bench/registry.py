@@ -8,7 +8,7 @@ names no baseline and no agent: it asks the registry.
 
 A policy spec (``stepdamp leaderboard --policy SPEC``) is one of:
 
-* a registered name (``stepdamp leaderboard --help`` lists them);
+* a registered name (:func:`default_policy_names` lists the default ones);
 * ``package.module:attr`` or ``path/to/file.py:attr``: a Policy class or factory
   (called without arguments for every run) or a Policy instance (deep-copied
   for every run). **This imports and runs code: use trusted sources only.**
@@ -33,7 +33,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..params import ParameterError
-from .policy import (MotorKnowledge, Policy, PolicyContext, ZeroAction, check_policy,
+from .policy import (MotorKnowledge, Policy, PolicyContext, check_policy, reference_policy,
                      resolve_estimate)
 from .protocol import REFERENCE_POLICY
 
@@ -94,14 +94,19 @@ def register_loader(name: str, accepts: Callable[[str], bool],
 
 
 def load_plugins() -> None:
-    """Call every ``stepdamp.policies`` entry point once (in name order)."""
+    """Call every ``stepdamp.policies`` entry point once (in name order); a plugin
+    that fails is an error naming it, never skipped in silence."""
     global _PLUGINS_LOADED
     if _PLUGINS_LOADED:
         return
-    _PLUGINS_LOADED = True
     for ep in sorted(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP),
                      key=lambda e: e.name):
-        ep.load()()
+        try:
+            ep.load()()
+        except Exception as exc:  # noqa: BLE001 - named and re-raised as one line
+            raise ParameterError(f"policy plugin {ep.name!r} ({ep.value}) failed to load: "
+                                 f"{type(exc).__name__}: {exc}") from None
+    _PLUGINS_LOADED = True
 
 
 def registered_policies() -> dict[str, RegisteredPolicy]:
@@ -236,10 +241,6 @@ def resolve_policy(spec: str) -> PolicySource:
                          "a 'package.module:attr' or 'file.py:attr' path or a model file")
 
 
-def _reference_policy() -> Policy:
-    return ZeroAction(REFERENCE_POLICY, base_controller="none")
-
-
 # The protocol's reference (every score is a ratio to it) is always registered.
-register_policy(REFERENCE_POLICY, _reference_policy, kind="baseline",
+register_policy(REFERENCE_POLICY, reference_policy, kind="baseline",
                 description="no damping: the base controller without feedforward (reference)")

@@ -46,8 +46,14 @@ class EpisodeResult:
     metrics: dict[str, Any] | None
     trace: list[Any] = field(default_factory=list)
 
+    def record(self, motor: str, seed: int, speed_rps: float, speed_label: str
+               ) -> dict[str, Any]:
+        """The leaderboard's record of the run: where it ran, then :meth:`to_dict`."""
+        return {"motor": motor, "seed": seed, "speed_rps": speed_rps,
+                "speed_label": speed_label, **self.to_dict()}
+
     def to_dict(self) -> dict[str, Any]:
-        """The leaderboard's record of the run (without the trace)."""
+        """What the run gave (without the trace)."""
         return {"terminated": self.terminated, "termination": self.termination,
                 "failed": self.failed, "steps": self.steps,
                 "window_start_s": self.window_start_s, "window_s": self.window_s,

@@ -11,6 +11,7 @@ import numpy as np
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from .layout import ACTION_MODES
+from .registration import ENV_ID
 
 __all__ = ["EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
            "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
@@ -115,8 +116,7 @@ class EnvOptions:
     measure_from_s: float | None = None
 
     @classmethod
-    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = "StepperDamp-v0"
-                    ) -> "EnvOptions":
+    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID) -> "EnvOptions":
         """Options from keyword arguments; unknown names raise ``ValueError``."""
         allowed = list(cls.__dataclass_fields__)
         unknown = sorted(set(kwargs) - set(allowed))

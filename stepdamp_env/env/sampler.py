@@ -143,7 +143,7 @@ class EpisodeSampler:
         if o.speed_rps is not None:
             return float(o.speed_rps), 0
         if rng.random() < o.resonance_prob:
-            h = RESONANCE_HARMONICS[int(rng.integers(3))]
+            h = RESONANCE_HARMONICS[int(rng.integers(len(RESONANCE_HARMONICS)))]
             f = predicted_resonances(system)[h]
             spread = o.resonance_spread
             return float(min(f * rng.uniform(1.0 - spread, 1.0 + spread), 100.0)), h
