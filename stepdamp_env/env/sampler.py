@@ -104,14 +104,17 @@ class EpisodeSampler:
         """Names of the action entries (:data:`.layout.ACTION_NAMES`)."""
         return ACTION_NAMES[self._options.action_mode]
 
-    def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
-        """The model the base controller uses in an episode of ``system``."""
+    def _set_estimate(self) -> FeedforwardModel | None:
+        """The model the options name; None for "exact" (each episode's plant)."""
         est = self._options.estimate
         if isinstance(est, FeedforwardModel):
             return est
-        if est == "nominal":
-            return self._nominal_estimate
-        return FeedforwardModel.from_motor(system.motor)
+        return self._nominal_estimate if est == "nominal" else None
+
+    def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
+        """The model the base controller uses in an episode of ``system``."""
+        est = self._set_estimate()
+        return est if est is not None else FeedforwardModel.from_motor(system.motor)
 
     # -- spaces ------------------------------------------------------------------
     def observation_space(self) -> spaces.Box:
@@ -156,12 +159,7 @@ class EpisodeSampler:
         o = self._options
         system = self.draw_system(rng)
         speed, h = self.draw_speed(rng, system)
-        if isinstance(o.estimate, FeedforwardModel):
-            estimate = o.estimate
-        elif o.estimate == "nominal":
-            estimate = self._nominal_estimate
-        else:
-            estimate = None                 # the plant's exact values
+        estimate = self._set_estimate()     # None: the core uses the plant's exact values
         # The sensor noise of the episode: its own stream, drawn after the speed.
         noise_seed = int(rng.integers(2 ** 53))
         settings = RunSettings(mode=o.mode, damping=o.base_controller, substeps=int(o.substeps),
