@@ -380,22 +380,33 @@ def train(args: Args) -> dict[str, Any]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """One option per field of :class:`Args` (``stepdamp train`` uses these too)."""
     d = Args()
-    p.add_argument("--algo", choices=("sac", "td3", "ppo"), default=d.algo)
-    p.add_argument("--seed", type=int, default=d.seed, help="seed in [0, 1000)")
-    p.add_argument("--out", default=d.out, metavar="DIR")
-    p.add_argument("--total-timesteps", type=int, default=None,
-                   help="default: n_timesteps of the YAML")
+    p.add_argument("--algo", choices=("sac", "td3", "ppo"), default=d.algo,
+                   help="algorithm (hyperparameters from agents/hyperparams/<algo>.yml)")
+    p.add_argument("--seed", type=int, default=d.seed,
+                   help="torch/numpy seed in [0, 1000); env seeds start at 1000*seed")
+    p.add_argument("--out", default=d.out, metavar="DIR",
+                   help="output directory (models, logs)")
+    p.add_argument("--total-timesteps", type=int, default=None, metavar="STEPS",
+                   help="agent steps to train (default: n_timesteps of the YAML)")
     p.add_argument("--hyperparams", default=None, metavar="FILE.yml",
-                   help="zoo YAML (default agents/hyperparams/<algo>.yml)")
-    p.add_argument("--motors", nargs="+", default=list(d.motors), metavar="PRESET")
-    p.add_argument("--envs-per-motor", type=int, default=None)
-    p.add_argument("--eval-freq", type=int, default=d.eval_freq)
-    p.add_argument("--val-seed", type=int, default=d.val_seed)
-    p.add_argument("--val-motors-per-preset", type=int, default=d.val_motors_per_preset)
-    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq)
-    p.add_argument("--no-progress", action="store_true")
-    p.add_argument("--no-tensorboard", action="store_true")
-    p.add_argument("--name", default=None, help='policy name (default "<algo>-residual")')
+                   help="zoo YAML (default: agents/hyperparams/<algo>.yml)")
+    p.add_argument("--motors", nargs="+", default=list(d.motors), metavar="PRESET",
+                   help="presets the training motors are drawn around")
+    p.add_argument("--envs-per-motor", type=int, default=None, metavar="N",
+                   help="vectorised drives per preset (default: n_envs of the YAML / motors)")
+    p.add_argument("--eval-freq", type=int, default=d.eval_freq, metavar="STEPS",
+                   help="agent steps between validations (0: never)")
+    p.add_argument("--val-seed", type=int, default=d.val_seed,
+                   help=f"seed of the validation motors' draw (< {TRAINING_SEED_LIMIT})")
+    p.add_argument("--val-motors-per-preset", type=int, default=d.val_motors_per_preset,
+                   metavar="N", help="validation motors drawn around each preset")
+    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq, metavar="STEPS",
+                   help="agent steps between checkpoints (0: never)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard log")
+    p.add_argument("--name", default=None,
+                   help='policy name in the agent config (default: "<algo>-residual"); on the '
+                        "leaderboard the model shows as NAME@<file stem>, e.g. sac-residual@best")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="override one YAML hyperparameter (value parsed as YAML); repeatable")
 

@@ -1,54 +1,123 @@
-"""``stepdamp`` command line: sweep, simulate, identify, leaderboard, train, presets.
+"""``stepdamp`` command line: sweep, simulate, identify, leaderboard, report, train, presets.
 
 The composition root: the only module of ``stepdamp_env`` that imports the
 baselines and the agents (``stepdamp_baselines``, ``stepdamp_agents``); it
-registers their policies with the leaderboard before any command runs.
+registers their policies with the leaderboard before any command runs. Every
+user mistake ends with exit status 2 and one line naming the option; Ctrl-C
+with one line and status 130. Output directories are written as a whole
+(:func:`stepdamp_env.io.staged_directory`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import signal
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from .io import check_writable
+from .io import check_output_dir, check_writable, staged_directory
 from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
                      preset_names)
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
-                         simulate)
+                         measuring_window, simulate)
 
 __all__ = ["main"]
 
 
-def _add_system_args(p: argparse.ArgumentParser) -> None:
+DESCRIPTION = """\
+StepperDamp: simulate a hybrid stepper drive, measure its velocity ripple and
+rank damping policies (stepdamp-bench). SI units unless named: speeds in rev/s,
+accelerations in rev/s^2. `stepdamp COMMAND --help` lists a command's options."""
+
+SWEEP_FILES = ("sweep.json", "sweep_*.json", "sweep.png", "velocity_error_traces.png")
+IDENTIFY_FILES = ("identified_motor.json", "identification.json")
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks; appends an option's default unless its
+    help already says it or there is none to state."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS, []) \
+                or not action.option_strings:
+            return text
+        default = action.default
+        if isinstance(default, (list, tuple)):
+            default = " ".join(map(str, default))
+        return f"{text} (default: {default})"
+
+
+def _number(kind: type, low: float | None = None, high: float | None = None,
+            low_open: bool = False, name: str = "") -> Any:
+    """An argparse type: a finite ``kind`` in [low, high] (low excluded if
+    ``low_open``); the message names the range."""
+
+    def bounds() -> str:
+        lo = "-inf" if low is None else f"{low:g}"
+        hi = "inf" if high is None else f"{high:g}"
+        return f"{'(' if low_open or low is None else '['}{lo}, {hi}{')' if high is None else ']'}"
+
+    def parse(text: str) -> Any:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number; allowed {bounds()}") \
+                from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not finite; allowed {bounds()}")
+        if kind is int:
+            if value != int(value):
+                raise argparse.ArgumentTypeError(f"{text!r} is not an integer; allowed {bounds()}")
+            value = int(value)
+        if (low is not None and (value < low or (low_open and value == low))) or \
+                (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text} is outside the allowed range {bounds()}")
+        return value
+
+    parse.__name__ = name or kind.__name__
+    return parse
+
+
+def _add_system_args(p: argparse.ArgumentParser, *, damping_many: bool = False) -> None:
     p.add_argument("--motor", default="patent",
                    help=f"preset ({', '.join(preset_names())}) or a motor .json file")
     p.add_argument("--set", dest="overrides", action="append", default=[],
-                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
-    p.add_argument("--mode", choices=sorted(MODES), default="open-loop")
-    p.add_argument("--damping", choices=DAMPINGS, default="none")
+                   metavar="FIELD=VALUE",
+                   help="override one parameter (SI units, see `stepdamp presets`); repeatable")
+    p.add_argument("--mode", choices=sorted(MODES), default="open-loop",
+                   help="open-loop microstepping or encoder servo")
+    if damping_many:
+        p.add_argument("--damping", choices=DAMPINGS, nargs="+", default=["none"],
+                       help="one or several dampings; several are overlaid on one figure")
+    else:
+        p.add_argument("--damping", choices=DAMPINGS, default="none",
+                       help="the patent's feedforward, or none")
     p.add_argument("--estimate", default=None, metavar="NAME|FILE.json",
                    help="motor whose Km, Kd1/2/4, phi1/2, Fs the feedforward uses "
                         "(default: the plant's own, i.e. exact)")
-    p.add_argument("--accel", type=float, default=DEFAULT_ACCEL_RPS2, metavar="RPS2",
-                   help="command acceleration of the start-up ramp (rev/s^2)")
-    p.add_argument("--substeps", type=int, default=1,
-                   help="RK4 plant steps per PWM period")
+    p.add_argument("--accel", type=_number(float, 1e-3, 1e6), default=DEFAULT_ACCEL_RPS2,
+                   metavar="RPS2", help="command acceleration of the start-up ramp (rev/s^2)")
+    p.add_argument("--substeps", type=_number(int, 1, 1000), default=1,
+                   help="RK4 plant steps per PWM period (a system too stiff for one is "
+                        "refused with the number it needs)")
     p.add_argument("--velocity-estimator", choices=("lowpass", "kalman"), default="lowpass",
                    help="servo velocity estimate: differenced encoder through a low-pass "
                         "(the patent's) or a steady-state Kalman filter")
-    p.add_argument("--noise-seed", type=int, default=0, help="current-sensor noise seed")
+    p.add_argument("--noise-seed", type=_number(int, 0, 2 ** 53 - 1), default=0,
+                   help="current-sensor noise seed")
 
 
-def _settings(args: argparse.Namespace, system) -> RunSettings:
+def _settings(args: argparse.Namespace, damping: str | None = None) -> RunSettings:
     estimate = None
     if args.estimate is not None:
         estimate = FeedforwardModel.from_motor(load_system(args.estimate).motor)
-    return RunSettings(mode=args.mode, damping=args.damping, substeps=args.substeps,
+    return RunSettings(mode=args.mode, damping=damping or args.damping, substeps=args.substeps,
                        estimate=estimate, velocity_estimator=args.velocity_estimator,
                        noise_seed=args.noise_seed)
 
@@ -58,64 +127,108 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .plots import plot_sweep, plot_velocity_error_traces, trace_speeds
     from .sweep import parse_speed_range, run_sweep
 
-    check_writable(args.out, "--out", directory=True)
+    check_output_dir(args.out, "--out")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
-    settings = _settings(args, system)
+    dampings = list(dict.fromkeys(args.damping))
+    settings = [_settings(args, d) for d in dampings]
     speeds = parse_speed_range(args.speeds)
-    result = run_sweep(system, speeds, settings, accel_rps2=args.accel,
-                       workers=args.workers, progress=not args.no_progress)
-    os.makedirs(args.out, exist_ok=True)
-    write_json(os.path.join(args.out, "sweep.json"), result.to_dict())
-    plot_sweep([result], os.path.join(args.out, "sweep.png"))
-    plot_velocity_error_traces(system, settings, trace_speeds(system, speeds),
-                               os.path.join(args.out, "velocity_error_traces.png"),
-                               accel_rps2=args.accel)
+    results = [run_sweep(system, speeds, st, accel_rps2=args.accel, workers=args.workers,
+                         progress=not args.no_progress) for st in settings]
+    names = ["sweep.json"] if len(results) == 1 else [f"sweep_{d}.json" for d in dampings]
+    with staged_directory(args.out, SWEEP_FILES) as stage:
+        for name, result in zip(names, results):
+            write_json(os.path.join(stage, name), result.to_dict())
+        plot_sweep(results, os.path.join(stage, "sweep.png"))
+        plot_velocity_error_traces(system, settings, trace_speeds(system, speeds),
+                                   os.path.join(stage, "velocity_error_traces.png"),
+                                   accel_rps2=args.accel)
     predicted = system.predicted_resonances_rps()
-    print(f"motor {system.name}: {args.mode}, {args.damping}, {len(speeds)} speeds")
-    for h, peak in result.peaks().items():
-        print(f"  h={h}: predicted {predicted[h]:.4f} rev/s, ripple peak at "
-              f"{peak['speed_rps']:.4f} rev/s ({peak['relative_offset']:+.1%}), "
-              f"RMS {peak['ripple_rad_s']:.4g} rad/s")
-    lost = int(np.sum(result.column("step_loss")))
-    print(f"  step loss in {lost} of {len(speeds)} runs; wrote {args.out}/sweep.json, "
-          "sweep.png, velocity_error_traces.png")
+    print(f"motor {system.name}: {args.mode}, {len(speeds)} speeds "
+          f"{speeds[0]:g}..{speeds[-1]:g} rev/s")
+    for result in results:
+        lost = int(np.sum(result.column("step_loss")))
+        print(f"  {result.settings.damping}: step loss in {lost} of {len(speeds)} runs")
+        for h, peak in result.peaks().items():
+            where = f"h={h}: predicted {predicted[h]:.4f} rev/s, "
+            if peak["is_resonance"]:
+                print(f"    {where}ripple peak at {peak['speed_rps']:.4f} rev/s "
+                      f"({peak['relative_offset']:+.1%}), RMS {peak['ripple_rad_s']:.4g} rad/s")
+            else:
+                print(f"    {where}no peak (highest RMS nearby {peak['ripple_rad_s']:.4g} "
+                      f"rad/s at {peak['speed_rps']:.4f} rev/s)")
+    print(f"wrote {', '.join(os.path.join(args.out, n) for n in names)}, "
+          f"{os.path.join(args.out, 'sweep.png')}, "
+          f"{os.path.join(args.out, 'velocity_error_traces.png')}")
     return 0
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.trace is not None:
         check_writable(args.trace, "--trace", directory=False)
+    if args.speed == 0.0:
+        raise ParameterError("--speed 0: the ripple metrics are relative to a moving command; "
+                             "allowed [-1000, 0) or (0, 1000] rev/s")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
-    settings = _settings(args, system)
+    settings = _settings(args)
     if args.move is not None:
+        if args.move == 0.0:
+            raise ParameterError("--move 0: a move needs a distance; allowed non-zero rev")
         profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel, kind="move",
                                distance_rev=args.move)
     else:
         profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel)
+    if args.duration is not None:
+        start, _ = measuring_window(system, profile, settings)
+        if not args.duration > start:
+            raise ParameterError(f"--duration {args.duration:g}: must end after the measuring "
+                                 f"window opens at {start:.6g} s (ramp + settle): allowed "
+                                 f"({start:.6g}, inf) s")
     result = simulate(system, profile=profile, settings=settings,
                       duration_s=args.duration, trace=args.trace is not None)
     if args.trace is not None:
         from .io import write_npz
+        from .kernel import TRACE_UNITS
 
-        write_npz(args.trace, **result.trace)
-    out = {"motor": system.name, "mode": settings.mode, "damping": settings.damping,
-           "duration_s": result.duration_s, "window_start_s": result.window_start_s,
-           **result.metrics.to_dict()}
+        write_npz(args.trace, **result.trace,
+                  units=np.array(json.dumps({k: TRACE_UNITS[k] for k in result.trace})),
+                  settings=np.array(json.dumps(_run_record(args, system, result))))
+    out = _run_record(args, system, result)
     if args.json:
         print(json.dumps(out, indent=2))
     else:
         for key, value in out.items():
-            if isinstance(value, float):
-                value = f"{value:.6g}"
-            print(f"{key:28s} {value}")
+            if key in ("parameters",):
+                continue
+            print(f"{key:28s} {_fmt(value)}")
+        if args.trace is not None:
+            print(f"wrote {args.trace} (one row per PWM period; units and settings inside)")
     return 0
+
+
+def _run_record(args: argparse.Namespace, system: Any, result: Any) -> dict[str, Any]:
+    """What ``simulate`` reports: the run's settings and metrics (SI, JSON-ready)."""
+    s = result.settings
+    return {"motor": system.name, "mode": s.mode, "damping": s.damping,
+            "speed_rps": result.profile.speed_rps, "accel_rps2": result.profile.accel_rps2,
+            "move_rev": args.move, "substeps": s.substeps, "noise_seed": s.noise_seed,
+            "duration_s": result.duration_s, "window_start_s": result.window_start_s,
+            **{k: v for k, v in result.metrics.to_dict().items() if k != "speed_rps"},
+            "parameters": system.to_dict()}
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):.6g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}: {_fmt(v)}" for k, v in value.items())
+    return str(value)
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from .identify import identify
     from .io import write_json
 
-    check_writable(args.out, "--out", directory=True)
+    check_output_dir(args.out, "--out")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     result = identify(system, method=args.method, noise_seed=args.seed)
     model = result.model
@@ -123,12 +236,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                 phi1=model.phi1, phi2=model.phi2, Fs=model.Fs)
     motor_file = {**identified.to_dict(), "name": f"{system.name}-identified",
                   "source": f"stepdamp identify --method {args.method} on {system.name}"}
-    os.makedirs(args.out, exist_ok=True)
-    write_json(os.path.join(args.out, "identified_motor.json"), motor_file)
-    write_json(os.path.join(args.out, "identification.json"),
-               {"motor": system.name, **result.to_dict(),
-                "truth": {k: getattr(system.motor, k)
-                          for k in ("Kd1", "Kd2", "Kd4", "phi1", "phi2", "Fs", "D")}})
+    with staged_directory(args.out, IDENTIFY_FILES) as stage:
+        write_json(os.path.join(stage, "identified_motor.json"), motor_file)
+        write_json(os.path.join(stage, "identification.json"),
+                   {"motor": system.name, **result.to_dict(),
+                    "truth": {k: getattr(system.motor, k)
+                              for k in ("Kd1", "Kd2", "Kd4", "phi1", "phi2", "Fs", "D")}})
     m = system.motor
     print(f"motor {system.name}: {args.method}, {result.iterations} round(s) at "
           f"{', '.join(f'{v:g}' for v in result.speeds_rps)} rev/s")
@@ -139,7 +252,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     for name in ("phi1", "phi2"):
         print(f"  {name:6s} {getattr(model, name):12.6g} {getattr(m, name):12.6g} "
               f"{result.errors[name]:+9.4f} rad")
-    print(f"  wrote {args.out}/identified_motor.json, identification.json")
+    print(f"wrote {os.path.join(args.out, 'identified_motor.json')}, "
+          f"{os.path.join(args.out, 'identification.json')}")
     return 0
 
 
@@ -163,32 +277,48 @@ def _register_policies() -> None:
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench import (SUITES, default_policy_names, full_protocol, quick_protocol,
                         run_leaderboard, write_outputs)
-    from .bench.report import format_summary
+    from .bench.report import RESULT_FILES, format_summary
 
-    check_writable(args.out, "--out", directory=True)
+    check_output_dir(args.out, "--out")
     _register_policies()
     protocol = quick_protocol() if args.quick else full_protocol()
     suites = SUITES if args.suite == "all" else (args.suite,)
     protocol = protocol.with_suites(suites)
     named = default_policy_names()
-    baselines = list(named) if args.baselines is None else \
-        [b for group in args.baselines for b in group]
-    unknown = sorted(set(baselines) - set(named))
+    chosen = list(named) if args.entries is None else [b for g in args.entries for b in g]
+    unknown = sorted(set(chosen) - set(named))
     if unknown:
-        raise ParameterError(f"--baselines: unknown {unknown}; choose from {list(named)}")
+        raise ParameterError(f"--entries: unknown {unknown}; choose from {list(named)}")
     extra = [p for group in args.policy for p in group]
-    board = run_leaderboard(protocol, baselines + extra, workers=args.workers,
+    board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
                             progress=not args.no_progress)
-    written = write_outputs(board, args.out, protocol, plots=not args.no_plots)
+    with staged_directory(args.out, RESULT_FILES) as stage:
+        written = write_outputs(board, stage, protocol, plots=not args.no_plots)
     for suite in protocol.suites:
         print(f"{protocol.name} {protocol.version} ({protocol.variant}), {suite}:")
         rows = sorted((e for e in board["entries"] if e["suite"] == suite),
                       key=lambda e: e["rank"])
         for e in rows:
             print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM "
-                  f"{format_summary(e['headline']):28s} step losses "
+                  f"{format_summary(e['headline']):32s} step losses "
                   f"{e['step_losses']['runs_lost']}/{e['step_losses']['runs']}")
-    print("wrote " + ", ".join(written))
+    print("wrote " + ", ".join(os.path.join(args.out, n) for n in written))
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .bench.report import load_leaderboard, render_markdown, render_results
+
+    path = os.path.join(args.dir, "leaderboard.json")
+    if not os.path.isfile(path):
+        raise ParameterError(f"DIR {args.dir!r} holds no leaderboard.json (write one with "
+                             "`stepdamp leaderboard --out DIR`)")
+    board = load_leaderboard(args.dir)
+    if args.full:
+        print(render_markdown(board), end="")
+        return 0
+    suites = board["protocol"]["suites"] if args.suite == "all" else [args.suite]
+    print("\n".join(render_results(board, suite) for suite in suites), end="")
     return 0
 
 
@@ -200,83 +330,126 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="stepdamp", description=__doc__)
     from .version import __version__
 
+    parser = argparse.ArgumentParser(prog="stepdamp", description=DESCRIPTION,
+                                     formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"stepdamp {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    workers = _number(int, 1, 4096)
 
-    p = sub.add_parser("sweep", help="ripple against command speed (resonance sweep)")
-    _add_system_args(p)
-    p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
-                   help="command speeds in rev/s")
-    p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=_cmd_sweep)
+    def command(name: str, text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=text, description=text, formatter_class=_Formatter)
 
-    p = sub.add_parser("simulate", help="one run; prints its metrics")
+    p = command("presets", "list the built-in motors and their predicted resonances")
+    p.set_defaults(func=_cmd_presets)
+
+    p = command("simulate", "one run at one speed (or one move); prints its metrics")
     _add_system_args(p)
-    p.add_argument("--speed", type=float, required=True, metavar="RPS",
-                   help="command speed (rev/s); the top speed of a --move")
-    p.add_argument("--move", type=float, default=None, metavar="REV",
-                   help="point-to-point move of this many revolutions instead of constant speed")
-    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
-                   help="default: ramp + settle + measuring window")
+    p.add_argument("--speed", type=_number(float, -1000, 1000), required=True, metavar="RPS",
+                   help="command speed (rev/s, signed); the top speed of a --move")
+    p.add_argument("--move", type=_number(float, -1e6, 1e6), default=None, metavar="REV",
+                   help="point-to-point move of this many revolutions, measured from its start "
+                        "through its settling (default: constant speed)")
+    p.add_argument("--duration", type=_number(float, 0, 1e4, low_open=True), default=None,
+                   metavar="SECONDS", help="simulated time (default: ramp + settle + 0.5 s window)")
     p.add_argument("--trace", default=None, metavar="FILE.npz",
-                   help="write one sample per PWM period")
-    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+                   help="write one sample per PWM period (units and settings inside)")
+    p.add_argument("--json", action="store_true", help="print the settings and metrics as JSON")
     p.set_defaults(func=_cmd_simulate)
 
-    p = sub.add_parser("identify", help="identify the detent model in servo mode (claim 1)")
+    p = command("sweep", "ripple against command speed, one or several dampings on one figure")
+    _add_system_args(p, damping_many=True)
+    p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
+                   help="command speeds (rev/s)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="result directory (replaced as a whole when the sweep is done)")
+    p.add_argument("--workers", type=workers, default=None,
+                   help="processes (default: every core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_sweep)
+
+    p = command("identify", "identify the detent model in servo mode (patent claim 1)")
     p.add_argument("--motor", default="patent",
                    help=f"preset ({', '.join(preset_names())}) or a motor .json file")
     p.add_argument("--set", dest="overrides", action="append", default=[],
                    metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
-    p.add_argument("--method", choices=("iterative", "least-squares"), default="iterative")
-    p.add_argument("--seed", type=int, default=0, help="current-sensor noise seed")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--method", choices=("iterative", "least-squares"), default="iterative",
+                   help="the patent's iteration, or one least-squares fit")
+    p.add_argument("--seed", type=_number(int, 0, 2 ** 53 - 1), default=0,
+                   help="current-sensor noise seed")
+    p.add_argument("--out", required=True, metavar="DIR", help="result directory")
     p.set_defaults(func=_cmd_identify)
 
-    p = sub.add_parser("leaderboard", help="run the stepdamp-bench v0 protocol on the "
-                                           "baselines and given policies")
+    p = command("leaderboard", "run the stepdamp-bench v0 protocol on the baselines and "
+                               "given policies")
     p.add_argument("--quick", action="store_true",
                    help="reduced CI protocol: presets, one seed, resonant speeds, 0.1 s window")
     p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
-                   help="extra policy: package.module:attr or path/file.py:attr (Policy "
+                   help="extra policy: package.module:attr or path/file.py:attr (a Policy "
                         "class, factory or instance), a model `stepdamp train` wrote "
-                        "(DIR/best.zip) or an SB3 .zip; repeatable. These run code when "
-                        "loaded: use trusted sources only")
-    p.add_argument("--baselines", action="append", nargs="+", default=None, metavar="NAME",
-                   help="run only these baselines and reference agents (default: all; "
-                        "'none' always runs)")
-    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all")
-    p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    p.add_argument("--no-progress", action="store_true")
+                        "(DIR/best.zip) or an SB3 .zip; repeatable. Loading runs its code "
+                        "(an SB3 .zip unpickles): use trusted files only")
+    p.add_argument("--entries", "--baselines", dest="entries", action="append", nargs="+",
+                   default=None, metavar="NAME",
+                   help="run only these registered entries, baselines and reference agents "
+                        "(default: all; 'none' always runs)")
+    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
+                   help="which suite")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="result directory (replaced as a whole when the run is done)")
+    p.add_argument("--workers", type=workers, default=None,
+                   help="processes (default: every core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.set_defaults(func=_cmd_leaderboard)
 
-    p = sub.add_parser("train", help="train a residual RL agent (SAC, TD3, PPO) on "
-                                     "StepperDamp-v0; see agents/train.py")
+    p = command("report", "print a result table from a leaderboard directory")
+    p.add_argument("dir", metavar="DIR", help="a directory `stepdamp leaderboard` wrote")
+    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
+                   help="which suite")
+    p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
+    p.set_defaults(func=_cmd_report)
+
+    p = command("train", "train a residual RL agent (SAC, TD3, PPO) on StepperDamp-v0")
     from stepdamp_agents.train import add_arguments
 
     add_arguments(p)
     p.set_defaults(func=_cmd_train)
-
-    p = sub.add_parser("presets", help="list the motor presets")
-    p.set_defaults(func=_cmd_presets)
     return parser
 
 
+def _terminate(signum: int, frame: Any) -> None:
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (2 for a user mistake,
+    130 after Ctrl-C, 143 after SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        # SIGTERM unwinds like Ctrl-C, so staging directories and temporary files go.
+        signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:              # not the main thread: leave signals alone
+        previous = None
     try:
         return int(args.func(args))
     except ParameterError as exc:
-        print(f"stepdamp: error: {exc}", file=sys.stderr)
+        print(f"stepdamp {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        where = f" {exc.filename!r}" if exc.filename else ""
+        print(f"stepdamp {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"stepdamp {args.command}: interrupted; earlier results are unchanged",
+              file=sys.stderr)
+        return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,16 +1,31 @@
-"""Atomic writes: a crash never leaves a half-written result file."""
+"""Atomic writes: a crash never leaves a half-written result file, nor a result
+directory that mixes two runs.
+
+Every file goes to a temporary file in its own directory, is flushed and
+fsynced, renamed over its name, and the directory is fsynced
+(:func:`atomic_path`). A command's output directory is built as a staging
+directory beside it and swapped in whole when the run is complete
+(:func:`staged_directory`); a killed run leaves the previous results as they
+were, and its leftovers are removed by the next run.
+"""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import errno
+import fnmatch
 import json
 import os
+import shutil
 import tempfile
 from contextlib import contextmanager
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-__all__ = ["atomic_path", "write_json", "write_npz", "check_writable"]
+__all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writable",
+           "check_output_dir", "staged_directory"]
 
 
 @contextmanager
@@ -30,11 +45,22 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[str]:
     os.chmod(tmp, 0o666 & ~_umask())
     try:
         yield tmp
+        _fsync_path(tmp)
         os.replace(tmp, path)
+        _fsync_path(directory)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _fsync_path(path: str) -> None:
+    """fsync a file or a directory by name (the data, or the directory entry)."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) * os.path.isdir(path))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
@@ -57,8 +83,13 @@ def write_json(path: str | os.PathLike[str], data: Any) -> None:
         with open(tmp, "w", encoding="utf-8") as fh:
             json.dump(data, fh, indent=2, default=_default, allow_nan=True)
             fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` (UTF-8), atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
 
 
 def write_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
@@ -66,8 +97,6 @@ def write_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
 
 
 def check_writable(path: str | os.PathLike[str], option: str, *, directory: bool) -> None:
@@ -88,3 +117,125 @@ def check_writable(path: str | os.PathLike[str], option: str, *, directory: bool
         raise ParameterError(f"{option} {path!r} is not writable: {exc.strerror or exc}") \
             from None
 
+
+
+_STAGING = ".{name}.staging-{pid}"
+_PREVIOUS = ".{name}.previous-{pid}"
+
+
+def check_output_dir(path: str | os.PathLike[str], option: str) -> None:
+    """Before any work: ``path`` can be written and holds no sub-directory (a run
+    swaps the whole directory in, carrying other files over, see
+    :func:`staged_directory`)."""
+    from .params import ParameterError
+
+    check_writable(path, option, directory=True)
+    path = os.fspath(path)
+    subdirs = sorted(e.name for e in os.scandir(path) if e.is_dir(follow_symlinks=False))
+    if subdirs:
+        raise ParameterError(
+            f"{option} {path!r} holds the directory {subdirs[0]!r}; a run replaces its output "
+            "directory whole, so give a directory of files only (a new one, or an earlier "
+            "result directory)")
+
+
+@contextmanager
+def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> Iterator[str]:
+    """Yield a fresh staging directory beside ``path``; on success it becomes ``path``.
+
+    ``results`` are glob patterns of the files the command writes: those of a
+    previous run in ``path`` are dropped (never mixed with the new ones); any
+    other file there is carried over (hard link, else copy). The swap is one
+    atomic exchange where the system has it (Linux renameat2), else two renames.
+    On any exception the staging directory is removed and ``path`` is untouched.
+    """
+    path = os.path.abspath(os.fspath(path))
+    parent, name = os.path.split(path)
+    os.makedirs(parent, exist_ok=True)
+    _clean_leftovers(parent, name)
+    staging = os.path.join(parent, _STAGING.format(name=name, pid=os.getpid()))
+    shutil.rmtree(staging, ignore_errors=True)
+    os.mkdir(staging)
+    try:
+        yield staging
+        if os.path.isdir(path):
+            for entry in os.scandir(path):
+                if entry.is_file(follow_symlinks=False) and not entry.name.startswith(".") \
+                        and not any(fnmatch.fnmatch(entry.name, pat) for pat in results) \
+                        and not os.path.exists(os.path.join(staging, entry.name)):
+                    _link_or_copy(entry.path, os.path.join(staging, entry.name))
+        _fsync_path(staging)
+        _swap_in(staging, path)
+        _fsync_path(parent)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def _swap_in(staging: str, path: str) -> None:
+    """Put ``staging`` at ``path``; the previous ``path`` ends at ``staging``."""
+    if not os.path.exists(path):
+        os.rename(staging, path)
+        return
+    if _exchange(staging, path):
+        return
+    parent, name = os.path.split(path)
+    previous = os.path.join(parent, _PREVIOUS.format(name=name, pid=os.getpid()))
+    os.rename(path, previous)
+    os.rename(staging, path)
+    os.rename(previous, staging)
+
+
+def _exchange(a: str, b: str) -> bool:
+    """Atomically exchange two paths (Linux renameat2 RENAME_EXCHANGE); False if
+    the system cannot."""
+    libc_name = ctypes.util.find_library("c")
+    if libc_name is None:
+        return False
+    try:
+        fn = ctypes.CDLL(libc_name, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    if ctypes.get_errno() in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EPERM):
+        return False
+    err = ctypes.get_errno()
+    raise OSError(err, os.strerror(err), b)
+
+
+def _clean_leftovers(parent: str, name: str) -> None:
+    """Remove the staging directories of killed runs (their process is gone) and
+    put back a previous result directory a killed fallback swap left aside."""
+    path = os.path.join(parent, name)
+    for entry in os.scandir(parent):
+        for pattern, restore in ((_STAGING, False), (_PREVIOUS, True)):
+            prefix = pattern.format(name=name, pid="")
+            if not entry.name.startswith(prefix):
+                continue
+            pid = entry.name[len(prefix):]
+            if pid.isdigit() and _alive(int(pid)):
+                continue
+            if restore and not os.path.exists(path):
+                os.rename(entry.path, path)
+            else:
+                shutil.rmtree(entry.path, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

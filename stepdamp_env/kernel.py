@@ -242,6 +242,10 @@ T_OMEGA_FB = 14
 N_TRACE = 15
 TRACE_NAMES = ("t", "theta", "omega", "theta_cmd", "omega_cmd", "ia", "ib", "va",
                "vb", "id", "iq", "iq_cmd", "iq_ff", "theta_fb", "omega_fb")
+#: SI unit of each trace channel.
+TRACE_UNITS = {"t": "s", "theta": "rad", "omega": "rad/s", "theta_cmd": "rad",
+               "omega_cmd": "rad/s", "ia": "A", "ib": "A", "va": "V", "vb": "V", "id": "A",
+               "iq": "A", "iq_cmd": "A", "iq_ff": "A", "theta_fb": "rad", "omega_fb": "rad/s"}
 
 
 # ---------------------------------------------------------------------------

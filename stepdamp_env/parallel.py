@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
+import signal
+import sys
 from typing import Any, Callable, Sequence
 
 __all__ = ["default_workers", "pool_map"]
@@ -16,6 +19,23 @@ def default_workers() -> int:
                else (os.cpu_count() or 1))
 
 
+def _worker_start(parent: int, initializer: Callable[..., None] | None,
+                  initargs: tuple) -> None:
+    """In each worker: die with the parent, leave Ctrl-C to the parent, then the
+    caller's initializer."""
+    if sys.platform.startswith("linux"):
+        libc = ctypes.util.find_library("c")
+        if libc is not None:
+            pr_set_pdeathsig = 1
+            ctypes.CDLL(libc, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
+    if os.getppid() != parent:          # the parent died before prctl took effect
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if initializer is not None:
+        initializer(*initargs)
+
+
 def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
              initializer: Callable[..., None] | None = None, initargs: tuple = (),
              min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None) -> list[Any]:
@@ -25,6 +45,8 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     ``workers <= 1`` or there are fewer than ``min_jobs`` jobs. Workers are
     forked where the platform can, so they inherit what the parent loaded
     (compiled kernels, models). ``bar`` (a tqdm bar) is advanced per result.
+    Workers end with the parent: on any exception here (Ctrl-C included) the
+    pool is terminated, and on Linux a worker is killed when its parent dies.
     """
     out: list[Any] = []
     if workers <= 1 or len(jobs) < min_jobs:
@@ -39,10 +61,17 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     chunk = max(1, len(jobs) // (workers * 8))
     if max_chunk is not None:
         chunk = min(chunk, max_chunk)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
-                             initializer=initializer, initargs=initargs) as pool:
-        for r in pool.map(fn, jobs, chunksize=chunk):
+    pool = multiprocessing.get_context(method).Pool(
+        workers, initializer=_worker_start, initargs=(os.getpid(), initializer, initargs))
+    try:
+        for r in pool.imap(fn, jobs, chunksize=chunk):
             out.append(r)
             if bar is not None:
                 bar.update()
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
     return out

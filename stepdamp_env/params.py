@@ -57,6 +57,10 @@ __all__ = [
     "parse_set_overrides",
     "predicted_resonances",
     "DETENT_HARMONICS",
+    "RK4_STABLE_RADIUS",
+    "current_loop_radius",
+    "fastest_plant_mode",
+    "required_substeps",
     "RESONANCE_HARMONICS",
 ]
 
@@ -252,6 +256,17 @@ class SystemParams:
             raise ParameterError(
                 f"velocity_cutoff_hz={self.servo.velocity_cutoff_hz} is outside its allowed "
                 f"range (0, pwm_hz/2 = {self.drive.pwm_hz / 2})")
+        radius = current_loop_radius(self)
+        # A pole at 1 within rounding is the integrator of a lossless winding (R -> 0).
+        if not radius <= 1.0 + 1e-9:
+            kp, ki = self.current_gains()
+            hint = ("leave Kp_current and Ki_current unset to derive stable gains"
+                    if self.drive.Kp_current is not None or self.drive.Ki_current is not None
+                    else "lower current_bandwidth_hz")
+            raise ParameterError(
+                f"Kp_current={kp:.4g} V/A, Ki_current={ki:.4g} V/(A*s) make the sampled current "
+                f"loop unstable (pole radius {radius:.4g}, allowed <= 1) with R={self.motor.R:.4g} "
+                f"Ohm, L={self.motor.L:.4g} H, pwm_hz={self.drive.pwm_hz:.4g}; {hint}")
 
     # -- flat view -------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -303,9 +318,11 @@ class SystemParams:
         """(Kp, Ki) of the d and q current PI loops in V/A and V/(A*s)."""
         dt = 1.0 / self.drive.pwm_hz
         g = delayed_loop_gain(self.drive.current_bandwidth_hz * dt)
-        pole = math.exp(-self.motor.R * dt / self.motor.L)
-        kp = g * self.motor.R / (1.0 - pole)
-        ki = kp * (1.0 - pole) / dt
+        x = self.motor.R * dt / self.motor.L
+        # 1 - exp(-x) as v0 computed it; expm1 only where that cancels to 0.
+        one_minus_pole = 1.0 - math.exp(-x) if x > 1e-8 else -math.expm1(-x)
+        kp = g * self.motor.R / one_minus_pole
+        ki = kp * one_minus_pole / dt
         if self.drive.Kp_current is not None:
             kp = self.drive.Kp_current
         if self.drive.Ki_current is not None:
@@ -329,6 +346,69 @@ class SystemParams:
     def predicted_resonances_rps(self) -> dict[int, float]:
         """Shaft speeds wn/(h*Nr) for h = 4, 2, 1, in rev/s (lowest first)."""
         return predicted_resonances(self)
+
+
+def current_loop_radius(system: SystemParams) -> float:
+    """Largest pole radius of the sampled current loop (stable below 1).
+
+    The winding over one PWM period dt (exact: i' = a*i + (1 - a)/R * v, a =
+    exp(-R*dt/L)), the voltage computed from this period's sample applied in
+    the next, and the PI integrator I' = I + Ki*dt*e: state (i, v, I),
+    closed loop [[a, (1 - a)/R, 0], [-Kp, 0, 1], [-Ki*dt, 0, 1]].
+    """
+    m = system.motor
+    dt = 1.0 / system.drive.pwm_hz
+    x = m.R * dt / m.L
+    a = math.exp(-x)
+    b = -math.expm1(-x) / m.R if x > 0 else dt / m.L
+    kp, ki = system.current_gains()
+    if not (math.isfinite(kp) and math.isfinite(ki)):
+        return math.inf
+    with np.errstate(all="ignore"):
+        poles = np.linalg.eigvals(np.array([[a, b, 0.0], [-kp, 0.0, 1.0],
+                                            [-ki * dt, 0.0, 1.0]]))
+    radius = float(np.max(np.abs(poles)))
+    return radius if math.isfinite(radius) else math.inf
+
+
+#: RK4's stability region holds the left half-disc |h*lambda| <= 2.5 (|R(z)| <= 0.873 there).
+RK4_STABLE_RADIUS = 2.5
+
+
+def fastest_plant_mode(system: SystemParams) -> tuple[float, str]:
+    """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode.
+
+    The Jacobian of (theta, omega, ia, ib) (docs/model.md, "The plant"), written
+    in currents along and across the rotor's electrical angle x: the current
+    along x has the pole -R/L and feeds nothing back (so the speed, which only
+    drives it, moves no eigenvalue); the current across x, omega and theta form
+    [[0, 1, 0], [k/J, -D/J, Km/J], [0, -Km/L, -R/L]] with the stiffness k
+    (N*m/rad) anywhere in +-Nr*(Km*holding_current + Kd1 + 2*Kd2 + 4*Kd4).
+    """
+    m = system.motor
+    k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
+    jac = np.zeros((3, 3, 3))
+    jac[:, 0, 1] = 1.0
+    jac[:, 1, 0] = np.array([-k_max, 0.0, k_max]) / m.J
+    jac[:, 1, 1] = -m.D / m.J
+    jac[:, 1, 2] = m.Km / m.J
+    jac[:, 2, 1] = -m.Km / m.L
+    jac[:, 2, 2] = -m.R / m.L
+    with np.errstate(all="ignore"):
+        rate = max(m.R / m.L, float(np.max(np.abs(np.linalg.eigvals(jac))))) \
+            if np.all(np.isfinite(jac)) else math.inf
+    parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
+             "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
+             "Km, L, J": m.Km / math.sqrt(m.L * m.J)}
+    return rate, max(parts, key=parts.get)
+
+
+def required_substeps(system: SystemParams) -> int:
+    """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably."""
+    rate, _ = fastest_plant_mode(system)
+    if not math.isfinite(rate):
+        return 2 ** 62
+    return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))
 
 
 def delayed_loop_gain(bandwidth_per_sample: float) -> float:

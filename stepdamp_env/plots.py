@@ -12,7 +12,16 @@ from .params import SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 from .sweep import SweepResult
 
-__all__ = ["plot_sweep", "plot_velocity_error_traces", "pyplot", "save_figure", "trace_speeds"]
+__all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "DAMPING_STYLES", "plot_sweep",
+           "plot_velocity_error_traces", "pyplot", "save_figure", "trace_speeds"]
+
+#: Colours and markers of policies in every figure (Tableau 10 without grey, which
+#: is kept for annotations; black is the undamped reference).
+POLICY_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
+                  "tab:brown", "tab:pink", "tab:olive", "tab:cyan")
+POLICY_MARKERS = ("s", "^", "D", "v", "P", "X", "<", ">", "*")
+#: The simulation core's damping settings, styled like the policies of the same name.
+DAMPING_STYLES = {"none": ("black", "o"), "patent-ff": (POLICY_COLOURS[0], POLICY_MARKERS[0])}
 
 
 def pyplot():
@@ -31,61 +40,84 @@ def save_figure(fig, path: str | os.PathLike[str]) -> None:
         fig.savefig(tmp, dpi=110, format="png")
 
 
+def _mark_resonances(ax, resonances) -> None:
+    """Dashed lines at the predicted resonances, labelled above the axes (off the data)."""
+    for h, v in resonances.items():
+        ax.axvline(v, color="grey", ls="--", lw=0.8, zorder=0)
+        ax.annotate(f"h={h}", (v, 1.0), xycoords=("data", "axes fraction"), xytext=(0, 2),
+                    textcoords="offset points", ha="center", va="bottom", fontsize=8,
+                    color="grey", annotation_clip=False)
+
+
 def plot_sweep(sweeps: Sequence[SweepResult], path: str | os.PathLike[str],
                title: str | None = None) -> None:
-    """RMS velocity error against command speed, predicted resonances marked."""
+    """RMS velocity error against command speed, every sweep on one axis.
+
+    Predicted resonances are marked for open-loop sweeps (the servo loop has no
+    peak there); resonance peaks the sweep really has (:meth:`SweepResult.peaks`,
+    ``is_resonance``) are circled; runs that lost steps are crossed.
+    """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
+    lost_label = "step loss"
     for sw in sweeps:
-        ax.semilogy(sw.speeds_rps, sw.column("rms_velocity_error_rad_s"), marker=".",
-                    label=f"{sw.settings.mode}, {sw.settings.damping}")
+        colour, marker = DAMPING_STYLES.get(sw.settings.damping, (None, "."))
+        ripple = sw.column("rms_velocity_error_rad_s")
+        ax.semilogy(sw.speeds_rps, ripple, color=colour, marker=marker, ms=3, mfc="none",
+                    lw=1.0, label=f"{sw.settings.mode}, {sw.settings.damping}")
         lost = sw.column("step_loss").astype(bool)
         if lost.any():
-            ax.semilogy(sw.speeds_rps[lost], sw.column("rms_velocity_error_rad_s")[lost], "x",
-                        color="red", label="step loss")
+            ax.semilogy(sw.speeds_rps[lost], ripple[lost], "x", color="red", label=lost_label)
+            lost_label = None
+        for h, peak in sw.peaks().items():
+            if peak["is_resonance"]:
+                ax.plot(peak["speed_rps"], peak["ripple_rad_s"], "o", ms=10, mfc="none",
+                        color="grey", zorder=0)
     system = sweeps[0].system
-    for h, v in system.predicted_resonances_rps().items():
-        ax.axvline(v, color="grey", ls="--", lw=0.8)
-        ax.text(v, 1.0, f" h={h}", transform=ax.get_xaxis_transform(), va="top",
-                fontsize=8, color="grey")
+    if any(sw.settings.mode == "open-loop" for sw in sweeps):
+        _mark_resonances(ax, system.predicted_resonances_rps())
     ax.set_xlabel("command speed (rev/s)")
     ax.set_ylabel("RMS velocity error (rad/s)")
-    ax.set_title(title or f"Resonance sweep: {system.name}")
+    ax.set_title(title or f"Resonance sweep: {system.name}", pad=14)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
 
 
-def plot_velocity_error_traces(system: SystemParams, settings: RunSettings,
+def plot_velocity_error_traces(system: SystemParams, settings: RunSettings | Sequence[RunSettings],
                                speeds_rps: Sequence[float], path: str | os.PathLike[str],
-                               accel_rps2: float = DEFAULT_ACCEL_RPS2, span_s: float = 0.1,
+                               accel_rps2: float = DEFAULT_ACCEL_RPS2,
                                title: str | None = None) -> None:
     """Velocity error against time at several speeds, stacked (patent Figs. 4-7).
 
-    Each panel shows ``span_s`` seconds of the measuring window of one run.
+    Each panel shows the whole measuring window of one run per setting, one
+    sample per PWM period.
     """
     plt = pyplot()
+    runs = [settings] if isinstance(settings, RunSettings) else list(settings)
     speeds = list(speeds_rps)
-    fig, axes = plt.subplots(len(speeds), 1, figsize=(8, 1.5 + 1.3 * len(speeds)),
+    fig, axes = plt.subplots(len(speeds), 1, figsize=(9, 1.5 + 1.4 * len(speeds)),
                              sharex=True, squeeze=False)
     for ax, v in zip(axes[:, 0], speeds):
-        res = simulate(system, profile=SpeedProfile(speed_rps=float(v), accel_rps2=accel_rps2),
-                       settings=settings, trace=True, trace_every=4)
-        tr = res.trace
-        sel = tr["t"] >= res.window_start_s
-        t = tr["t"][sel] - res.window_start_s
-        err = tr["omega_cmd"][sel] - tr["omega"][sel]
-        keep = t <= span_s
-        ax.plot(t[keep] * 1e3, err[keep], lw=0.8)
+        for rs in runs:
+            res = simulate(system, profile=SpeedProfile(speed_rps=float(v), accel_rps2=accel_rps2),
+                           settings=rs, trace=True)
+            tr = res.trace
+            sel = tr["t"] >= res.window_start_s - 1e-12
+            t = tr["t"][sel] - res.window_start_s
+            err = tr["omega_cmd"][sel] - tr["omega"][sel]
+            colour = DAMPING_STYLES.get(rs.damping, (None, ""))[0]
+            ax.plot(t * 1e3, err, lw=0.6, color=colour,
+                    label=f"{rs.damping}: RMS {res.metrics.rms_velocity_error_rad_s:.3g} rad/s")
         ax.set_ylabel("rad/s", fontsize=8)
-        ax.text(0.99, 0.9, f"{v:.3g} rev/s  rms {res.metrics.rms_velocity_error_rad_s:.3g}",
-                transform=ax.transAxes, ha="right", va="top", fontsize=8)
+        ax.set_title(f"{v:.3g} rev/s", fontsize=8, loc="left")
         ax.grid(True, alpha=0.3)
-    axes[-1, 0].set_xlabel("time in the measuring window (ms)")
-    fig.suptitle(title or f"Velocity error w_cmd - w: {system.name}, {settings.mode}, "
-                 f"{settings.damping}", fontsize=10)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
+    fig.suptitle(title or f"Velocity error w_cmd - w: {system.name}, {runs[0].mode}",
+                 fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)

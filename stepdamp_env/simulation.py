@@ -15,7 +15,8 @@ import numpy as np
 
 from . import kernel as K
 from .estimators import kalman_velocity_gains
-from .params import FeedforwardModel, ParameterError, SystemParams, load_system
+from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, SystemParams,
+                     fastest_plant_mode, load_system, required_substeps)
 
 __all__ = [
     "MODES",
@@ -26,6 +27,7 @@ __all__ = [
     "RunMetrics",
     "RunResult",
     "build_config",
+    "check_integrable",
     "initial_state",
     "new_accumulators",
     "metrics_from_accumulators",
@@ -155,8 +157,12 @@ def default_settle_s(system: SystemParams) -> float:
 
 def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunSettings
                      ) -> tuple[float, float]:
-    """(start, length) of the measuring window in s."""
+    """(start, length) of the measuring window in s: after the ramp and the
+    settling for a constant speed; from the start through the settling for a move."""
     settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
+    if profile.kind == "move":
+        # The whole move and its settling: after it the rotor rests, nothing to measure.
+        return 0.0, profile.duration_s() + settle
     start = profile.duration_s() + settle
     length = settings.window_s
     if profile.kind == "constant" and profile.speed_rps != 0.0:
@@ -169,6 +175,7 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
                  window_start_s: float = 0.0) -> np.ndarray:
     """The kernel's configuration vector (see ``kernel.C_*``)."""
     m, d, sv = system.motor, system.drive, system.servo
+    check_integrable(system, settings.substeps)
     c = np.zeros(K.N_CONFIG)
     c[K.C_R] = m.R
     c[K.C_L] = m.L
@@ -214,6 +221,22 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     c[K.C_VEL_EST] = VELOCITY_ESTIMATORS[settings.velocity_estimator]
     c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER], sv.kalman_accel_std)
     return c
+
+
+def check_integrable(system: SystemParams, substeps: int) -> None:
+    """Refuse, before a run, a system whose fastest plant mode ``substeps`` RK4
+    steps per PWM period cannot integrate stably (it would end in NaN or 1e200)."""
+    need = required_substeps(system)
+    if substeps >= need:
+        return
+    rate, fields = fastest_plant_mode(system)
+    limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
+    advice = (f"set substeps >= {need} (allowed up to 1000)" if need <= 1000
+              else "no allowed substeps (at most 1000) integrates it; change those fields")
+    raise ParameterError(
+        f"{fields} give a plant mode of {rate:.4g} rad/s, above the {limit:.4g} rad/s that "
+        f"substeps={substeps} RK4 step(s) per PWM period integrate stably "
+        f"(2.5 * pwm_hz * substeps); {advice}")
 
 
 def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
@@ -294,7 +317,7 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
     """Turn the kernel's sums into :class:`RunMetrics`."""
     n = acc[K.A_COUNT]
     if n <= 0:
-        raise ValueError("the measuring window holds no sample: the run ended before it "
+        raise ParameterError("the measuring window holds no sample: the run ended before it "
                          "opened (raise duration_s or lower settle_s)")
     rms = math.sqrt(acc[K.A_SUM_E2] / n)
     p2p = acc[K.A_MAX_E] - acc[K.A_MIN_E]
@@ -372,10 +395,10 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     if duration_s is None:
         duration_s = end
     _check_positive("duration_s", duration_s)
-    if duration_s < start:
+    if not round(duration_s * system.drive.pwm_hz) * system.drive.pwm_hz ** -1 > start:
         raise ParameterError(
-            f"duration_s={duration_s} ends before the measuring window opens at {start:.4g} s "
-            "(ramp + settle); allowed range [window start, inf)")
+            f"duration_s={duration_s:.6g} s must end after the measuring window opens at "
+            f"{start:.6g} s (ramp + settle): allowed range ({start:.6g}, inf) s")
     config = build_config(system, profile, settings, window_start_s=start)
     n_periods = int(round(duration_s * system.drive.pwm_hz))
     state = initial_state(config)

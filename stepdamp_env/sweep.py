@@ -87,14 +87,25 @@ class SweepResult:
         }
 
 
+#: A point more than this factor above both neighbours is a lone spike, not a resonance.
+SPIKE_RATIO = 1.2
+#: A resonance's 3-point mean stands this factor above the median of its search band.
+PROMINENCE = 1.2
+
+
 def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
                          predicted: dict[int, float], search: float = 0.15
                          ) -> dict[int, dict[str, float]]:
     """The ripple maximum within +-``search`` (relative) of each predicted speed.
 
     Returns per harmonic h: the speed of the maximum, its ripple, its relative
-    distance from the prediction and whether it is a local maximum of the
-    sweep (not an edge of the searched band).
+    distance from the prediction, whether it is a local maximum of the sweep
+    (not an edge of the searched band) and whether it is a resonance peak
+    (``is_resonance``): a local maximum that is not a lone spike (more than
+    ``SPIKE_RATIO`` above both neighbours: the ripple aliasing with the PWM or
+    encoder rate gives such one-speed spikes) and whose 3-point mean stands
+    ``PROMINENCE`` above the median over twice the band. A damped or servo sweep
+    may have none.
     """
     out: dict[int, dict[str, float]] = {}
     for h, pred in predicted.items():
@@ -104,9 +115,15 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
         i = band[np.argmax(ripple[band])]
         interior = 0 < i < len(speeds) - 1 and ripple[i] >= ripple[i - 1] \
             and ripple[i] >= ripple[i + 1] and i not in (band[0], band[-1])
+        resonance = False
+        if interior:
+            spike = ripple[i] > SPIKE_RATIO * max(ripple[i - 1], ripple[i + 1])
+            wide = (speeds >= pred * (1 - 2 * search)) & (speeds <= pred * (1 + 2 * search))
+            prominent = np.mean(ripple[i - 1:i + 2]) >= PROMINENCE * np.median(ripple[wide])
+            resonance = bool(prominent and not spike)
         out[h] = {"speed_rps": float(speeds[i]), "ripple_rad_s": float(ripple[i]),
                   "relative_offset": float(speeds[i] / pred - 1.0),
-                  "is_local_max": bool(interior)}
+                  "is_local_max": bool(interior), "is_resonance": resonance}
     return out
 
 

@@ -1,24 +1,42 @@
-"""The leaderboard's report: LEADERBOARD.md and the figures, written atomically."""
+"""The leaderboard's report: leaderboard.json (compact), its runs (compressed),
+LEADERBOARD.md and the figures, written atomically into one directory.
+
+``leaderboard.json`` holds the protocol, versions, identification and every
+entry's summaries; each entry's per-(motor, seed) ``scores`` and raw ``runs``
+are in ``leaderboard_runs.json.gz`` (:data:`RUNS_FILE`);
+:func:`load_leaderboard` joins them again. Every figure draws each policy with
+the same colour and marker (:func:`policy_styles`).
+"""
 
 from __future__ import annotations
 
+import gzip
+import json
+import math
 import os
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from .. import kernel as K
-from ..io import atomic_path, write_json
+from ..io import atomic_path, write_json, write_text
 from ..params import FeedforwardModel
-from ..plots import pyplot, save_figure
+from ..plots import POLICY_COLOURS, POLICY_MARKERS, pyplot, save_figure
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, Protocol
-from .registry import resolve_policy
+from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
-__all__ = ["format_summary", "render_markdown", "plot_ripple", "plot_resonance_traces", "trace_run",
-           "write_outputs"]
+__all__ = ["RESULT_FILES", "RUNS_FILE", "format_summary", "render_markdown", "render_results",
+           "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
+           "plot_resonance_traces", "trace_run", "write_outputs"]
+
+RUNS_FILE = "leaderboard_runs.json.gz"
+#: What a leaderboard run writes (glob patterns): replaced as a set, never mixed.
+RESULT_FILES = ("leaderboard.json", RUNS_FILE, "LEADERBOARD.md", "overview.png",
+                "ripple_vs_speed_*.png", "velocity_error_resonances_*.png")
+_RAW_KEYS = ("scores", "runs")
 
 
 def format_summary(s: Mapping[str, Any]) -> str:
@@ -61,106 +79,252 @@ def render_markdown(board: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_results(board: Mapping[str, Any], suite: str = "open-loop") -> str:
+    """A compact Markdown table of one suite (for a README): rank, policy, headline
+    IQM and interval, step losses."""
+    rows = sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
+    p = board["protocol"]
+    lines = [f"{p['name']} {p['version']} ({p['variant']}), {suite}: mean RMS ripple at the "
+             "resonances over undamped (IQM [95 % CI], lower is better)", "",
+             "| rank | policy | headline | step losses |", "|---|---|---|---|"]
+    for e in rows:
+        name = e["name"] + (" (oracle)" if e.get("oracle") else "")
+        sl = e["step_losses"]
+        lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
+                     f"{sl['runs_lost']}/{sl['runs']} |")
+    return "\n".join(lines) + "\n"
+
+
+def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
+    """The board as :func:`~.leaderboard.run_leaderboard` returned it, read from
+    ``leaderboard.json`` and its runs file."""
+    with open(os.path.join(directory, "leaderboard.json"), encoding="utf-8") as fh:
+        board = json.load(fh)
+    with gzip.open(os.path.join(directory, board.get("runs_file", RUNS_FILE)), "rt",
+                   encoding="utf-8") as fh:
+        raw = json.load(fh)
+    by_key = {(r["name"], r["suite"]): r for r in raw["entries"]}
+    for e in board["entries"]:
+        for key in _RAW_KEYS:
+            e[key] = by_key[(e["name"], e["suite"])][key]
+    board.pop("runs_file", None)
+    return board
+
+
 def _representative(board: Mapping[str, Any]) -> tuple[str, int]:
     p = board["protocol"]
     return p["motors"][0]["name"], p["eval_seeds"][0]
 
 
+def policy_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
+    """(colour, marker) per policy name, the same in every figure: registered
+    default policies in registry order first, then the others sorted; ``none``
+    is always black circles."""
+    order = [n for n in default_policy_names() if n != REFERENCE_POLICY]
+    order += sorted(set(names) - set(order) - {REFERENCE_POLICY})
+    styles = {REFERENCE_POLICY: ("black", "o")}
+    for k, name in enumerate(order):
+        styles[name] = (POLICY_COLOURS[k % len(POLICY_COLOURS)],
+                        POLICY_MARKERS[(k + k // len(POLICY_COLOURS)) % len(POLICY_MARKERS)])
+    return styles
+
+
+def _suite_rows(board: Mapping[str, Any], suite: str) -> list[Mapping[str, Any]]:
+    return sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
+
+
+def _mark_resonances(ax, resonances: Mapping[Any, float]) -> None:
+    """Dashed lines at the predicted resonances, labelled above the axes."""
+    for h, v in resonances.items():
+        ax.axvline(v, color="grey", ls="--", lw=0.8, zorder=0)
+        ax.annotate(f"h={h}", (v, 1.0), xycoords=("data", "axes fraction"),
+                    xytext=(0, 2), textcoords="offset points", ha="center", va="bottom",
+                    fontsize=8, color="grey", annotation_clip=False)
+
+
 def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
-    """RMS ripple against speed per entry, for the representative motor and seed."""
+    """RMS ripple against speed per entry, for the representative motor and seed.
+
+    Every entry is drawn with its own colour and marker; entries with equal
+    values lie on one another, so markers shrink with rank (the leader's is the
+    smallest, drawn on top) and every one stays visible. Resonances are marked
+    in open loop only (the servo loop has no peak there).
+    """
     plt = pyplot()
     motor, seed = _representative(board)
     info = board["protocol"]["motors"][0]
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for e in sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"]):
+    rows = _suite_rows(board, suite)
+    styles = policy_styles([e["name"] for e in rows])
+    fig, ax = plt.subplots(figsize=(9, 4.8))
+    n = len(rows)
+    for k, e in enumerate(rows):
         rs = sorted((r for r in e["runs"] if r["motor"] == motor and r["seed"] == seed
                      and r["metrics"] is not None), key=lambda r: r["speed_rps"])
+        colour, marker = styles[e["name"]]
         ax.semilogy([r["speed_rps"] for r in rs],
-                    [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], marker="o",
-                    label=e["name"])
-    for h, v in info["predicted_resonances_rps"].items():
-        ax.axvline(v, color="grey", ls="--", lw=0.8)
-        ax.text(v, 1.0, f" h={h}", transform=ax.get_xaxis_transform(), va="top",
-                fontsize=8, color="grey")
+                    [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], color=colour,
+                    marker=marker, ms=4 + 1.2 * k, mfc="none", lw=1.0,
+                    zorder=3 + n - k, label=f"{e['rank']}. {e['name']}")
+    if suite == "open-loop":
+        _mark_resonances(ax, info["predicted_resonances_rps"])
     ax.set_xlabel("command speed (rev/s)")
     ax.set_ylabel("RMS velocity error (rad/s)")
-    ax.set_title(f"{suite}: {motor}, seed {seed}")
+    ax.set_title(f"{suite}: {motor}, seed {seed}", pad=14)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int) -> MotorKnowledge:
+    ident = next(x["model"] for x in board["identification"]
+                 if x["motor"] == motor.name and x["seed"] == seed)
+    return MotorKnowledge(nominal=motor.nominal,
+                          identified=FeedforwardModel(**ident) if ident else None,
+                          exact=FeedforwardModel.from_motor(motor.system.motor))
+
+
+def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
+    """The best-ranked entry other than the reference and the patent's own feedforward."""
+    return next((e for e in _suite_rows(board, suite)
+                 if e["spec"] not in (REFERENCE_POLICY, "patent-ff")), None)
+
+
+def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
+                  points: int = 41, suite: str = "open-loop") -> None:
+    """The README's figure: RMS ripple against speed on the representative motor,
+    undamped, the patent's feedforward and the best other entry, on one axis.
+
+    ``points`` speeds, log-spaced from 0.6x the lowest to 1.3x the highest
+    predicted resonance, each one run as the protocol runs it.
+    """
+    motor = protocol_motors(protocol)[0]
+    seed = protocol.eval_seeds[0]
+    knowledge = _knowledge(board, motor, seed)
+    res = motor.system.predicted_resonances_rps()
+    speeds = np.geomspace(0.6 * min(res.values()), 1.3 * max(res.values()), points)
+    rows = _suite_rows(board, suite)
+    by_spec = {e["spec"]: e for e in rows}
+    shown = [by_spec[s] for s in (REFERENCE_POLICY, "patent-ff") if s in by_spec]
+    best = _best(board, suite)
+    if best is not None:
+        shown.append(best)
+    styles = policy_styles([e["name"] for e in rows])
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for e in shown:
+        ripple = []
+        for v in speeds:
+            r = run_episode(resolve_policy(e["spec"]).make(), knowledge, motor.system,
+                            mode=suite, speed_rps=float(v), seed=seed,
+                            accel_rps2=protocol.accel_rps2, window_s=protocol.window_s)
+            ripple.append(r.metrics["rms_velocity_error_rad_s"] if r.metrics and not r.failed
+                          else math.nan)
+        colour, marker = styles[e["name"]]
+        ax.semilogy(speeds, ripple, color=colour, marker=marker, ms=4, mfc="none", lw=1.2,
+                    label=f"{e['name']} (headline {e['headline']['iqm']:.3g})")
+    _mark_resonances(ax, res)
+    ax.set_xlabel("command speed (rev/s)")
+    ax.set_ylabel("RMS velocity error (rad/s)")
+    ax.set_title(f"Velocity ripple, {suite}: {motor.name}, seed {seed}", pad=14)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
 
 
 def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite: str,
-              speed_rps: float, seed: int, protocol: Protocol, span_s: float = 0.1
+              speed_rps: float, seed: int, protocol: Protocol, span_s: float | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
-    """(time in the window (s), velocity error w_cmd - w (rad/s)) at the agent rate,
-    over the first ``span_s`` of the measuring window."""
+    """(time in the window (s), velocity error w_cmd - w (rad/s)) at every PWM
+    period of the measuring window (its first ``span_s`` if given)."""
 
-    def sample(env: Any, obs: np.ndarray, start: float) -> tuple[float, float] | None:
-        if env.time_s < start:
-            return None
-        s = env.drive_state
-        return env.time_s - start, s[K.S_OMEGA_CMD] - s[K.S_OMEGA]
+    def sample(env: Any, obs: np.ndarray, start: float) -> np.ndarray:
+        tr = env.step_trace
+        return tr[tr[:, K.T_T] >= start - 1e-12]
 
-    start, _ = episode_window(motor.system, speed_rps, protocol.accel_rps2, protocol.window_s)
+    start, length = episode_window(motor.system, speed_rps, protocol.accel_rps2,
+                                   protocol.window_s)
     result = run_episode(resolve_policy(spec).make(), knowledge, motor.system, mode=suite,
                          speed_rps=speed_rps, seed=seed, accel_rps2=protocol.accel_rps2,
-                         window_s=protocol.window_s, until_s=start + span_s, on_step=sample)
-    rows = np.asarray(result.trace, dtype=float).reshape(-1, 2)
-    return rows[:, 0], rows[:, 1]
+                         window_s=protocol.window_s,
+                         until_s=None if span_s is None else start + span_s,
+                         on_step=sample, pwm_trace=True)
+    rows = np.concatenate(result.trace) if result.trace else np.zeros((0, K.N_TRACE))
+    end = start + (length if span_s is None else span_s)
+    rows = rows[rows[:, K.T_T] < end]
+    return rows[:, K.T_T] - start, rows[:, K.T_OMEGA_CMD] - rows[:, K.T_OMEGA]
 
 
 def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
                           protocol: Protocol) -> None:
-    """Velocity error against time at the three resonances: none vs the best entry
+    """Velocity error against time over the whole measuring window at the three
+    resonant speeds, sampled every PWM period: ``none`` against the best entry
     (patent Figs. 4-7 style), representative motor and seed."""
-    rows = sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
+    rows = _suite_rows(board, suite)
     best = next((e for e in rows if e["spec"] != REFERENCE_POLICY), None)
-    specs = [(REFERENCE_POLICY, REFERENCE_POLICY)] + ([(best["spec"], best["name"])] if best else [])
-    motors = protocol_motors(protocol)
-    motor = motors[0]
+    shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
+    styles = policy_styles([e["name"] for e in rows])
+    motor = protocol_motors(protocol)[0]
     seed = protocol.eval_seeds[0]
-    ident = next(x["model"] for x in board["identification"]
-                 if x["motor"] == motor.name and x["seed"] == seed)
-    knowledge = MotorKnowledge(nominal=motor.nominal,
-                               identified=FeedforwardModel(**ident) if ident else None,
-                               exact=FeedforwardModel.from_motor(motor.system.motor))
+    knowledge = _knowledge(board, motor, seed)
     res = motor.system.predicted_resonances_rps()
     plt = pyplot()
-    fig, axes = plt.subplots(len(res), 1, figsize=(8, 6.5), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(len(res), 1, figsize=(9, 7), sharex=True, squeeze=False)
     for ax, (h, v) in zip(axes[:, 0], res.items()):
-        for spec, name in specs:
-            t, err = trace_run(spec, motor, knowledge, suite, v, seed, protocol)
-            ax.plot(t * 1e3, err, lw=0.8, label=name)
-        ax.set_ylabel("rad/s", fontsize=8)
-        ax.text(0.99, 0.92, f"h={h}: {v:.3g} rev/s", transform=ax.transAxes, ha="right",
-                va="top", fontsize=8)
+        for e in shown:
+            t, err = trace_run(e["spec"], motor, knowledge, suite, v, seed, protocol)
+            rms = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
+            ax.plot(t * 1e3, err, lw=0.7, color=styles[e["name"]][0],
+                    label=f"{e['name']} (RMS {rms:.3g} rad/s)")
+        ax.set_ylabel("w_cmd - w (rad/s)", fontsize=8)
+        ax.set_title(f"h = {h} resonance: {v:.3g} rev/s", fontsize=9, loc="left")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="upper left")
-    axes[-1, 0].set_xlabel("time in the measuring window (ms; sampled at the agent rate)")
-    fig.suptitle(f"Velocity error w_cmd - w at the resonances: {motor.name}, {suite}",
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
+    fig.suptitle(f"Velocity error at the resonances: {motor.name}, {suite}, seed {seed}",
                  fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
 
 
+def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(leaderboard.json without the per-run data, the runs file's content)."""
+    compact = {k: v for k, v in board.items() if k != "entries"}
+    compact["runs_file"] = RUNS_FILE
+    compact["entries"] = [{k: v for k, v in e.items() if k not in _RAW_KEYS}
+                          for e in board["entries"]]
+    raw = {"entries": [{"name": e["name"], "suite": e["suite"],
+                        **{k: e[k] for k in _RAW_KEYS}} for e in board["entries"]]}
+    return compact, raw
+
+
 def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
                   plots: bool = True) -> list[str]:
-    """Write leaderboard.json, LEADERBOARD.md and the figures (atomically)."""
+    """Write leaderboard.json, its runs file, LEADERBOARD.md and the figures into
+    ``out_dir``, each atomically; returns the file names written."""
     os.makedirs(out_dir, exist_ok=True)
-    written = [os.path.join(out_dir, "leaderboard.json"), os.path.join(out_dir, "LEADERBOARD.md")]
-    write_json(written[0], board)
-    with atomic_path(written[1]) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(render_markdown(board))
+    compact, raw = _split(board)
+    written = ["leaderboard.json", RUNS_FILE, "LEADERBOARD.md"]
+    write_json(os.path.join(out_dir, written[0]), compact)
+    with atomic_path(os.path.join(out_dir, RUNS_FILE)) as tmp:
+        # mtime 0: the same board gives the same bytes.
+        with gzip.GzipFile(tmp, "wb", mtime=0) as fh:
+            fh.write(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
+    write_text(os.path.join(out_dir, written[2]), render_markdown(board))
     if plots:
+        if "open-loop" in board["protocol"]["suites"]:
+            plot_overview(board, os.path.join(out_dir, "overview.png"), protocol)
+            written.append("overview.png")
         for suite in board["protocol"]["suites"]:
-            p1 = os.path.join(out_dir, f"ripple_vs_speed_{suite}.png")
-            p2 = os.path.join(out_dir, f"velocity_error_resonances_{suite}.png")
-            plot_ripple(board, suite, p1)
-            plot_resonance_traces(board, suite, p2, protocol)
-            written += [p1, p2]
+            for name, plot in ((f"ripple_vs_speed_{suite}.png", plot_ripple),
+                               (f"velocity_error_resonances_{suite}.png", None)):
+                if plot is None:
+                    plot_resonance_traces(board, suite, os.path.join(out_dir, name), protocol)
+                else:
+                    plot(board, suite, os.path.join(out_dir, name))
+                written.append(name)
     return written

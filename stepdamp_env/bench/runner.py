@@ -72,8 +72,8 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 mode: str, speed_rps: float, seed: int,
                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
                 measure_from_s: float | None = None, until_s: float | None = None,
-                on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None
-                ) -> EpisodeResult:
+                on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
+                pwm_trace: bool = False) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` on the true plant ``system``.
 
     The env gets the policy's options (checked, :func:`policy_env_options`),
@@ -83,14 +83,17 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     ``until_s``), or until the env terminates. The window opens a settling time
     after the ramp (:func:`episode_window`) unless ``measure_from_s`` says
     when. ``on_step(env, observation, window_start_s)`` is called after every
-    step; what it returns (if not None) is kept in ``trace``.
+    step; what it returns (if not None) is kept in ``trace``. With
+    ``pwm_trace`` the env records every PWM period of a step
+    (``env.step_trace``) for ``on_step`` to read; the run is otherwise the same.
     """
     start, length = episode_window(system, speed_rps, accel_rps2, window_s)
     if measure_from_s is not None:
         start, length = float(measure_from_s), float(window_s)
     options = policy_env_options(policy, knowledge)
     env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps, accel_rps2=accel_rps2,
-                         measure_from_s=start, **options)
+                         measure_from_s=start, render_mode="rgb_array" if pwm_trace else None,
+                         **options)
     obs, _ = env.reset(seed=seed)
     policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
     # Half a PWM period of slack: time_s is a float multiple of the period.

@@ -184,6 +184,15 @@ class StepperDampEnv(gym.Env):
         """Simulated time since the episode started (s)."""
         return float(self._s[K.S_PERIOD] * self._c[K.C_DT])
 
+    @property
+    def step_trace(self) -> np.ndarray:
+        """The PWM periods of the last step, one row each (columns ``kernel.T_*``:
+        time (s), angles (rad), speeds (rad/s), currents (A), voltages (V)).
+
+        Recorded only with a ``render_mode``; otherwise an empty (0, N_TRACE) array.
+        """
+        return self._trace.copy()
+
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far, over the window
         that opens at ``measure_from_s`` (lag, current peak: whole episode).
