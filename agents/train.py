@@ -42,6 +42,7 @@ import numpy as np
 
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.env import DEFAULT_EPISODE_STEPS
+from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
@@ -78,13 +79,60 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
     import yaml
 
     path = args.hyperparams or os.path.join(HYPERPARAMS_DIR, f"{args.algo}.yml")
-    with open(path, encoding="utf-8") as fh:
-        data = yaml.safe_load(fh)
-    if ENV_ID not in data:
-        raise ValueError(f"{path}: no {ENV_ID!r} entry")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        first = (str(exc).strip().splitlines() or [""])[0]
+        raise ParameterError(f"--hyperparams {path!r}: cannot read it as YAML: {first}") \
+            from None
+    if not isinstance(data, dict) or not isinstance(data.get(ENV_ID), dict):
+        raise ParameterError(f"--hyperparams {path!r}: no {ENV_ID!r} mapping in it")
     hp = dict(data[ENV_ID])
     hp.update(args.extra)
     return hp
+
+
+def check_args(args: Args) -> None:
+    """Every numeric argument in its range, else a one-line ``ParameterError``."""
+    def need(name: str, value: Any, low: int, high: float, optional: bool = False) -> None:
+        if optional and value is None:
+            return
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ParameterError(f"--{name.replace('_', '-')} {value!r} is outside its allowed "
+                                 f"range [{low}, {high:g}] (integer)")
+
+    need("seed", args.seed, 0, 999)           # env seeds 1000*seed + k < TRAINING_SEED_LIMIT
+    need("total_timesteps", args.total_timesteps, 1, 1e12, optional=True)
+    need("envs_per_motor", args.envs_per_motor, 1, 4096, optional=True)
+    need("eval_freq", args.eval_freq, 0, 1e12)
+    need("checkpoint_freq", args.checkpoint_freq, 0, 1e12)
+    need("val_seed", args.val_seed, 0, TRAINING_SEED_LIMIT - 1001)
+    need("val_motors_per_preset", args.val_motors_per_preset, 1, 1000)
+    unknown = sorted(set(args.motors) - set(PRESETS))
+    if unknown or not args.motors:
+        raise ParameterError(f"--motors {list(args.motors)}: choose presets from {list(PRESETS)}")
+
+
+#: Algorithm settings that must be positive integers (SB3 fails late, or not at all, otherwise).
+POSITIVE_INT_KWARGS = ("n_steps", "batch_size", "n_epochs", "buffer_size", "learning_starts",
+                       "train_freq", "gradient_steps", "policy_delay")
+
+
+def _check_algo_kwargs(kwargs: dict[str, Any]) -> None:
+    for key in POSITIVE_INT_KWARGS:
+        value = kwargs.get(key)
+        if value is None or key in ("learning_starts", "train_freq") and isinstance(value, tuple):
+            continue
+        low = 0 if key == "learning_starts" else 1
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ParameterError(f"hyperparameter {key}={value!r} is outside its allowed range "
+                                 f"[{low}, inf) (integer)")
+    lr = kwargs.get("learning_rate")
+    if lr is not None and not callable(lr) and (
+            isinstance(lr, bool) or not isinstance(lr, (int, float)) or not math.isfinite(lr)
+            or lr <= 0):
+        raise ParameterError(f"hyperparameter learning_rate={lr!r} must be a positive number")
 
 
 def parse_policy_kwargs(text: str) -> dict[str, Any]:
@@ -182,7 +230,7 @@ class Validator:
         from stepdamp_env.params import FeedforwardModel
 
         if not 0 <= args.val_seed < TRAINING_SEED_LIMIT - 1000:
-            raise ValueError(f"val_seed must stay below {TRAINING_SEED_LIMIT - 1000}")
+            raise ParameterError(f"val_seed must stay below {TRAINING_SEED_LIMIT - 1000}")
         overrides = env_kwargs.get("overrides") or {}
         self.protocol = dataclasses.replace(full_protocol(), off_resonance=())
         motors, k = [], 0
@@ -266,11 +314,9 @@ def train(args: Args) -> dict[str, Any]:
     from .policy import ResidualAgent, forget_model
     from .residual import ALGOS, make_residual_vec_env
 
+    check_args(args)
     if args.algo not in ALGOS:
-        raise ValueError(f"algo={args.algo!r} is not one of {list(ALGOS)}")
-    if not 0 <= args.seed < 1000:
-        raise ValueError(f"seed must be in [0, 1000) (env seeds 1000*seed + k stay below "
-                         f"{TRAINING_SEED_LIMIT})")
+        raise ParameterError(f"algo={args.algo!r} is not one of {list(ALGOS)}")
     torch.set_num_threads(1)
     sp = split_hyperparams(load_hyperparams(args))
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
@@ -290,8 +336,14 @@ def train(args: Args) -> dict[str, Any]:
         k = env.action_space.shape[0]
         algo_kwargs["action_noise"] = NormalActionNoise(np.zeros(k),
                                                         algo_kwargs["action_noise"][1] * np.ones(k))
-    model = ALGOS[args.algo](sp["policy"], env, seed=args.seed, device="cpu", verbose=0,
-                             **algo_kwargs)
+    _check_algo_kwargs(algo_kwargs)
+    try:
+        model = ALGOS[args.algo](sp["policy"], env, seed=args.seed, device="cpu", verbose=0,
+                                 **algo_kwargs)
+    except (TypeError, ValueError, AssertionError) as exc:
+        first = (str(exc).strip().splitlines() or [""])[0]
+        raise ParameterError(f"hyperparameters (YAML or --set) refused by {args.algo}: "
+                             f"{first}") from None
     formats = ["csv"]
     if args.tensorboard:
         try:
@@ -417,9 +469,12 @@ def args_from_namespace(ns: argparse.Namespace) -> Args:
     extra = {}
     for item in ns.extra:
         key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--set {item!r}: expected KEY=VALUE")
-        extra[key] = yaml.safe_load(value)
+        if not sep or not key.strip():
+            raise ParameterError(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            extra[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ParameterError(f"--set {item!r}: the value is not valid YAML") from None
     return Args(algo=ns.algo, seed=ns.seed, out=ns.out, total_timesteps=ns.total_timesteps,
                 hyperparams=ns.hyperparams, motors=tuple(ns.motors),
                 envs_per_motor=ns.envs_per_motor, eval_freq=ns.eval_freq,

@@ -25,6 +25,7 @@ from .params import (FeedforwardModel, ParameterError, load_system, parse_set_ov
                      preset_names)
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
                          measuring_window, simulate)
+from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS
 
 __all__ = ["main"]
 
@@ -164,15 +165,20 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.trace is not None:
+        if not args.trace.strip() or args.trace.endswith(os.sep):
+            raise ParameterError(f"--trace {args.trace!r}: give a file name (FILE.npz)")
         check_writable(args.trace, "--trace", directory=False)
-    if args.speed == 0.0:
-        raise ParameterError("--speed 0: the ripple metrics are relative to a moving command; "
-                             "allowed [-1000, 0) or (0, 1000] rev/s")
+    if not MIN_SPEED_RPS <= abs(args.speed):
+        raise ParameterError(f"--speed {args.speed:g}: the ripple metrics are relative to a "
+                             f"moving command; allowed {MIN_SPEED_RPS:g} <= |speed| <= "
+                             f"{MAX_SPEED_RPS:g} rev/s")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     settings = _settings(args)
     if args.move is not None:
-        if args.move == 0.0:
-            raise ParameterError("--move 0: a move needs a distance; allowed non-zero rev")
+        step_rev = 1.0 / (4 * system.motor.Nr)
+        if abs(args.move) < step_rev:
+            raise ParameterError(f"--move {args.move:g}: shorter than one full step, nothing to "
+                                 f"measure; allowed |move| >= {step_rev:g} rev")
         profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel, kind="move",
                                distance_rev=args.move)
     else:
@@ -313,7 +319,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if not os.path.isfile(path):
         raise ParameterError(f"DIR {args.dir!r} holds no leaderboard.json (write one with "
                              "`stepdamp leaderboard --out DIR`)")
-    board = load_leaderboard(args.dir)
+    try:
+        board = load_leaderboard(args.dir)
+    except (ValueError, KeyError, TypeError, AttributeError, OSError) as exc:
+        raise ParameterError(f"DIR {args.dir!r}: not a readable leaderboard ({type(exc).__name__}: "
+                             f"{exc})") from None
     if args.full:
         print(render_markdown(board), end="")
         return 0

@@ -129,8 +129,12 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> None:
     :func:`staged_directory`)."""
     from .params import ParameterError
 
-    check_writable(path, option, directory=True)
     path = os.fspath(path)
+    existed = os.path.isdir(path)
+    check_writable(path, option, directory=True)
+    if not existed:                 # made by the probe; the run makes it when done
+        os.rmdir(path)
+        return
     subdirs = sorted(e.name for e in os.scandir(path) if e.is_dir(follow_symlinks=False))
     if subdirs:
         raise ParameterError(

@@ -492,14 +492,19 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
     else:
         text = os.fspath(spec)
         if text.endswith(".json") or os.path.sep in text or os.path.isfile(text):
+            if os.path.isdir(text):
+                raise ParameterError(f"motor file {text!r} is a directory")
             if not os.path.isfile(text):
                 raise ParameterError(f"motor file {text!r} does not exist")
-            with open(text, encoding="utf-8") as fh:
-                try:
+            try:
+                with open(text, encoding="utf-8") as fh:
                     values = json.load(fh)
-                except json.JSONDecodeError as exc:
-                    raise ParameterError(f"motor file {text!r} is not valid JSON: {exc}"
-                                         ) from None
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise ParameterError(f"motor file {text!r} is not valid JSON: {exc}"
+                                     ) from None
+            except OSError as exc:
+                raise ParameterError(f"motor file {text!r} cannot be read: "
+                                     f"{exc.strerror or exc}") from None
             if not isinstance(values, dict):
                 raise ParameterError(f"motor file {text!r} must hold a JSON object")
             values.setdefault("name", os.path.splitext(os.path.basename(text))[0])

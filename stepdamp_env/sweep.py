@@ -15,6 +15,11 @@ from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 __all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks"]
 
 
+#: Command speeds a sweep or a simulation accepts (rev/s, magnitude).
+MIN_SPEED_RPS = 1e-3
+MAX_SPEED_RPS = 1e3
+
+
 def parse_speed_range(text: str) -> np.ndarray:
     """``START:STOP:STEP`` in rev/s (STOP included when it falls on the grid)."""
     parts = text.split(":")
@@ -26,10 +31,15 @@ def parse_speed_range(text: str) -> np.ndarray:
         raise ParameterError(f"--speeds expects numbers, got {text!r}") from None
     if not all(math.isfinite(v) for v in (start, stop, step)):
         raise ParameterError(f"--speeds must be finite, got {text!r}")
-    if step <= 0 or stop < start or start <= 0:
+    if step <= 0 or stop < start or start < MIN_SPEED_RPS or stop > MAX_SPEED_RPS:
         raise ParameterError(
-            f"--speeds {text!r}: need 0 < START <= STOP and STEP > 0 (rev/s)")
-    n = int(math.floor((stop - start) / step + 1e-9)) + 1
+            f"--speeds {text!r}: need {MIN_SPEED_RPS:g} <= START <= STOP <= "
+            f"{MAX_SPEED_RPS:g} and STEP > 0 (rev/s)")
+    count = (stop - start) / step
+    if count > 100_000:
+        raise ParameterError(f"--speeds {text!r} gives over 100000 points; allowed at most "
+                             "100000")
+    n = int(math.floor(count + 1e-9)) + 1
     if n > 100_000:
         raise ParameterError(f"--speeds {text!r} gives {n} points; allowed at most 100000")
     # Rounded to 1e-9 rev/s so the grid prints and compares cleanly.

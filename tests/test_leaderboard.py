@@ -14,6 +14,7 @@ from stepdamp_baselines import BASELINE_NAMES
 from stepdamp_env.bench import (TRAINING_SEED_LIMIT, Protocol, full_protocol, iqm,
                                 protocol_motors, quick_protocol, run_leaderboard,
                                 stratified_bootstrap_ci)
+from stepdamp_env.bench.report import load_leaderboard
 from stepdamp_env.cli import main
 from stepdamp_env.params import ParameterError
 
@@ -179,14 +180,33 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
         assert e["suite"] == "open-loop"
         assert len(e["headline"]["ci95"]) == 2 and math.isfinite(e["headline"]["iqm"])
         for key in ("sweep_mean_ratio", "sweep_worst_ratio", "step_losses",
-                    "rms_injected_current_a", "runs"):
+                    "rms_injected_current_a"):
             assert key in e
+        assert "runs" not in e and "scores" not in e        # in the compressed runs file
+    assert board["runs_file"] == "leaderboard_runs.json.gz"
+    full = load_leaderboard(out)
+    for e in full["entries"]:
         assert len(e["runs"]) == 4 * 3                      # presets x resonant speeds
+        assert len(e["scores"]) == 4
     md = (out / "LEADERBOARD.md").read_text()
     assert "## open-loop" in md and "| 1 |" in md and "patent-ff-oracle" in md
-    for name in ("ripple_vs_speed_open-loop.png", "velocity_error_resonances_open-loop.png"):
+    for name in ("overview.png", "ripple_vs_speed_open-loop.png",
+                 "velocity_error_resonances_open-loop.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "headline IQM" in capsys.readouterr().out
+    assert main(["report", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "| 1 | patent-ff-oracle (oracle) | 0.07956 (no interval) | 0/12 |" in table
+
+    # A second run replaces the results as a set and keeps a file it did not write.
+    (out / "notes.txt").write_text("mine")
+    rc = main(["leaderboard", "--quick", "--suite", "open-loop", "--baselines", "none",
+               "--out", str(out), "--no-progress", "--no-plots"])
+    assert rc == 0
+    assert sorted(os.listdir(out)) == ["LEADERBOARD.md", "leaderboard.json",
+                                       "leaderboard_runs.json.gz", "notes.txt"]
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
 
 
 def test_sb3_model_file_policy(tmp_path):

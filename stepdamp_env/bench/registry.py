@@ -217,7 +217,21 @@ def _import_attr(spec: str) -> Any:
 
 def resolve_policy(spec: str) -> PolicySource:
     """A registered name, ``module:attr``, ``file.py:attr`` or a model file
-    (see the module docstring)."""
+    (see the module docstring). Whatever goes wrong while loading it is a
+    one-line ``ParameterError`` naming the spec."""
+    try:
+        source = _resolve(spec)
+        source.make()                   # a file that cannot become a policy fails here
+        return source
+    except ParameterError:
+        raise
+    except Exception as exc:        # the user's code or file: any error is theirs
+        first = (str(exc).strip().splitlines() or [""])[0]
+        raise ParameterError(f"policy {spec!r} cannot be loaded: {type(exc).__name__}: "
+                             f"{first}") from exc
+
+
+def _resolve(spec: str) -> PolicySource:
     registry = registered_policies()
     if spec in registry:
         return PolicySource(spec, spec, registry[spec].make)

@@ -185,10 +185,14 @@ def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int) -> Mot
                           exact=FeedforwardModel.from_motor(motor.system.motor))
 
 
+#: The patent's method as a user has it (identified model), drawn in the overview.
+PATENT_ENTRY = "patent-ff-identified"
+
+
 def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
     """The best-ranked entry other than the reference and the patent's own feedforward."""
     return next((e for e in _suite_rows(board, suite)
-                 if e["spec"] not in (REFERENCE_POLICY, "patent-ff")), None)
+                 if e["spec"] not in (REFERENCE_POLICY, PATENT_ENTRY)), None)
 
 
 def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
@@ -206,13 +210,13 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
     speeds = np.geomspace(0.6 * min(res.values()), 1.3 * max(res.values()), points)
     rows = _suite_rows(board, suite)
     by_spec = {e["spec"]: e for e in rows}
-    shown = [by_spec[s] for s in (REFERENCE_POLICY, "patent-ff") if s in by_spec]
+    shown = [by_spec[s] for s in (REFERENCE_POLICY, PATENT_ENTRY) if s in by_spec]
     best = _best(board, suite)
     if best is not None:
         shown.append(best)
     styles = policy_styles([e["name"] for e in rows])
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = plt.subplots(figsize=(9, 4.5))
     for e in shown:
         ripple = []
         for v in speeds:
@@ -223,13 +227,13 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
                           else math.nan)
         colour, marker = styles[e["name"]]
         ax.semilogy(speeds, ripple, color=colour, marker=marker, ms=4, mfc="none", lw=1.2,
-                    label=f"{e['name']} (headline {e['headline']['iqm']:.3g})")
+                    label=f"{e['name']}\n(headline {e['headline']['iqm']:.3g})")
     _mark_resonances(ax, res)
     ax.set_xlabel("command speed (rev/s)")
     ax.set_ylabel("RMS velocity error (rad/s)")
     ax.set_title(f"Velocity ripple, {suite}: {motor.name}, seed {seed}", pad=14)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)

@@ -1,0 +1,220 @@
+"""Hardening: each class of failure of the audit (issue "Hardening") has a test here
+or beside its subject (test_params: None / numpy scalars; test_env: pickling and
+stepping a terminated episode; test_sensors: the Kalman design; test_agents:
+policy_kwargs never executed; test_properties: the property-based suite)."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import stepdamp_env  # noqa: F401  (registers the env)
+from stepdamp_env import io as sio
+from stepdamp_env.cli import main
+from stepdamp_env.env import StepperDampEnv
+from stepdamp_env.params import (ParameterError, current_loop_radius, fastest_plant_mode,
+                                 load_system, required_substeps)
+from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window, simulate
+
+
+# -- values in range that the integrator or the current loop cannot run --------------
+@pytest.mark.parametrize("override, fields", [
+    ({"J": 1e-9}, "D, J"), ({"D": 100.0}, "D, J"), ({"L": 1e-9}, "R, L"),
+    ({"Km": 100.0}, "Km, L, J")])
+def test_a_too_stiff_system_is_refused_with_the_substeps_it_needs(override, fields):
+    system = load_system("patent", override)
+    need = required_substeps(system)
+    with pytest.raises(ParameterError, match=f"{fields}.*substeps"):
+        simulate(system, speed_rps=1.0)
+    if need <= 1000:
+        run = simulate(system, profile=SpeedProfile(1.0),
+                       settings=RunSettings(substeps=need, window_s=0.05))
+        values = [v for v in run.metrics.to_dict().values() if isinstance(v, float)]
+        assert all(math.isfinite(v) for v in values)
+
+
+def test_the_substeps_follow_the_fastest_mode_and_the_env_refuses_likewise():
+    base = load_system("patent")
+    system = base.replace(D=5.0)             # D/J sets the fastest mode here
+    rate, fields = fastest_plant_mode(system)
+    assert fields == "D, J" and rate == pytest.approx(5.0 / base.motor.J, rel=1e-3)
+    h = 1.0 / base.drive.pwm_hz
+    assert required_substeps(system) == math.ceil(rate * h / 2.5) == 3
+    env = StepperDampEnv(motor=base.replace(J=1e-9))
+    with pytest.raises(ParameterError, match="substeps"):
+        env.reset(seed=0)
+    assert StepperDampEnv(motor=system, substeps=3).reset(seed=0)[0].shape
+
+
+def test_the_presets_need_one_substep_and_have_stable_current_loops():
+    for name in ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210"):
+        system = load_system(name)
+        assert required_substeps(system) == 1
+        assert current_loop_radius(system) < 1.0
+
+
+def test_an_unstable_current_loop_is_refused_and_a_lossless_winding_runs():
+    with pytest.raises(ParameterError, match="Ki_current.*unstable.*pole radius"):
+        load_system("patent", {"Ki_current": 1e9})
+    with pytest.raises(ParameterError, match="Kp_current.*unstable"):
+        load_system("patent", {"Kp_current": 1e6})
+    system = load_system("patent", {"R": 1e-300})        # was a ZeroDivisionError
+    for mode in ("open-loop", "servo"):
+        run = simulate(system, profile=SpeedProfile(1.0),
+                       settings=RunSettings(mode=mode, window_s=0.05))
+        assert math.isfinite(run.metrics.rms_velocity_error_rad_s)
+
+
+def test_extreme_env_rewards_stay_physical():
+    # Was -6.5e220: the stiff system is refused, the valid extreme one stays bounded.
+    env = StepperDampEnv(motor=load_system("patent", {"J": 1e-7}), speed_rps=1.0)
+    env.reset(seed=0)
+    for _ in range(50):
+        _, r, term, _, _ = env.step(np.ones(env.action_space.shape, np.float32))
+        assert math.isfinite(r) and abs(r) < 1e6
+        if term:
+            break
+
+
+# -- the env ---------------------------------------------------------------------------
+def test_stepping_after_truncation_needs_a_reset():
+    env = gym.make("StepperDamp-v0", max_episode_steps=3)
+    env.reset(seed=0)
+    zero = np.zeros(env.action_space.shape, np.float32)
+    flags = [env.step(zero)[3] for _ in range(3)]
+    assert flags == [False, False, True]
+    with pytest.raises(gym.error.ResetNeeded, match="truncated"):
+        env.step(zero)
+    env.reset()
+    assert env.step(zero)[3] is False
+
+
+# -- the command line ------------------------------------------------------------------
+WINDOW_START_1RPS = measuring_window(load_system("patent"), SpeedProfile(1.0), RunSettings())[0]
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["simulate", "--speed", "0"], "--speed"),
+    (["simulate", "--speed", "1", "--accel", "1e-300"], "--accel"),
+    (["simulate", "--speed", "1", "--duration", str(WINDOW_START_1RPS)], "--duration"),
+    (["simulate", "--speed", "1", "--set", "encoder_cpr=nan"], "encoder_cpr"),
+    (["simulate", "--speed", "1", "--set", "J=1e-9"], "substeps"),
+    (["simulate", "--speed", "1", "--set", "Ki_current=1e9"], "Ki_current"),
+    (["simulate", "--speed", "1", "--substeps", "nan"], "--substeps"),
+    (["simulate", "--speed", "1", "--trace", "/proc/x/t.npz"], "--trace"),
+    (["sweep", "--speeds", "1:0:1", "--out", "/tmp/x"], "--speeds"),
+    (["leaderboard", "--quick", "--out", "/proc/x"], "--out"),
+])
+def test_cli_mistakes_end_with_one_line_and_status_2(argv, option, capsys):
+    try:
+        rc = main(argv)
+    except SystemExit as exc:           # argparse's own errors
+        rc = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert "Traceback" not in "\n".join(err)
+    assert option in err[-1] and err[-1].startswith(("stepdamp", "usage"))
+
+
+def test_a_simulated_move_measures_the_move(capsys):
+    assert main(["simulate", "--speed", "2", "--move", "0.05", "--json"]) == 0
+    import json
+
+    out = json.loads(capsys.readouterr().out)
+    assert out["window_start_s"] == 0.0 and out["rms_velocity_error_rad_s"] > 0.0
+
+
+def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
+    script = textwrap.dedent(f"""
+        import sys
+        from stepdamp_env.cli import main
+        sys.exit(main(["sweep", "--speeds", "0.3:3.0:0.001", "--out", {str(tmp_path / 'o')!r},
+                       "--workers", "2", "--no-progress"]))
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "MPLBACKEND": "Agg"})
+    time.sleep(8.0)                     # inside the sweep (2701 runs, about a minute)
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == [
+        "stepdamp sweep: interrupted; earlier results are unchanged"]
+    assert not (tmp_path / "o").exists()
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
+
+
+# -- result files ------------------------------------------------------------------------
+def test_a_failed_run_leaves_the_previous_results_whole(tmp_path):
+    out = tmp_path / "res"
+    with sio.staged_directory(out, ("a.json", "b.png")) as stage:
+        sio.write_json(os.path.join(stage, "a.json"), {"run": 1})
+        sio.write_text(os.path.join(stage, "b.png"), "old")
+    (out / "mine.txt").write_text("keep")
+    with pytest.raises(RuntimeError):
+        with sio.staged_directory(out, ("a.json", "b.png")) as stage:
+            sio.write_json(os.path.join(stage, "a.json"), {"run": 2})
+            raise RuntimeError("killed before the figure")
+    assert sio.json.loads((out / "a.json").read_text()) == {"run": 1}
+    assert (out / "b.png").read_text() == "old"
+    with sio.staged_directory(out, ("a.json", "b.png")) as stage:
+        sio.write_json(os.path.join(stage, "a.json"), {"run": 3})
+    # The new set replaces the old one whole (no stale b.png) and keeps foreign files.
+    assert sorted(os.listdir(out)) == ["a.json", "mine.txt"]
+    assert sorted(os.listdir(tmp_path)) == ["res"]
+
+
+def test_leftovers_of_a_killed_run_are_removed(tmp_path):
+    out = tmp_path / "res"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    leftover = tmp_path / f".res.staging-{dead}"
+    leftover.mkdir()
+    (leftover / ".a.json.tmp").write_text("half")
+    with sio.staged_directory(out, ("a.json",)) as stage:
+        sio.write_json(os.path.join(stage, "a.json"), {})
+    assert sorted(os.listdir(tmp_path)) == ["res"]
+
+
+def test_files_and_their_directory_are_fsynced(tmp_path, monkeypatch):
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(sio.os, "fsync", lambda fd: (synced.append(os.readlink(
+        f"/proc/self/fd/{fd}")), real(fd)))
+    sio.write_text(tmp_path / "x.md", "text")
+    assert any(p.startswith(str(tmp_path / ".x.")) for p in synced)     # the data
+    assert str(tmp_path) in synced                                       # the rename
+
+
+def test_pool_workers_die_with_their_parent(tmp_path):
+    script = textwrap.dedent("""
+        import time
+        from stepdamp_env.parallel import pool_map
+        def slow(x):
+            time.sleep(60)
+        pool_map(slow, list(range(8)), 2)
+    """)
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    deadline = time.time() + 30
+    children: list[int] = []
+    while time.time() < deadline and len(children) < 2:
+        time.sleep(0.2)
+        out = subprocess.run(["pgrep", "-P", str(parent.pid)], capture_output=True, text=True)
+        children = [int(p) for p in out.stdout.split()]
+    assert len(children) == 2
+    parent.kill()
+    parent.wait()
+    time.sleep(1.0)
+    alive = [p for p in children if os.path.exists(f"/proc/{p}")
+             and open(f"/proc/{p}/stat").read().split()[2] != "Z"]
+    assert alive == []
