@@ -20,7 +20,7 @@ import pytest
 import stepdamp_env  # noqa: F401  (registers the env)
 from stepdamp_env import io as sio
 from stepdamp_env.cli import main
-from stepdamp_env.env import StepperDampEnv
+from stepdamp_env.env import EpisodeGuard, StepperDampEnv
 from stepdamp_env.params import (ParameterError, current_loop_radius, fastest_plant_mode,
                                  load_system, required_substeps)
 from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window, simulate
@@ -86,8 +86,8 @@ def test_extreme_env_rewards_stay_physical():
 
 
 # -- the env ---------------------------------------------------------------------------
-def test_stepping_after_truncation_needs_a_reset():
-    env = gym.make("StepperDamp-v0", max_episode_steps=3)
+def test_stepping_after_truncation_needs_a_reset_with_the_guard():
+    env = EpisodeGuard(gym.make("StepperDamp-v0", max_episode_steps=3))
     env.reset(seed=0)
     zero = np.zeros(env.action_space.shape, np.float32)
     flags = [env.step(zero)[3] for _ in range(3)]

@@ -25,8 +25,9 @@ from .registration import DEFAULT_EPISODE_STEPS, ENV_ID, register_envs
 from .sampler import EpisodeSampler
 from .scalar import StepperDampEnv
 from .vector import StepperDampVectorEnv
+from .wrappers import EpisodeGuard
 
 __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptions",
            "EpisodeSampler", "StepperDampEnv", "StepperDampVectorEnv", "register_envs",
            "OBS", "OBSERVATION_NAMES", "observation_names", "HARMONIC_SIN", "HARMONIC_COS",
-           "ACTION_NAMES", "default_action_scales"]
+           "ACTION_NAMES", "default_action_scales", "EpisodeGuard"]

@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-__all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "EPISODE_GUARD", "register_envs"]
+__all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "register_envs"]
 
 ENV_ID = "StepperDamp-v0"
 # 0.3 s at the default 1 kHz: the longest default ramp (3 rev/s at 50 rev/s^2)
 # takes 60 ms, which leaves at least 240 ms of held speed per episode.
 DEFAULT_EPISODE_STEPS = 300
-# Outside the TimeLimit: a step after truncation (or termination) raises ResetNeeded.
-EPISODE_GUARD = gym.envs.registration.WrapperSpec(
-    name="EpisodeGuard", entry_point="stepdamp_env.env.wrappers:EpisodeGuard", kwargs={})
 
 
 def register_envs() -> None:
@@ -27,5 +24,4 @@ def register_envs() -> None:
         entry_point="stepdamp_env.env.scalar:StepperDampEnv",
         vector_entry_point="stepdamp_env.env.vector:StepperDampVectorEnv",
         max_episode_steps=DEFAULT_EPISODE_STEPS,
-        additional_wrappers=(EPISODE_GUARD,),
     )

@@ -94,14 +94,20 @@ class StepperDampEnv(gym.Env):
     ``TimeLimit`` after ``max_episode_steps`` = 300 steps (0.3 s at 1 kHz: the
     longest default ramp takes 60 ms, leaving at least 240 ms held). If you
     change ``agent_hz``, pass ``max_episode_steps`` to ``gym.make`` to match.
-    Stepping a terminated episode raises ``gymnasium.error.ResetNeeded``.
+    Stepping a terminated episode raises ``gymnasium.error.ResetNeeded``; to have
+    the same after truncation, wrap the made env:
+    ``EpisodeGuard(gym.make("StepperDamp-v0"))`` (gymnasium's ``TimeLimit``
+    itself steps on).
     A copy (``pickle``, ``copy.deepcopy``) is a working env with the same future.
     """ + OPTIONS_DOC + """
     ## Version History
 
     * v0: initial version (``action_mode="harmonic+current"`` added later;
       the other modes are unchanged). Package 0.2: stepping after termination
-      raises instead of going on silently; copies work (rollouts unchanged).
+      raises instead of going on silently; copies work; a system one RK4 step
+      per PWM period cannot integrate, or an unstable current loop, is refused
+      at reset with the substeps it needs; ``step_trace``; ``EpisodeGuard``
+      (rollouts unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}

@@ -13,10 +13,11 @@ class EpisodeGuard(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Raise ``gymnasium.error.ResetNeeded`` on ``step()`` after ``terminated`` or
     ``truncated`` until ``reset()``.
 
-    ``gym.make`` puts it outside the ``TimeLimit`` wrapper (it is in the
-    registered spec's ``additional_wrappers``), so it sees the truncation that
-    only the time limit knows; the scalar env itself refuses steps after its
-    own termination.
+    Put it outside the ``TimeLimit`` (``EpisodeGuard(gym.make("StepperDamp-v0"))``):
+    truncation is known only to gymnasium's time limit, which lets an env step
+    on past it. The scalar env itself refuses steps after its own termination.
+    (It cannot be in v0's registered spec: gymnasium's ``make_vec`` refuses a
+    native vector entry point when the spec lists additional wrappers.)
     """
 
     def __init__(self, env: gym.Env) -> None:
