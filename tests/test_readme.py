@@ -1,0 +1,44 @@
+"""The README states what the code does: its environment tables name the real
+entries, and its result table is what `stepdamp report` prints for the committed
+main-job results (never copied by hand)."""
+
+from __future__ import annotations
+
+import os
+import re
+
+from stepdamp_env.bench.report import load_leaderboard, render_results
+from stepdamp_env.env import ACTION_NAMES, observation_names
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+README = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+RESULTS = os.path.join(ROOT, "docs", "results")
+
+
+def test_observation_table_names_every_entry_in_order():
+    section = README[README.index("**Observations**"):README.index("**Actions**")]
+    named = re.findall(r"`([a-z_0-9*]+)`", section)
+    expected = [n for n in observation_names(privileged=True)
+                if not n.startswith("last_action_")]
+    listed = [n for n in named if n in expected]
+    assert listed == expected
+    assert "last_action_*" in named
+
+
+def test_action_table_lists_every_mode():
+    section = README[README.index("**Actions**"):README.index("**Reward**")]
+    for mode, names in ACTION_NAMES.items():
+        assert f"| `{mode}`" in section and f"| {len(names)} |" in section
+
+
+def test_results_table_is_generated_from_the_committed_leaderboard():
+    board = load_leaderboard(RESULTS)
+    table = "\n".join(render_results(board, suite) for suite in board["protocol"]["suites"])
+    assert table.strip() in README
+    assert board["protocol"]["variant"] == "full"
+
+
+def test_overview_figure_is_the_committed_one():
+    assert "](docs/figures/overview.png)" in README
+    with open(os.path.join(ROOT, "docs", "figures", "overview.png"), "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
