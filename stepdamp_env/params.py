@@ -86,19 +86,35 @@ class Allowed:
         """Raise ``ParameterError`` naming ``name`` and this range if ``value`` is outside."""
         # numbers.Real admits numpy scalars; bool is a number only by accident.
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-            raise ParameterError(f"{name} must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ParameterError(f"{name} must be finite, got {value!r}")
-        if self.integer and float(value) != int(value):
-            raise ParameterError(f"{name} must be an integer, got {value!r}")
-        low, high = self.low, self.high
-        lo_ok = value > low if self.low_open else value >= low
-        hi_ok = value < high if self.high_open else value <= high
+            raise ParameterError(f"{name} must be a number, got {_show(value)}")
+        lo_b = "(" if self.low_open else "["
+        hi_b = ")" if self.high_open else "]"
+        outside = (f"{name}={_show(value)} is outside its allowed range "
+                   f"{lo_b}{self.low}, {self.high}{hi_b}")
+        try:
+            # As a Python float: a float32 -2*pi must not compare in float32 arithmetic.
+            number = float(value)
+        except OverflowError:
+            raise ParameterError(outside) from None
+        if not math.isfinite(number):
+            raise ParameterError(f"{name} must be finite, got {_show(value)}")
+        if self.integer and number != int(value):
+            raise ParameterError(f"{name} must be an integer, got {_show(value)}")
+        lo_ok = number > self.low if self.low_open else number >= self.low
+        hi_ok = number < self.high if self.high_open else number <= self.high
         if not (lo_ok and hi_ok):
-            lo_b = "(" if self.low_open else "["
-            hi_b = ")" if self.high_open else "]"
-            raise ParameterError(
-                f"{name}={value!r} is outside its allowed range {lo_b}{low}, {high}{hi_b}")
+            raise ParameterError(outside)
+
+
+def _show(value: Any) -> str:
+    """A value for a one-line message (a 300-digit integer in short)."""
+    text = repr(value)
+    if len(text) <= 40:
+        return text
+    try:
+        return f"{float(value):.6g}"
+    except (OverflowError, TypeError, ValueError):
+        return text[:37] + "..."
 
 
 def allowed(low: float, high: float, *, low_open: bool = False, high_open: bool = False,
@@ -144,10 +160,10 @@ class MotorParams:
     """
 
     R: float = field(metadata=allowed(0.0, 1e3, low_open=True))
-    L: float = field(metadata=allowed(0.0, 10.0, low_open=True))
-    Km: float = field(metadata=allowed(0.0, 100.0, low_open=True))
+    L: float = field(metadata=allowed(1e-12, 10.0))
+    Km: float = field(metadata=allowed(1e-12, 100.0))
     Nr: int = field(metadata=allowed(1, 1000, integer=True))
-    J: float = field(metadata=allowed(0.0, 10.0, low_open=True))
+    J: float = field(metadata=allowed(1e-12, 10.0))
     D: float = field(metadata=allowed(0.0, 100.0))
     Kd1: float = field(metadata=allowed(0.0, 100.0))
     Kd2: float = field(metadata=allowed(0.0, 100.0))
@@ -256,6 +272,20 @@ class SystemParams:
             raise ParameterError(
                 f"velocity_cutoff_hz={self.servo.velocity_cutoff_hz} is outside its allowed "
                 f"range (0, pwm_hz/2 = {self.drive.pwm_hz / 2})")
+        kp, _ = self.current_gains()
+        if not kp >= MIN_KP_CURRENT:
+            raise ParameterError(
+                f"current_bandwidth_hz={self.drive.current_bandwidth_hz:.4g} Hz (or Kp_current) "
+                f"gives Kp_current={kp:.4g} V/A; allowed [{MIN_KP_CURRENT:g}, 1e6] V/A: the loop "
+                "must control the current")
+        kp, ki = self.current_gains()
+        # Back-calculation anti-windup pulls the integrator at dt*Ki/Kp per period.
+        aw = ki / (kp * self.drive.pwm_hz)
+        if not aw < 2.0:
+            raise ParameterError(
+                f"Kp_current={kp:.4g} V/A with Ki_current={ki:.4g} V/(A*s) make the anti-windup "
+                f"unstable (Ki_current/(Kp_current*pwm_hz) = {aw:.4g}, allowed < 2); raise "
+                "Kp_current or leave both unset")
         radius = current_loop_radius(self)
         # A pole at 1 within rounding is the integrator of a lossless winding (R -> 0).
         if not radius <= 1.0 + 1e-9:
@@ -321,8 +351,11 @@ class SystemParams:
         x = self.motor.R * dt / self.motor.L
         # 1 - exp(-x) as v0 computed it; expm1 only where that cancels to 0.
         one_minus_pole = 1.0 - math.exp(-x) if x > 1e-8 else -math.expm1(-x)
-        kp = g * self.motor.R / one_minus_pole
-        ki = kp * one_minus_pole / dt
+        if one_minus_pole > 0.0:
+            kp = g * self.motor.R / one_minus_pole
+            ki = kp * one_minus_pole / dt
+        else:                           # R*dt/L underflows: the lossless limit
+            kp, ki = g * self.motor.L / dt, 0.0
         if self.drive.Kp_current is not None:
             kp = self.drive.Kp_current
         if self.drive.Ki_current is not None:
@@ -371,6 +404,9 @@ def current_loop_radius(system: SystemParams) -> float:
     return radius if math.isfinite(radius) else math.inf
 
 
+#: Smallest current-loop gain (V/A) a drive may have; the anti-windup divides by it.
+MIN_KP_CURRENT = 1e-6
+
 #: RK4's stability region holds the left half-disc |h*lambda| <= 2.5 (|R(z)| <= 0.873 there).
 RK4_STABLE_RADIUS = 2.5
 
@@ -403,9 +439,11 @@ def fastest_plant_mode(system: SystemParams) -> tuple[float, str]:
     return rate, max(parts, key=parts.get)
 
 
-def required_substeps(system: SystemParams) -> int:
-    """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably."""
+def required_substeps(system: SystemParams, speed_rps: float = 0.0) -> int:
+    """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably,
+    and the windings' back-EMF rotation Nr*omega at ``speed_rps``."""
     rate, _ = fastest_plant_mode(system)
+    rate = max(rate, 2.0 * math.pi * abs(speed_rps) * system.motor.Nr)
     if not math.isfinite(rate):
         return 2 ** 62
     return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))
@@ -490,6 +528,9 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
     elif isinstance(spec, Mapping):
         system = SystemParams.from_dict(spec)
     else:
+        if not isinstance(spec, (str, os.PathLike)):
+            raise ParameterError(f"motor must be a preset name, a motor .json file, a mapping "
+                                 f"or SystemParams, got {type(spec).__name__} {_show(spec)}")
         text = os.fspath(spec)
         if text.endswith(".json") or os.path.sep in text or os.path.isfile(text):
             if os.path.isdir(text):

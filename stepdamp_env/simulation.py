@@ -72,9 +72,11 @@ class SpeedProfile:
 
     def __post_init__(self) -> None:
         _check_choice("kind", self.kind, ("constant", "move"))
-        if not math.isfinite(self.speed_rps) or abs(self.speed_rps) > 1e3:
+        if not math.isfinite(self.speed_rps) or abs(self.speed_rps) > 1e3 or \
+                0.0 < abs(self.speed_rps) < 1e-6:
             raise ParameterError(
-                f"speed_rps={self.speed_rps!r} is outside its allowed range [-1000, 1000]")
+                f"speed_rps={self.speed_rps!r} is outside its allowed range: 0 (at rest) or "
+                "1e-6 <= |speed_rps| <= 1000")
         _check_positive("accel_rps2", self.accel_rps2)
         if self.kind == "move":
             _check_positive("speed_rps (magnitude of a move)", abs(self.speed_rps))
@@ -175,7 +177,7 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
                  window_start_s: float = 0.0) -> np.ndarray:
     """The kernel's configuration vector (see ``kernel.C_*``)."""
     m, d, sv = system.motor, system.drive, system.servo
-    check_integrable(system, settings.substeps)
+    check_integrable(system, settings.substeps, profile.speed_rps)
     c = np.zeros(K.N_CONFIG)
     c[K.C_R] = m.R
     c[K.C_L] = m.L
@@ -219,17 +221,27 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     c[K.C_I_OFFSET_B] = d.current_offset_b
     c[K.C_NOISE_SEED] = settings.noise_seed
     c[K.C_VEL_EST] = VELOCITY_ESTIMATORS[settings.velocity_estimator]
-    c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER], sv.kalman_accel_std)
+    # Designed only when used: the design can be slow or fail for extreme encoders.
+    if settings.velocity_estimator == "kalman":
+        c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER],
+                                                         sv.kalman_accel_std)
     return c
 
 
-def check_integrable(system: SystemParams, substeps: int) -> None:
+def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0) -> None:
     """Refuse, before a run, a system whose fastest plant mode ``substeps`` RK4
-    steps per PWM period cannot integrate stably (it would end in NaN or 1e200)."""
-    need = required_substeps(system)
+    steps per PWM period cannot integrate stably (it would end in NaN or 1e200).
+
+    The electrical rotation Nr*omega of the windings' back-EMF at ``speed_rps``
+    counts as a mode too: the stator-frame currents oscillate at it.
+    """
+    rate, fields = fastest_plant_mode(system)
+    rotation = 2.0 * math.pi * abs(speed_rps) * system.motor.Nr
+    if rotation > rate:
+        rate, fields = rotation, "the speed command with Nr"
+    need = required_substeps(system, speed_rps)
     if substeps >= need:
         return
-    rate, fields = fastest_plant_mode(system)
     limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
     advice = (f"set substeps >= {need} (allowed up to 1000)" if need <= 1000
               else "no allowed substeps (at most 1000) integrates it; change those fields")
@@ -314,7 +326,8 @@ class RunMetrics:
 
 def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
                               speed_rps: float) -> RunMetrics:
-    """Turn the kernel's sums into :class:`RunMetrics`."""
+    """Turn the kernel's sums into :class:`RunMetrics` (the ``*_norm`` metrics,
+    relative to the command speed, are NaN for a command at rest)."""
     n = acc[K.A_COUNT]
     if n <= 0:
         raise ParameterError("the measuring window holds no sample: the run ended before it "

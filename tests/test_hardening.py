@@ -49,9 +49,8 @@ def test_the_substeps_follow_the_fastest_mode_and_the_env_refuses_likewise():
     assert fields == "D, J" and rate == pytest.approx(5.0 / base.motor.J, rel=1e-3)
     h = 1.0 / base.drive.pwm_hz
     assert required_substeps(system) == math.ceil(rate * h / 2.5) == 3
-    env = StepperDampEnv(motor=base.replace(J=1e-9))
-    with pytest.raises(ParameterError, match="substeps"):
-        env.reset(seed=0)
+    with pytest.raises(ParameterError, match="substeps"):      # at construction
+        StepperDampEnv(motor=base.replace(J=1e-9))
     assert StepperDampEnv(motor=system, substeps=3).reset(seed=0)[0].shape
 
 
@@ -63,7 +62,7 @@ def test_the_presets_need_one_substep_and_have_stable_current_loops():
 
 
 def test_an_unstable_current_loop_is_refused_and_a_lossless_winding_runs():
-    with pytest.raises(ParameterError, match="Ki_current.*unstable.*pole radius"):
+    with pytest.raises(ParameterError, match="Ki_current.*unstable"):
         load_system("patent", {"Ki_current": 1e9})
     with pytest.raises(ParameterError, match="Kp_current.*unstable"):
         load_system("patent", {"Kp_current": 1e6})
@@ -137,13 +136,13 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
     script = textwrap.dedent(f"""
         import sys
         from stepdamp_env.cli import main
-        sys.exit(main(["sweep", "--speeds", "0.3:3.0:0.001", "--out", {str(tmp_path / 'o')!r},
+        sys.exit(main(["sweep", "--speeds", "0.3:3.0:0.0001", "--out", {str(tmp_path / 'o')!r},
                        "--workers", "2", "--no-progress"]))
     """)
     proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "MPLBACKEND": "Agg"})
-    time.sleep(8.0)                     # inside the sweep (2701 runs, about a minute)
+    time.sleep(6.0)                     # inside the sweep (27001 runs, about a minute)
     assert proc.poll() is None
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)

@@ -33,7 +33,7 @@ def test_datasheet_presets_reproduce_their_holding_torque():
 
 
 @pytest.mark.parametrize("field,value,fragment", [
-    ("L", -1e-3, "L=-0.001 is outside its allowed range (0.0, 10.0]"),
+    ("L", -1e-3, "L=-0.001 is outside its allowed range [1e-12, 10.0]"),
     ("R", 0.0, "R=0.0 is outside"),
     ("Nr", 50.5, "Nr must be an integer"),
     ("J", math.nan, "J must be finite"),

@@ -66,7 +66,10 @@ def check_number(name: str, value: Any, low: float, high: float, *, low_open: bo
     """``value`` as a float, or a ParameterError naming ``name`` and the range."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ParameterError(f"{name} must be a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:               # an integer beyond float range
+        v = math.inf
     ok = math.isfinite(v) and (v > low if low_open else v >= low) and \
         (v < high if high_open else v <= high)
     if not ok:
@@ -133,14 +136,14 @@ class EnvOptions:
                 raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
                                      "'nominal'] or a FeedforwardModel")
         if self.speed_rps is not None:
-            check_number("speed_rps", self.speed_rps, 0.0, 100.0, low_open=True)
+            check_number("speed_rps", self.speed_rps, 1e-6, 100.0)
         lo, hi = _pair("speed_range_rps", self.speed_range_rps)
-        if not 0.0 < lo <= hi <= 100.0:
-            raise _bad("speed_range_rps", self.speed_range_rps, "0 < low <= high <= 100 (rev/s)")
+        if not 1e-6 <= lo <= hi <= 100.0:
+            raise _bad("speed_range_rps", self.speed_range_rps, "1e-6 <= low <= high <= 100 (rev/s)")
         check_number("resonance_prob", self.resonance_prob, 0.0, 1.0)
         check_number("resonance_spread", self.resonance_spread, 0.0, 0.9)
         check_number("accel_rps2", self.accel_rps2, 0.0, 1e5, low_open=True)
-        check_number("agent_hz", self.agent_hz, 0.0, 1e6, low_open=True)
+        check_number("agent_hz", self.agent_hz, 1.0, 1e6)
         if self.harmonic_scale_nm is not None:
             check_number("harmonic_scale_nm", self.harmonic_scale_nm, 0.0, 100.0, low_open=True)
         if self.current_scale_a is not None:

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from .. import kernel as K
 from ..params import (RESONANCE_HARMONICS, FeedforwardModel, ParameterError, SystemParams,
                       load_system, predicted_resonances)
-from ..simulation import RunSettings, SpeedProfile, build_config, initial_state
+from ..simulation import RunSettings, SpeedProfile, build_config, check_integrable, initial_state
 from . import compiled as C
 from .layout import ACTION_NAMES, OBS
 from .options import PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_action_scales
@@ -41,6 +41,12 @@ class EpisodeSampler:
     def __init__(self, options: EnvOptions) -> None:
         self._options = o = options
         self._nominal: SystemParams = load_system(o.motor, o.overrides)
+        # Refused at construction, not at the first reset (a randomised draw can
+        # still be refused at its reset).
+        top = o.speed_rps if o.speed_rps is not None else min(100.0, max(
+            o.speed_range_rps[1], (1.0 + o.resonance_spread)
+            * max(self._nominal.predicted_resonances_rps().values())))
+        check_integrable(self._nominal, o.substeps, top)
         self._ranges = o.randomization
         drive = self._nominal.drive
         ratio = drive.pwm_hz / o.agent_hz
@@ -149,7 +155,8 @@ class EpisodeSampler:
             h = RESONANCE_HARMONICS[int(rng.integers(len(RESONANCE_HARMONICS)))]
             f = predicted_resonances(system)[h]
             spread = o.resonance_spread
-            return float(min(f * rng.uniform(1.0 - spread, 1.0 + spread), 100.0)), h
+            # Clipped to what a speed command may be (rev/s); in range it is untouched.
+            return float(min(max(f * rng.uniform(1.0 - spread, 1.0 + spread), 1e-6), 100.0)), h
         lo, hi = o.speed_range_rps
         return float(rng.uniform(lo, hi)), 0
 
