@@ -272,13 +272,12 @@ class SystemParams:
             raise ParameterError(
                 f"velocity_cutoff_hz={self.servo.velocity_cutoff_hz} is outside its allowed "
                 f"range (0, pwm_hz/2 = {self.drive.pwm_hz / 2})")
-        kp, _ = self.current_gains()
+        kp, ki = self.current_gains()
         if not kp >= MIN_KP_CURRENT:
             raise ParameterError(
                 f"current_bandwidth_hz={self.drive.current_bandwidth_hz:.4g} Hz (or Kp_current) "
                 f"gives Kp_current={kp:.4g} V/A; allowed [{MIN_KP_CURRENT:g}, 1e6] V/A: the loop "
                 "must control the current")
-        kp, ki = self.current_gains()
         # Back-calculation anti-windup pulls the integrator at dt*Ki/Kp per period.
         aw = ki / (kp * self.drive.pwm_hz)
         if not aw < 2.0:
@@ -289,7 +288,6 @@ class SystemParams:
         radius = current_loop_radius(self)
         # A pole at 1 within rounding is the integrator of a lossless winding (R -> 0).
         if not radius <= 1.0 + 1e-9:
-            kp, ki = self.current_gains()
             hint = ("leave Kp_current and Ki_current unset to derive stable gains"
                     if self.drive.Kp_current is not None or self.drive.Ki_current is not None
                     else "lower current_bandwidth_hz")
@@ -411,8 +409,10 @@ MIN_KP_CURRENT = 1e-6
 RK4_STABLE_RADIUS = 2.5
 
 
-def fastest_plant_mode(system: SystemParams) -> tuple[float, str]:
-    """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode.
+def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[float, str]:
+    """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode,
+    or of the windings' back-EMF rotation Nr*omega at ``speed_rps`` if faster
+    (the stator-frame currents oscillate at it).
 
     The Jacobian of (theta, omega, ia, ib) (docs/model.md, "The plant"), written
     in currents along and across the rotor's electrical angle x: the current
@@ -436,14 +436,16 @@ def fastest_plant_mode(system: SystemParams) -> tuple[float, str]:
     parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
              "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
              "Km, L, J": m.Km / math.sqrt(m.L * m.J)}
+    rotation = 2.0 * math.pi * abs(speed_rps) * m.Nr
+    if rotation > rate:
+        return rotation, "the speed command with Nr"
     return rate, max(parts, key=parts.get)
 
 
 def required_substeps(system: SystemParams, speed_rps: float = 0.0) -> int:
     """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably,
     and the windings' back-EMF rotation Nr*omega at ``speed_rps``."""
-    rate, _ = fastest_plant_mode(system)
-    rate = max(rate, 2.0 * math.pi * abs(speed_rps) * system.motor.Nr)
+    rate, _ = fastest_plant_mode(system, speed_rps)
     if not math.isfinite(rate):
         return 2 ** 62
     return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))

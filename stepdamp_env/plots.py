@@ -12,8 +12,9 @@ from .params import SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 from .sweep import SweepResult
 
-__all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "DAMPING_STYLES", "plot_sweep",
-           "plot_velocity_error_traces", "pyplot", "save_figure", "trace_speeds"]
+__all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "DAMPING_STYLES", "finish_ripple_axes",
+           "legend_outside", "mark_resonances", "plot_sweep", "plot_velocity_error_traces",
+           "pyplot", "save_figure", "trace_speeds"]
 
 #: Colours and markers of policies in every figure (Tableau 10 without grey, which
 #: is kept for annotations; black is the undamped reference).
@@ -35,12 +36,30 @@ def pyplot():
 
 
 def save_figure(fig, path: str | os.PathLike[str]) -> None:
-    """Save ``fig`` as a PNG, atomically."""
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    """Lay out ``fig``, save it as a PNG atomically, and close it."""
+    fig.tight_layout()
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        pyplot().close(fig)
 
 
-def _mark_resonances(ax, resonances) -> None:
+def legend_outside(ax, fontsize: float = 8) -> None:
+    """The legend right of the axes, off the data."""
+    ax.legend(fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+
+
+def finish_ripple_axes(ax, title: str) -> None:
+    """Labels, title, grid and legend of a ripple-against-speed axis."""
+    ax.set_xlabel("command speed (rev/s)")
+    ax.set_ylabel("RMS velocity error (rad/s)")
+    ax.set_title(title, pad=14)
+    ax.grid(True, which="both", alpha=0.3)
+    legend_outside(ax)
+
+
+def mark_resonances(ax, resonances) -> None:
     """Dashed lines at the predicted resonances, labelled above the axes (off the data)."""
     for h, v in resonances.items():
         ax.axvline(v, color="grey", ls="--", lw=0.8, zorder=0)
@@ -75,15 +94,9 @@ def plot_sweep(sweeps: Sequence[SweepResult], path: str | os.PathLike[str],
                         color="grey", zorder=0)
     system = sweeps[0].system
     if any(sw.settings.mode == "open-loop" for sw in sweeps):
-        _mark_resonances(ax, system.predicted_resonances_rps())
-    ax.set_xlabel("command speed (rev/s)")
-    ax.set_ylabel("RMS velocity error (rad/s)")
-    ax.set_title(title or f"Resonance sweep: {system.name}", pad=14)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    fig.tight_layout()
+        mark_resonances(ax, system.predicted_resonances_rps())
+    finish_ripple_axes(ax, title or f"Resonance sweep: {system.name}")
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def plot_velocity_error_traces(system: SystemParams, settings: RunSettings | Sequence[RunSettings],
@@ -114,13 +127,11 @@ def plot_velocity_error_traces(system: SystemParams, settings: RunSettings | Seq
         ax.set_ylabel("rad/s", fontsize=8)
         ax.set_title(f"{v:.3g} rev/s", fontsize=8, loc="left")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        legend_outside(ax, fontsize=7)
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
     fig.suptitle(title or f"Velocity error w_cmd - w: {system.name}, {runs[0].mode}",
                  fontsize=10)
-    fig.tight_layout()
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def trace_speeds(system: SystemParams, speeds: np.ndarray) -> list[float]:

@@ -232,16 +232,13 @@ def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0
     """Refuse, before a run, a system whose fastest plant mode ``substeps`` RK4
     steps per PWM period cannot integrate stably (it would end in NaN or 1e200).
 
-    The electrical rotation Nr*omega of the windings' back-EMF at ``speed_rps``
-    counts as a mode too: the stator-frame currents oscillate at it.
+    The back-EMF rotation Nr*omega at ``speed_rps`` counts as a mode too
+    (:func:`~stepdamp_env.params.fastest_plant_mode`).
     """
-    rate, fields = fastest_plant_mode(system)
-    rotation = 2.0 * math.pi * abs(speed_rps) * system.motor.Nr
-    if rotation > rate:
-        rate, fields = rotation, "the speed command with Nr"
     need = required_substeps(system, speed_rps)
     if substeps >= need:
         return
+    rate, fields = fastest_plant_mode(system, speed_rps)
     limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
     advice = (f"set substeps >= {need} (allowed up to 1000)" if need <= 1000
               else "no allowed substeps (at most 1000) integrates it; change those fields")

@@ -21,7 +21,8 @@ import numpy as np
 from .. import kernel as K
 from ..io import atomic_path, write_json, write_text
 from ..params import FeedforwardModel
-from ..plots import POLICY_COLOURS, POLICY_MARKERS, pyplot, save_figure
+from ..plots import (POLICY_COLOURS, POLICY_MARKERS, finish_ripple_axes, legend_outside,
+                     mark_resonances, pyplot, save_figure)
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, Protocol
@@ -133,15 +134,6 @@ def _suite_rows(board: Mapping[str, Any], suite: str) -> list[Mapping[str, Any]]
     return sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
 
 
-def _mark_resonances(ax, resonances: Mapping[Any, float]) -> None:
-    """Dashed lines at the predicted resonances, labelled above the axes."""
-    for h, v in resonances.items():
-        ax.axvline(v, color="grey", ls="--", lw=0.8, zorder=0)
-        ax.annotate(f"h={h}", (v, 1.0), xycoords=("data", "axes fraction"),
-                    xytext=(0, 2), textcoords="offset points", ha="center", va="bottom",
-                    fontsize=8, color="grey", annotation_clip=False)
-
-
 def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
     """RMS ripple against speed per entry, for the representative motor and seed.
 
@@ -166,15 +158,9 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
                     marker=marker, ms=4 + 1.2 * k, mfc="none", lw=1.0,
                     zorder=3 + n - k, label=f"{e['rank']}. {e['name']}")
     if suite == "open-loop":
-        _mark_resonances(ax, info["predicted_resonances_rps"])
-    ax.set_xlabel("command speed (rev/s)")
-    ax.set_ylabel("RMS velocity error (rad/s)")
-    ax.set_title(f"{suite}: {motor}, seed {seed}", pad=14)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    fig.tight_layout()
+        mark_resonances(ax, info["predicted_resonances_rps"])
+    finish_ripple_axes(ax, f"{suite}: {motor}, seed {seed}")
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int) -> MotorKnowledge:
@@ -228,15 +214,9 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
         colour, marker = styles[e["name"]]
         ax.semilogy(speeds, ripple, color=colour, marker=marker, ms=4, mfc="none", lw=1.2,
                     label=f"{e['name']}\n(headline {e['headline']['iqm']:.3g})")
-    _mark_resonances(ax, res)
-    ax.set_xlabel("command speed (rev/s)")
-    ax.set_ylabel("RMS velocity error (rad/s)")
-    ax.set_title(f"Velocity ripple, {suite}: {motor.name}, seed {seed}", pad=14)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    fig.tight_layout()
+    mark_resonances(ax, res)
+    finish_ripple_axes(ax, f"Velocity ripple, {suite}: {motor.name}, seed {seed}")
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite: str,
@@ -286,13 +266,11 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
         ax.set_ylabel("w_cmd - w (rad/s)", fontsize=8)
         ax.set_title(f"h = {h} resonance: {v:.3g} rev/s", fontsize=9, loc="left")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        legend_outside(ax, fontsize=7)
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
     fig.suptitle(f"Velocity error at the resonances: {motor.name}, {suite}, seed {seed}",
                  fontsize=10)
-    fig.tight_layout()
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
