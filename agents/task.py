@@ -1,0 +1,50 @@
+"""The residual task: its Gymnasium id and the reference configuration.
+
+``gym.make("StepperDampResidual-v0")`` (registered on importing
+:mod:`stepdamp_agents.residual`) is a ``StepperDamp-v0`` drive wrapped as the
+residual problem (:class:`stepdamp_agents.residual.ResidualWrapper`). Its
+defaults are the reference agents' task, so an env made without arguments is
+the task they were trained on; rl-baselines3-zoo relies on that, since it builds
+its evaluation env without the YAML's ``env_kwargs``. ``stepdamp train`` starts
+from the same defaults and applies the YAML's ``env_kwargs`` on top.
+
+This module imports neither torch nor SB3.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["RESIDUAL_ENV_ID", "REFERENCE_DRIVE", "REFERENCE_RESIDUAL", "task_kwargs"]
+
+RESIDUAL_ENV_ID = "StepperDampResidual-v0"
+
+#: ``StepperDamp-v0`` options of the training drive (``max_episode_steps`` is
+#: gym.make's time limit): open loop at 4 kHz, the protocol's sensors, the exact
+#: feedforward model, resonant speeds with probability 0.75, ripple-only reward.
+REFERENCE_DRIVE: dict[str, Any] = {
+    "motor": "patent", "randomize": True, "mode": "open-loop",
+    "action_mode": "harmonic+current", "agent_hz": 4000, "velocity_estimator": "kalman",
+    "estimate": "exact", "resonance_prob": 0.75, "current_penalty": 0.0,
+    "max_episode_steps": 1600,
+    "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
+}
+
+#: The residual on top of the base controller: one damping gain per 400 env steps
+#: (0.1 s of drive time at 4 kHz), residual current up to 0.05 of the current scale.
+REFERENCE_RESIDUAL: dict[str, Any] = {
+    "base": "ff-delay-comp", "residual_action": "feedback", "hold_steps": 400,
+    "feedback_gain": 0.1, "residual_scale": 0.05, "reward_scale": 1000.0,
+}
+
+
+def task_kwargs(env_kwargs: dict[str, Any] | None = None
+                ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(drive options, residual kwargs): the reference updated by ``env_kwargs``,
+    whose ``drive`` entry updates the drive options key by key and whose other
+    keys update the residual kwargs."""
+    given = dict(env_kwargs or {})
+    drive = given.pop("drive", None) or {}
+    if not isinstance(drive, dict):
+        raise ValueError(f"env_kwargs drive={drive!r} must be a mapping of StepperDamp-v0 options")
+    return {**REFERENCE_DRIVE, **drive}, {**REFERENCE_RESIDUAL, **given}
