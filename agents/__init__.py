@@ -4,6 +4,7 @@ SAC, TD3 and PPO from stable-baselines3, as residuals on the model-based baselin
 
 * :mod:`stepdamp_agents.residual`: zero-residual policies, zero-residual warm-up,
   the residual training envs and the action scaling;
+* :mod:`stepdamp_agents.task`: the residual task's id and reference configuration;
 * :mod:`stepdamp_agents.train`: the training script (``stepdamp train``);
 * :mod:`stepdamp_agents.policy`: a trained agent as a leaderboard policy;
 * ``hyperparams/{sac,td3,ppo}.yml``: rl-baselines3-zoo hyperparameters;
@@ -16,9 +17,10 @@ SAC, TD3 and PPO from stable-baselines3, as residuals on the model-based baselin
 (``ppo-residual``) and a loader for models ``stepdamp train`` writes, so
 ``stepdamp leaderboard --policy runs/ppo/best.zip`` runs one with its own
 options. Importing :mod:`stepdamp_agents.residual` registers
-``"ResidualMlpPolicy"`` in SB3's policy aliases (the zoo: ``--gym-packages
-stepdamp_env stepdamp_agents.residual``). This package itself imports neither
-torch nor SB3 (``stepdamp --help`` stays fast), nor does ``import stepdamp_env``.
+``"ResidualMlpPolicy"`` in SB3's policy aliases and the residual task
+``StepperDampResidual-v0`` with Gymnasium (:mod:`stepdamp_agents.task`; the
+zoo: ``--env StepperDampResidual-v0 --gym-packages stepdamp_agents.residual``).
+This package itself imports neither torch nor SB3 (``stepdamp --help`` stays fast), nor does ``import stepdamp_env``.
 """
 
 from __future__ import annotations

@@ -88,15 +88,19 @@ from stable_baselines3.td3.policies import TD3Policy
 
 from stepdamp_baselines.harmonic import harmonic_actions, phasors, torque_paths
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
-from stepdamp_env.env import DEFAULT_EPISODE_STEPS, OBS, StepperDampEnv, StepperDampVectorEnv
+from stepdamp_env.env import (DEFAULT_EPISODE_STEPS, ENV_ID, OBS, StepperDampEnv,
+                              StepperDampVectorEnv)
 from stepdamp_env.params import FeedforwardModel, SystemParams
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
+
+from .task import RESIDUAL_ENV_ID, task_kwargs
 
 __all__ = ["BASES", "RESIDUAL_ACTIONS", "N_FEATURES", "context_features", "velocity_feature_gain",
            "EpisodeConstants", "ResidualSACPolicy", "ResidualTD3Policy",
            "ResidualPPOPolicy", "ResidualSAC", "ResidualTD3", "ResidualPPO", "ALGOS", "POLICIES",
            "register_policy_aliases", "ResidualVecEnv", "HeldFeedbackVecEnv", "feedback_current",
-           "ResidualWrapper", "make_residual_vec_env"]
+           "ResidualWrapper", "make_residual_vec_env", "make_residual_env",
+           "register_residual_env", "RESIDUAL_ENV_ID"]
 
 BASES = ("patent-ff", "ff-delay-comp")
 # What the agent's residual acts on, and the env action mode that carries it.
@@ -524,8 +528,9 @@ class HeldFeedbackVecEnv(_WholeVecEnv):
 
 
 class ResidualWrapper(gym.Wrapper):
-    """The same residual problem on a scalar ``StepperDamp-v0`` (``gym.make``), for
-    rl-baselines3-zoo (``env_wrapper``). Kwargs as :class:`ResidualVecEnv`; the
+    """The same residual problem on a scalar ``StepperDamp-v0`` (``gym.make``); the
+    env of ``StepperDampResidual-v0`` (:func:`make_residual_env`, rl-baselines3-zoo).
+    Kwargs as :class:`ResidualVecEnv`; the
     env's ``action_mode`` must be that of ``residual_action``."""
 
     def __init__(self, env: gym.Env, base: str = "patent-ff", residual_scale: float = 0.25,
@@ -598,5 +603,29 @@ class ResidualWrapper(gym.Wrapper):
                 truncated, info)
 
 
-# Importing this module makes policy="ResidualMlpPolicy" resolvable (zoo: --gym-packages).
+def make_residual_env(drive: dict[str, Any] | None = None, render_mode: str | None = None,
+                      **residual: Any) -> ResidualWrapper:
+    """The entry point of ``gym.make("StepperDampResidual-v0", drive=..., **residual)``.
+
+    ``drive`` updates :data:`stepdamp_agents.task.REFERENCE_DRIVE` (the
+    ``StepperDamp-v0`` options, with ``max_episode_steps``) and ``residual``
+    updates :data:`stepdamp_agents.task.REFERENCE_RESIDUAL` (the
+    :class:`ResidualWrapper` kwargs): without arguments it is the reference task.
+    """
+    drive_kwargs, residual_kwargs = task_kwargs({"drive": drive, **residual})
+    if render_mode is not None:
+        drive_kwargs["render_mode"] = render_mode
+    return ResidualWrapper(gym.make(ENV_ID, **drive_kwargs), **residual_kwargs)
+
+
+def register_residual_env() -> None:
+    """Register ``StepperDampResidual-v0`` (idempotent). No time limit of its own:
+    the wrapped drive's ``max_episode_steps`` ends the episode."""
+    if RESIDUAL_ENV_ID not in gym.registry:
+        gym.register(id=RESIDUAL_ENV_ID, entry_point=f"{__name__}:make_residual_env")
+
+
+# Importing this module makes policy="ResidualMlpPolicy" and the residual task's id
+# resolvable (zoo: --gym-packages stepdamp_agents.residual).
 register_policy_aliases()
+register_residual_env()

@@ -1,8 +1,9 @@
 """Train a residual agent (SAC, TD3 or PPO) on StepperDamp-v0: one readable script.
 
 Every setting is a field of :class:`Args`; hyperparameters of the algorithm come
-from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by
-``StepperDamp-v0``), so the zoo and this script train the same thing::
+from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by the
+residual task ``StepperDampResidual-v0``, whose defaults are
+:mod:`stepdamp_agents.task`), so the zoo and this script train the same thing::
 
     stepdamp train --algo sac --seed 1 --out runs/sac
     python -m stepdamp_agents.train --algo sac --total-timesteps 20000 --out runs/smoke
@@ -45,8 +46,9 @@ from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
+from .task import RESIDUAL_ENV_ID, task_kwargs
+
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
-ENV_ID = "StepperDamp-v0"
 PRESETS = tuple(preset_names())
 
 
@@ -75,7 +77,7 @@ class Args:
 # Configuration: the zoo YAML
 # ---------------------------------------------------------------------------
 def load_hyperparams(args: Args) -> dict[str, Any]:
-    """The ``StepperDamp-v0`` entry of the algorithm's zoo YAML (a copy)."""
+    """The ``StepperDampResidual-v0`` entry of the algorithm's zoo YAML (a copy)."""
     import yaml
 
     path = args.hyperparams or os.path.join(HYPERPARAMS_DIR, f"{args.algo}.yml")
@@ -86,9 +88,9 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
         first = (str(exc).strip().splitlines() or [""])[0]
         raise ParameterError(f"--hyperparams {path!r}: cannot read it as YAML: {first}") \
             from None
-    if not isinstance(data, dict) or not isinstance(data.get(ENV_ID), dict):
-        raise ParameterError(f"--hyperparams {path!r}: no {ENV_ID!r} mapping in it")
-    hp = dict(data[ENV_ID])
+    if not isinstance(data, dict) or not isinstance(data.get(RESIDUAL_ENV_ID), dict):
+        raise ParameterError(f"--hyperparams {path!r}: no {RESIDUAL_ENV_ID!r} mapping in it")
+    hp = dict(data[RESIDUAL_ENV_ID])
     hp.update(args.extra)
     return hp
 
@@ -180,20 +182,21 @@ def parse_policy_kwargs(text: str) -> dict[str, Any]:
 
 
 def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
-    """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs)."""
+    """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs).
+
+    The env and wrapper kwargs are the residual task's reference
+    (:mod:`stepdamp_agents.task`) updated by the YAML's ``env_kwargs``.
+    """
     hp = dict(hp)
     n_envs = int(hp.pop("n_envs", 16))
     n_timesteps = int(float(hp.pop("n_timesteps", 1e5)))
-    env_kwargs = dict(hp.pop("env_kwargs", {}) or {})
-    wrapper_kwargs: dict[str, Any] = {}
-    wrappers = hp.pop("env_wrapper", None) or []
-    for w in (wrappers if isinstance(wrappers, list) else [wrappers]):
-        if isinstance(w, dict):
-            (name, kwargs), = w.items()
-        else:
-            name, kwargs = w, {}
-        if name.endswith("ResidualWrapper"):
-            wrapper_kwargs = dict(kwargs or {})
+    if "env_wrapper" in hp:
+        raise ParameterError(f"hyperparameter env_wrapper: {RESIDUAL_ENV_ID} is the residual "
+                             "task already; set its kwargs under env_kwargs")
+    try:
+        env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
     policy = hp.pop("policy", "ResidualMlpPolicy")
     if isinstance(hp.get("policy_kwargs"), str):
         hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])   # zoo's convention

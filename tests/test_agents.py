@@ -165,6 +165,37 @@ def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     assert load_model(path).policy.actor.mu.weight.abs().sum() > 0     # it did learn
 
 
+def test_residual_task_id_made_without_arguments_is_the_reference_task():
+    """The zoo builds its evaluation env with gym.make(id) and no env_kwargs: that env
+    must be the training task (the YAMLs carry no env_kwargs)."""
+    import gymnasium as gym
+
+    from stepdamp_agents.task import REFERENCE_DRIVE, REFERENCE_RESIDUAL, RESIDUAL_ENV_ID
+
+    env = gym.make(RESIDUAL_ENV_ID)
+    inner = env.unwrapped
+    for key, value in REFERENCE_DRIVE.items():
+        if key not in ("max_episode_steps", "overrides"):
+            assert getattr(inner.options, key) == value, key
+    assert env.get_wrapper_attr("hold_steps") == REFERENCE_RESIDUAL["hold_steps"]
+    assert env.get_wrapper_attr("base") == REFERENCE_RESIDUAL["base"]
+    venv = make_residual_vec_env([MOTOR], 1, 10, **{k: v for k, v in REFERENCE_DRIVE.items()
+                                                      if k != "motor"}, **REFERENCE_RESIDUAL)
+    assert env.observation_space == venv.observation_space
+    assert env.action_space == venv.action_space
+    for algo in ("sac", "td3", "ppo"):
+        sp = split_hyperparams(load_hyperparams(Args(algo=algo)))
+        assert sp["env_kwargs"] == REFERENCE_DRIVE and sp["wrapper_kwargs"] == REFERENCE_RESIDUAL
+    # Steps end with the drive's own time limit: 1600 env steps = 4 held gains.
+    env.reset(seed=3)
+    ends = [env.step(np.zeros(1, np.float32))[3] for _ in range(4)]
+    assert ends == [False, False, False, True]
+    assert gym.make(RESIDUAL_ENV_ID, hold_steps=200, drive={"motor": MOTOR}).unwrapped \
+        .options.motor == MOTOR
+    env.close()
+    venv.close()
+
+
 def test_cli_train_parses():
     from stepdamp_env.cli import build_parser
 
