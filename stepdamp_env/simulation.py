@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping
 
@@ -19,6 +20,7 @@ from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, System
                      fastest_plant_mode, load_system, required_substeps)
 
 __all__ = [
+    "check_converged",
     "MODES",
     "DAMPINGS",
     "DEFAULT_ACCEL_RPS2",
@@ -48,7 +50,8 @@ def _check_choice(name: str, value: str, choices) -> None:
 
 
 def _check_positive(name: str, value: float, allow_zero: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
+            or not math.isfinite(value):
         raise ParameterError(f"{name} must be a finite number, got {value!r}")
     if value < 0 or (value == 0 and not allow_zero):
         bound = "[0, inf)" if allow_zero else "(0, inf)"
@@ -72,6 +75,10 @@ class SpeedProfile:
 
     def __post_init__(self) -> None:
         _check_choice("kind", self.kind, ("constant", "move"))
+        for name in ("speed_rps", "distance_rev"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+                raise ParameterError(f"{name} must be a number, got {value!r}")
         if not math.isfinite(self.speed_rps) or abs(self.speed_rps) > 1e3 or \
                 0.0 < abs(self.speed_rps) < 1e-6:
             raise ParameterError(
@@ -80,8 +87,10 @@ class SpeedProfile:
         _check_positive("accel_rps2", self.accel_rps2)
         if self.kind == "move":
             _check_positive("speed_rps (magnitude of a move)", abs(self.speed_rps))
-            if not math.isfinite(self.distance_rev):
-                raise ParameterError(f"distance_rev must be finite, got {self.distance_rev!r}")
+        if not math.isfinite(self.distance_rev):
+            raise ParameterError(f"distance_rev must be finite, got {self.distance_rev!r}")
+        for name in ("speed_rps", "accel_rps2", "distance_rev"):    # numpy scalars: as float
+            object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
     def ramp_s(self) -> float:
@@ -139,13 +148,21 @@ class RunSettings:
             raise ParameterError(f"noise_seed={self.noise_seed!r} is outside its allowed range "
                                  "[0, 2**53) (integer)")
         _check_choice("damping", self.damping, DAMPINGS)
-        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) \
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise ParameterError(f"substeps={self.substeps!r} is outside its allowed range "
                                  "[1, 1000] (integer)")
         if self.settle_s is not None:
             _check_positive("settle_s", self.settle_s, allow_zero=True)
         _check_positive("window_s", self.window_s)
+        if self.estimate is not None and not isinstance(self.estimate, FeedforwardModel):
+            raise ParameterError(f"estimate must be a FeedforwardModel or None (the exact model), "
+                                 f"got {self.estimate!r}")
+        object.__setattr__(self, "substeps", int(self.substeps))
+        object.__setattr__(self, "noise_seed", int(self.noise_seed))
+        object.__setattr__(self, "window_s", float(self.window_s))
+        if self.settle_s is not None:
+            object.__setattr__(self, "settle_s", float(self.settle_s))
 
 
 def default_settle_s(system: SystemParams) -> float:
@@ -246,6 +263,32 @@ def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0
         f"{fields} give a plant mode of {rate:.4g} rad/s, above the {limit:.4g} rad/s that "
         f"substeps={substeps} RK4 step(s) per PWM period integrate stably "
         f"(2.5 * pwm_hz * substeps); {advice}")
+
+
+def check_converged(system: SystemParams, substeps: int, state: np.ndarray,
+                    metrics: "RunMetrics") -> None:
+    """Refuse, after a run, a result the integration did not follow.
+
+    The check before the run covers the command speed. A rotor that loses its
+    steps under a load its torque cannot hold, with little damping (small D, R
+    near 0: no back-EMF braking) and a light J, runs away to speeds no substeps
+    chosen for the command integrate, and the run ends in 1e200 or NaN. That
+    is a one-line ``ParameterError`` here, never NaN metrics.
+    """
+    d = metrics.to_dict()
+    values = [x for key, v in d.items() if key != "step_loss" and not key.endswith("_norm")
+              for x in (v.values() if isinstance(v, dict) else [v])]
+    limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps / system.motor.Nr
+    if np.all(np.isfinite(state)) and all(math.isfinite(x) for x in values) \
+            and abs(state[K.S_OMEGA]) <= limit:
+        return
+    m = system.motor
+    raise ParameterError(
+        f"the run diverged: the rotor ran away (J={m.J:.3g} kg*m^2, D={m.D:.3g} N*m*s/rad, "
+        f"R={m.R:.3g} ohm, load_torque={m.load_torque:.3g} N*m against a holding torque "
+        f"Km*holding_current={m.Km * system.drive.holding_current:.3g} N*m) past the "
+        f"{limit:.4g} rad/s that substeps={substeps} integrate; damp or load the rotor less, "
+        "or raise substeps")
 
 
 def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
@@ -424,6 +467,7 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     if trace:
         trace_dict = {name: buf[:written, i].copy() for i, name in enumerate(K.TRACE_NAMES)}
     metrics = metrics_from_accumulators(acc, system, profile.speed_rps)
+    check_converged(system, settings.substeps, state, metrics)
     return RunResult(system=system, profile=profile, settings=settings, window_start_s=start,
                      duration_s=n_periods / system.drive.pwm_hz, metrics=metrics,
                      trace=trace_dict, final_state=state, accumulators=acc)

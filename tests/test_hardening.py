@@ -22,7 +22,7 @@ from stepdamp_env import io as sio
 from stepdamp_env.cli import main
 from stepdamp_env.env import EpisodeGuard, StepperDampEnv
 from stepdamp_env.params import (ParameterError, current_loop_radius, fastest_plant_mode,
-                                 load_system, required_substeps)
+                                 get_preset, load_system, required_substeps)
 from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window, simulate
 
 
@@ -71,6 +71,47 @@ def test_an_unstable_current_loop_is_refused_and_a_lossless_winding_runs():
         run = simulate(system, profile=SpeedProfile(1.0),
                        settings=RunSettings(mode=mode, window_s=0.05))
         assert math.isfinite(run.metrics.rms_velocity_error_rad_s)
+
+
+def test_a_rotor_that_runs_away_is_refused_after_the_run_never_nan():
+    """J = 1e-12 kg*m^2 with 151 substeps passes the check at the command speed; after
+    losing its steps under a load near its holding torque, with D = 0, the rotor runs
+    away past what those substeps integrate: a one-line error, not NaN metrics."""
+    base = get_preset("patent")
+    hold = base.motor.Km * base.drive.holding_current
+    system = base.replace(J=1e-12, Nr=50, D=0.0, load_torque=0.99 * hold)
+    with pytest.raises(ParameterError, match="diverged.*J=1e-12.*load_torque") as info:
+        simulate(system, profile=SpeedProfile(speed_rps=10.0, accel_rps2=1e4),
+                 settings=RunSettings(substeps=151, settle_s=0.0, window_s=0.02),
+                 duration_s=0.15)
+    assert "\n" not in str(info.value)
+    # The same motor with damping keeps its steps and gives finite metrics.
+    ok = simulate(base.replace(J=1e-6), speed_rps=1.0,
+                  settings=RunSettings(settle_s=0.0, window_s=0.02), duration_s=0.2)
+    assert math.isfinite(ok.metrics.rms_velocity_error_rad_s)
+
+
+@pytest.mark.parametrize("make, name", [
+    (lambda: SpeedProfile(speed_rps=None), "speed_rps"),
+    (lambda: SpeedProfile(speed_rps="1"), "speed_rps"),
+    (lambda: SpeedProfile(speed_rps=True), "speed_rps"),
+    (lambda: SpeedProfile(speed_rps=1.0, distance_rev=math.nan), "distance_rev"),
+    (lambda: SpeedProfile(speed_rps=1.0, distance_rev="x"), "distance_rev"),
+    (lambda: RunSettings(estimate="guess"), "estimate"),
+])
+def test_run_arguments_of_the_wrong_type_are_named(make, name):
+    with pytest.raises(ParameterError, match=name):
+        make()
+
+
+def test_numpy_scalars_are_accepted_as_plain_numbers():
+    p = SpeedProfile(speed_rps=np.float32(1.5), accel_rps2=np.float32(100.0))
+    assert type(p.speed_rps) is float and type(p.accel_rps2) is float
+    r = RunSettings(substeps=np.int64(2), noise_seed=np.int64(3), window_s=np.float32(0.25))
+    assert type(r.substeps) is int and type(r.window_s) is float
+    env = StepperDampEnv(accel_rps2=np.float32(100.0), speed_rps=np.float32(1.0))
+    obs, _ = env.reset(seed=0)
+    assert np.all(np.isfinite(env.step(np.zeros(6, np.float32))[0]))
 
 
 def test_extreme_env_rewards_stay_physical():
