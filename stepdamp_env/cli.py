@@ -25,7 +25,7 @@ from .params import (FeedforwardModel, ParameterError, load_system, parse_set_ov
                      preset_names)
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
                          measuring_window, simulate)
-from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS
+from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS, resolving_spacing
 
 __all__ = ["main"]
 
@@ -152,8 +152,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         for h, peak in result.peaks().items():
             where = f"h={h}: predicted {predicted[h]:.4f} rev/s, "
             if peak["is_resonance"]:
+                coarse = "" if peak["resolved"] else (
+                    f" (coarse grid: a --speeds step below "
+                    f"{resolving_spacing(system) * predicted[h]:.2g} rev/s would tell it from "
+                    "an aliasing spike)")
                 print(f"    {where}ripple peak at {peak['speed_rps']:.4f} rev/s "
-                      f"({peak['relative_offset']:+.1%}), RMS {peak['ripple_rad_s']:.4g} rad/s")
+                      f"({peak['relative_offset']:+.1%}), RMS {peak['ripple_rad_s']:.4g} rad/s"
+                      + coarse)
             else:
                 print(f"    {where}no peak (highest RMS nearby {peak['ripple_rad_s']:.4g} "
                       f"rad/s at {peak['speed_rps']:.4f} rev/s)")

@@ -12,7 +12,8 @@ from .parallel import default_workers, pool_map
 from .params import DETENT_HARMONICS, ParameterError, SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 
-__all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks"]
+__all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks",
+           "resolving_spacing"]
 
 
 #: Command speeds a sweep or a simulation accepts (rev/s, magnitude).
@@ -61,7 +62,8 @@ class SweepResult:
 
     def peaks(self) -> dict[int, dict[str, float]]:
         return find_resonance_peaks(self.speeds_rps, self.column("rms_velocity_error_rad_s"),
-                                    self.system.predicted_resonances_rps())
+                                    self.system.predicted_resonances_rps(),
+                                    resolving_spacing=resolving_spacing(self.system))
 
     def to_dict(self) -> dict[str, Any]:
         from .version import __version__
@@ -101,11 +103,34 @@ class SweepResult:
 SPIKE_RATIO = 1.2
 #: A resonance's 3-point mean stands this factor above the median of its search band.
 PROMINENCE = 1.2
+#: The total damping ratio of the open-loop rotor is at least this multiple of the
+#: mechanical one: the back-EMF currents the current loop cannot cancel add about 0.9x
+#: on the presets and more on light rotors (physics-notes, section 4).
+TOTAL_OVER_MECHANICAL_DAMPING = 1.9
+
+
+def resolving_spacing(system: SystemParams) -> float:
+    """Relative speed spacing of a grid that resolves the open-loop resonances.
+
+    Near its peak a resonance of damping ratio zeta falls as
+    1/sqrt(1 + (delta/zeta)^2) at relative offset delta, i.e. by ``SPIKE_RATIO`` at
+    delta = zeta*sqrt(SPIKE_RATIO^2 - 1). On a finer grid a real resonance never
+    stands ``SPIKE_RATIO`` above both neighbours, so such a point is an aliasing
+    spike; on a coarser grid it may be the resonance, sampled once. zeta is the
+    smallest expected total damping ratio (``TOTAL_OVER_MECHANICAL_DAMPING`` times
+    D / (2*sqrt(Km*holding_current*Nr*J))).
+    """
+    m = system.motor
+    stiffness = m.Km * system.drive.holding_current * m.Nr
+    if not stiffness > 0.0 or not m.J > 0.0:
+        return math.inf
+    zeta = TOTAL_OVER_MECHANICAL_DAMPING * m.D / (2.0 * math.sqrt(stiffness * m.J))
+    return zeta * math.sqrt(SPIKE_RATIO ** 2 - 1.0)
 
 
 def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
-                         predicted: dict[int, float], search: float = 0.15
-                         ) -> dict[int, dict[str, float]]:
+                         predicted: dict[int, float], search: float = 0.15,
+                         resolving_spacing: float = math.inf) -> dict[int, dict[str, float]]:
     """The ripple maximum within +-``search`` (relative) of each predicted speed.
 
     Returns per harmonic h: the speed of the maximum, its ripple, its relative
@@ -115,7 +140,10 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
     ``SPIKE_RATIO`` above both neighbours: the ripple aliasing with the PWM or
     encoder rate gives such one-speed spikes) and whose 3-point mean stands
     ``PROMINENCE`` above the median over twice the band. A damped or servo sweep
-    may have none.
+    may have none. The spike test applies only where the grid's relative spacing
+    is at most ``resolving_spacing`` (:func:`resolving_spacing`; ``resolved`` in
+    the result): on a coarser grid a resonance sampled at one speed looks like a
+    spike, and a prominent maximum counts as a resonance.
     """
     out: dict[int, dict[str, float]] = {}
     for h, pred in predicted.items():
@@ -125,15 +153,18 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
         i = band[np.argmax(ripple[band])]
         interior = 0 < i < len(speeds) - 1 and ripple[i] >= ripple[i - 1] \
             and ripple[i] >= ripple[i + 1] and i not in (band[0], band[-1])
-        resonance = False
+        resonance = resolved = False
         if interior:
-            spike = ripple[i] > SPIKE_RATIO * max(ripple[i - 1], ripple[i + 1])
+            spacing = 0.5 * (speeds[i + 1] - speeds[i - 1]) / abs(speeds[i])
+            resolved = bool(spacing <= resolving_spacing)
+            spike = resolved and ripple[i] > SPIKE_RATIO * max(ripple[i - 1], ripple[i + 1])
             wide = (speeds >= pred * (1 - 2 * search)) & (speeds <= pred * (1 + 2 * search))
             prominent = np.mean(ripple[i - 1:i + 2]) >= PROMINENCE * np.median(ripple[wide])
             resonance = bool(prominent and not spike)
         out[h] = {"speed_rps": float(speeds[i]), "ripple_rad_s": float(ripple[i]),
                   "relative_offset": float(speeds[i] / pred - 1.0),
-                  "is_local_max": bool(interior), "is_resonance": resonance}
+                  "is_local_max": bool(interior), "is_resonance": resonance,
+                  "resolved": resolved}
     return out
 
 

@@ -82,3 +82,30 @@ def test_feedforward_with_a_wrong_model_does_worse_than_exact():
                                phi2=m.phi2 + 0.8, Fs=m.Fs)
     wrong = simulate(system, speed_rps=speed, damping="patent-ff", estimate=shifted).metrics
     assert wrong.rms_velocity_error_rad_s > 2 * exact.rms_velocity_error_rad_s
+
+
+def test_the_spike_rule_applies_only_on_grids_that_resolve_the_resonance():
+    """A resonance of damping ratio zeta sampled on a grid coarser than
+    zeta*sqrt(SPIKE_RATIO^2 - 1) may stand SPIKE_RATIO above both neighbours and is
+    still a resonance; on a finer grid such a lone point is an aliasing spike."""
+    from stepdamp_env.sweep import SPIKE_RATIO
+
+    zeta = 0.02
+    res = zeta * np.sqrt(SPIKE_RATIO ** 2 - 1)
+
+    def lorentz(v):
+        return 1.0 / np.sqrt((1 - v ** 2) ** 2 + (2 * zeta * v) ** 2)
+
+    # At the resolving spacing a resonance falls by SPIKE_RATIO (to first order).
+    assert lorentz(1.0) / lorentz(1.0 + res) == pytest.approx(SPIKE_RATIO, rel=0.03)
+    coarse = np.round(np.arange(0.70, 1.3001, 0.05), 10)
+    peak = find_resonance_peaks(coarse, lorentz(coarse), {4: 1.0}, resolving_spacing=res)[4]
+    assert lorentz(1.0) > SPIKE_RATIO * lorentz(1.05)          # a lone point on this grid
+    assert peak["is_resonance"] and not peak["resolved"] and peak["speed_rps"] == 1.0
+    fine = np.arange(0.70, 1.3001, 0.002)
+    peak = find_resonance_peaks(fine, lorentz(fine), {4: 1.0}, resolving_spacing=res)[4]
+    assert peak["is_resonance"] and peak["resolved"] and abs(peak["speed_rps"] - 1.0) < 0.01
+    spiky = np.ones_like(fine)
+    spiky[np.argmin(abs(fine - 0.97))] = 5.0                   # aliasing at one speed
+    peak = find_resonance_peaks(fine, spiky, {4: 1.0}, resolving_spacing=res)[4]
+    assert peak["resolved"] and not peak["is_resonance"]
