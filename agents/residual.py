@@ -37,16 +37,16 @@ patent's feedforward alone) or the model-based delay compensation of
 own model and the nominal drive, :mod:`stepdamp_baselines.harmonic`). ``residual_scale``
 bounds how far the agent may move each coefficient: 0.1 of the action unit, for
 example, is a fifth of the largest detent amplitude (about 2.4 mN*m for
-``patent``); the YAML files use the "feedback" residual with ``residual_scale``
-0.05 of ``current_scale_a``; the rewards are multiplied by ``reward_scale`` (1000 in the YAML
-files: a damped step's reward is about -1e-4) and the YAML files set the env's
+``patent``); the reference task (:mod:`stepdamp_agents.task`) uses the "feedback" residual
+with ``residual_scale`` 0.05 of ``current_scale_a``; the rewards are multiplied by
+``reward_scale`` (1000 there: a damped step's reward is about -1e-4) and it sets the env's
 ``current_penalty`` to 0 (the leaderboard scores ripple only; with the default
 0.1 the agent learned to trade ripple for less feedforward current). A zero
 residual reproduces the base controller bit for bit.
 
 Other residual kinds (``residual_action``): ``"current"`` adds a q current
 ``residual_scale * r`` (``current_scale_a`` units, env ``action_mode=
-"harmonic+current"``) to the base every env step; ``"feedback"`` (the YAMLs'
+"harmonic+current"``) to the base every env step; ``"feedback"`` (the reference's
 choice) lets the agent pick a damping gain ``g`` every ``hold_steps`` env steps
 and injects ``residual_scale * clip(feedback_gain * g * v, -1, 1)`` each step in
 between, ``v`` the velocity feature (:func:`velocity_feature_gain`); see
@@ -613,6 +613,9 @@ def make_residual_env(drive: dict[str, Any] | None = None, render_mode: str | No
     :class:`ResidualWrapper` kwargs): without arguments it is the reference task.
     """
     drive_kwargs, residual_kwargs = task_kwargs({"drive": drive, **residual})
+    # The drive's action mode follows the residual, as in make_residual_vec_env.
+    drive_kwargs["action_mode"] = RESIDUAL_ACTIONS[
+        _check_residual_action(residual_kwargs["residual_action"])]
     if render_mode is not None:
         drive_kwargs["render_mode"] = render_mode
     return ResidualWrapper(gym.make(ENV_ID, **drive_kwargs), **residual_kwargs)

@@ -3,9 +3,10 @@
 ``gym.make("StepperDampResidual-v0")`` (registered on importing
 :mod:`stepdamp_agents.residual`) is a ``StepperDamp-v0`` drive wrapped as the
 residual problem (:class:`stepdamp_agents.residual.ResidualWrapper`). Its
-defaults are the reference agents' task, so an env made without arguments is
-the task they were trained on; rl-baselines3-zoo relies on that, since it builds
-its evaluation env without the YAML's ``env_kwargs``. ``stepdamp train`` starts
+defaults are the reference agents' task (on one preset, ``patent``, drawn
+around; ``stepdamp train`` spreads its drives over all four), so an env made
+without arguments is the training task; rl-baselines3-zoo relies on that, since
+it builds its evaluation env without the YAML's ``env_kwargs``. ``stepdamp train`` starts
 from the same defaults and applies the YAML's ``env_kwargs`` on top.
 
 This module imports neither torch nor SB3.
@@ -13,7 +14,10 @@ This module imports neither torch nor SB3.
 
 from __future__ import annotations
 
+import copy
 from typing import Any
+
+from stepdamp_env.params import ParameterError
 
 __all__ = ["RESIDUAL_ENV_ID", "REFERENCE_DRIVE", "REFERENCE_RESIDUAL", "task_kwargs"]
 
@@ -42,9 +46,18 @@ def task_kwargs(env_kwargs: dict[str, Any] | None = None
                 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(drive options, residual kwargs): the reference updated by ``env_kwargs``,
     whose ``drive`` entry updates the drive options key by key and whose other
-    keys update the residual kwargs."""
+    keys (those of :data:`REFERENCE_RESIDUAL`) update the residual kwargs."""
+    if env_kwargs is not None and not isinstance(env_kwargs, dict):
+        raise ParameterError(f"env_kwargs={env_kwargs!r} must be a mapping: drive: {{...}} "
+                             f"and keys of {sorted(REFERENCE_RESIDUAL)}")
     given = dict(env_kwargs or {})
     drive = given.pop("drive", None) or {}
     if not isinstance(drive, dict):
-        raise ValueError(f"env_kwargs drive={drive!r} must be a mapping of StepperDamp-v0 options")
-    return {**REFERENCE_DRIVE, **drive}, {**REFERENCE_RESIDUAL, **given}
+        raise ParameterError(f"env_kwargs drive={drive!r} must be a mapping of "
+                             "StepperDamp-v0 options")
+    unknown = sorted(set(given) - set(REFERENCE_RESIDUAL))
+    if unknown:
+        raise ParameterError(f"env_kwargs: unknown key(s) {unknown}; allowed: 'drive' (the "
+                             f"StepperDamp-v0 options) and {sorted(REFERENCE_RESIDUAL)}")
+    return ({**copy.deepcopy(REFERENCE_DRIVE), **copy.deepcopy(drive)},
+            {**REFERENCE_RESIDUAL, **given})

@@ -1,4 +1,4 @@
-"""Train a residual agent (SAC, TD3 or PPO) on StepperDamp-v0: one readable script.
+"""Train a residual agent (SAC, TD3 or PPO) on StepperDamp-v0 drives: one readable script.
 
 Every setting is a field of :class:`Args`; hyperparameters of the algorithm come
 from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by the
@@ -193,10 +193,7 @@ def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
     if "env_wrapper" in hp:
         raise ParameterError(f"hyperparameter env_wrapper: {RESIDUAL_ENV_ID} is the residual "
                              "task already; set its kwargs under env_kwargs")
-    try:
-        env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
-    except ValueError as exc:
-        raise ParameterError(str(exc)) from None
+    env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
     policy = hp.pop("policy", "ResidualMlpPolicy")
     if isinstance(hp.get("policy_kwargs"), str):
         hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])   # zoo's convention

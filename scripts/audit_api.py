@@ -314,6 +314,8 @@ def soak(seconds: float) -> None:
         bad += int(np.sum(~np.isfinite(obs))) + int(np.sum(~np.isfinite(r)))
         if rss_early is None and elapsed > 0.1 * seconds:
             rss_early = _rss_mb()
+    if rss_early is None:
+        rss_early = _rss_mb()
     print(f"soak: {seconds:.0f} s, {steps / 1e6:.1f}M env steps, {episodes} episodes ended, "
           f"{bad} non-finite numbers, RSS {rss_early:.1f} MB at 10 % -> {_rss_mb():.1f} MB "
           "at the end")

@@ -152,10 +152,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         for h, peak in result.peaks().items():
             where = f"h={h}: predicted {predicted[h]:.4f} rev/s, "
             if peak["is_resonance"]:
+                step = resolving_spacing(system) * peak["speed_rps"]
                 coarse = "" if peak["resolved"] else (
-                    f" (coarse grid: a --speeds step below "
-                    f"{resolving_spacing(system) * predicted[h]:.2g} rev/s would tell it from "
-                    "an aliasing spike)")
+                    f" (coarse grid: a --speeds step of at most {step:.2g} rev/s would tell "
+                    "it from an aliasing spike)" if step > 0 else
+                    " (without damping D no grid tells it from an aliasing spike)")
                 print(f"    {where}ripple peak at {peak['speed_rps']:.4f} rev/s "
                       f"({peak['relative_offset']:+.1%}), RMS {peak['ripple_rad_s']:.4g} rad/s"
                       + coarse)

@@ -104,8 +104,9 @@ SPIKE_RATIO = 1.2
 #: A resonance's 3-point mean stands this factor above the median of its search band.
 PROMINENCE = 1.2
 #: The total damping ratio of the open-loop rotor is at least this multiple of the
-#: mechanical one: the back-EMF currents the current loop cannot cancel add about 0.9x
-#: on the presets and more on light rotors (physics-notes, section 4).
+#: mechanical one: the back-EMF currents the sampled current loop cannot cancel add
+#: from 0.9x (the presets) to 22x (a light, low-D rotor) the mechanical damping,
+#: measured on this model (docs/model.md).
 TOTAL_OVER_MECHANICAL_DAMPING = 1.9
 
 
@@ -118,12 +119,13 @@ def resolving_spacing(system: SystemParams) -> float:
     stands ``SPIKE_RATIO`` above both neighbours, so such a point is an aliasing
     spike; on a coarser grid it may be the resonance, sampled once. zeta is the
     smallest expected total damping ratio (``TOTAL_OVER_MECHANICAL_DAMPING`` times
-    D / (2*sqrt(Km*holding_current*Nr*J))).
+    D / (2*sqrt(Km*holding_current*Nr*J))). 0 (no grid resolves) without D, or
+    without a holding-current spring.
     """
     m = system.motor
     stiffness = m.Km * system.drive.holding_current * m.Nr
     if not stiffness > 0.0 or not m.J > 0.0:
-        return math.inf
+        return 0.0
     zeta = TOTAL_OVER_MECHANICAL_DAMPING * m.D / (2.0 * math.sqrt(stiffness * m.J))
     return zeta * math.sqrt(SPIKE_RATIO ** 2 - 1.0)
 
@@ -153,10 +155,11 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
         i = band[np.argmax(ripple[band])]
         interior = 0 < i < len(speeds) - 1 and ripple[i] >= ripple[i - 1] \
             and ripple[i] >= ripple[i + 1] and i not in (band[0], band[-1])
-        resonance = resolved = False
+        near = speeds[max(i - 1, 0):i + 2]
+        spacing = (near[-1] - near[0]) / max(len(near) - 1, 1) / abs(speeds[i])
+        resolved = bool(len(near) > 1 and spacing <= resolving_spacing)
+        resonance = False
         if interior:
-            spacing = 0.5 * (speeds[i + 1] - speeds[i - 1]) / abs(speeds[i])
-            resolved = bool(spacing <= resolving_spacing)
             spike = resolved and ripple[i] > SPIKE_RATIO * max(ripple[i - 1], ripple[i + 1])
             wide = (speeds >= pred * (1 - 2 * search)) & (speeds <= pred * (1 + 2 * search))
             prominent = np.mean(ripple[i - 1:i + 2]) >= PROMINENCE * np.median(ripple[wide])

@@ -56,9 +56,12 @@ def _usable(system: SystemParams, speeds: Sequence[float], protocol: Protocol) -
         settings = RunSettings(mode=mode, damping="none", window_s=protocol.window_s,
                                noise_seed=protocol.validation_noise_seed)
         for v in speeds:
-            res = simulate(system, profile=SpeedProfile(speed_rps=v,
-                                                        accel_rps2=protocol.accel_rps2),
-                           settings=settings)
+            try:
+                res = simulate(system, profile=SpeedProfile(speed_rps=v,
+                                                            accel_rps2=protocol.accel_rps2),
+                               settings=settings)
+            except ParameterError:      # the run diverged: as unusable as a NaN lag was
+                return False
             if not res.metrics.max_position_lag_steps < protocol.usable_max_lag_steps:
                 return False
     return True
