@@ -192,6 +192,15 @@ def test_residual_task_id_made_without_arguments_is_the_reference_task():
     assert ends == [False, False, False, True]
     assert gym.make(RESIDUAL_ENV_ID, hold_steps=200, drive={"motor": MOTOR}).unwrapped \
         .options.motor == MOTOR
+    from stepdamp_agents.task import task_kwargs
+    from stepdamp_env.params import ParameterError
+
+    for bad in ({"agent_hz": 2000}, {"drive": [1]}, [1]):       # a drive key at the top level
+        with pytest.raises(ParameterError, match="env_kwargs"):
+            task_kwargs(bad)
+    drive, _ = task_kwargs()
+    drive["overrides"]["J"] = 2.0                                 # a copy, not the reference
+    assert REFERENCE_DRIVE["overrides"] == {"current_noise_a": 0.01, "encoder_cpr": 4000}
     env.close()
     venv.close()
 
