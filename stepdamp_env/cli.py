@@ -345,6 +345,15 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_pool_run_args(p: argparse.ArgumentParser) -> None:
+    """--out, --workers and --no-progress of the commands that run a process pool."""
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="result directory (replaced as a whole when the run is done)")
+    p.add_argument("--workers", type=_number(int, 1, 4096), default=None,
+                   help="processes (default: every core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .version import __version__
 
@@ -352,7 +361,6 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"stepdamp {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    workers = _number(int, 1, 4096)
 
     def command(name: str, text: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=text, description=text, formatter_class=_Formatter)
@@ -378,11 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_system_args(p, damping_many=True)
     p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
                    help="command speeds (rev/s)")
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="result directory (replaced as a whole when the sweep is done)")
-    p.add_argument("--workers", type=workers, default=None,
-                   help="processes (default: every core)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_pool_run_args(p)
     p.set_defaults(func=_cmd_sweep)
 
     p = command("identify", "identify the detent model in servo mode (patent claim 1)")
@@ -412,11 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: all; 'none' always runs)")
     p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
                    help="which suite")
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="result directory (replaced as a whole when the run is done)")
-    p.add_argument("--workers", type=workers, default=None,
-                   help="processes (default: every core)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.set_defaults(func=_cmd_leaderboard)
 
