@@ -11,7 +11,6 @@ P/G instead of P puts the intended torque on the rotor.
 
 from __future__ import annotations
 
-import cmath
 import math
 from typing import Any
 
@@ -21,40 +20,12 @@ from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_m
                                        resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
-from stepdamp_env.response import current_path, torque_to_velocity, velocity_filter
+from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 __all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS", "phasors", "torque_paths",
            "harmonic_actions"]
 
 HARMONICS = DETENT_HARMONICS
-
-
-def phasors(model: FeedforwardModel) -> np.ndarray:
-    """The model's harmonics 1, 2, 4 as complex phasors (N*m)."""
-    c = model.coefficients()
-    return np.array([complex(c[0], c[1]), complex(c[2], c[3]), complex(c[4], c[5])])
-
-
-def torque_paths(system: SystemParams, mode: str, speed_rps: float,
-                 friction: FeedforwardModel | None = None) -> np.ndarray:
-    """G for h = 1, 2, 4 at the held speed, from the drive model.
-
-    The current path (sampled current loop, computation delay, held voltage).
-    In open loop the rotor also trails its command by the static lag
-    (Fs + D*w)/(Km*holding_current*Nr), so the detent it feels runs h*Nr*lag
-    behind the feedforward's angle: G carries that as a phase lead (with Fs
-    from ``friction``, the drive's friction estimate, if given).
-    """
-    w = 2.0 * math.pi * abs(speed_rps)
-    m = system.motor
-    lag = 0.0
-    if mode == "open-loop":
-        fs = friction.Fs if friction is not None else m.Fs
-        lag = (fs + m.D * w) / (m.Km * system.drive.holding_current * m.Nr)
-    out = np.zeros(3, dtype=complex)
-    for i, h in enumerate(HARMONICS):
-        out[i] = current_path(system, h * m.Nr * w) * cmath.exp(1j * h * m.Nr * lag)
-    return out
 
 
 def harmonic_actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:

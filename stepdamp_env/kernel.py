@@ -222,6 +222,36 @@ U_IQ = 6           # residual q current (A)
 N_INPUT = 7
 
 # ---------------------------------------------------------------------------
+# Damping law (per drive, float64), evaluated every PWM period by
+# :func:`run_periods_law`: gains (set between calls), then its own state.
+# iq_law = clip(KV*e_w + KP*hp(e_theta) + sum_h a_h sin(h x) + b_h cos(h x), +-limit),
+# e_w = w_cmd - w_fb, e_theta = theta_cmd - theta_fb (the drive's own samples),
+# hp a first-order high-pass (removes the static lag), x the Park angle; the
+# resonant phasor a_h + j b_h integrates (KR_h + j KI_h) times the velocity
+# error demodulated at h*x (sin + j cos), clamped to +-limit.
+# ---------------------------------------------------------------------------
+L_KV = 0           # velocity gain (A per rad/s)
+L_KP = 1           # high-passed position gain (A per rad): with L_KV, a phase lead
+L_KR1 = 2          # resonant gains, real and imaginary, h = 1, 2, 4 (A/s per rad/s)
+L_KI1 = 3
+L_KR2 = 4
+L_KI2 = 5
+L_KR4 = 6
+L_KI4 = 7
+L_HP_ALPHA = 8     # high-pass coefficient per period, 1 - exp(-2*pi*fc*dt)
+L_LIMIT = 9        # bound of the law's current and of each resonant coefficient (A)
+L_E_LP = 10        # state: low-passed position error (rad)
+L_A1 = 11          # state: resonant coefficients of sin/cos h x, h = 1, 2, 4 (A)
+L_B1 = 12
+L_A2 = 13
+L_B2 = 14
+L_A4 = 15
+L_B4 = 16
+L_SUM_I2 = 17      # sum over periods of the law's current squared (A^2), zeroed by the caller
+N_LAW = 18
+N_LAW_GAINS = 8    # L_KV .. L_KI4: what an agent sets
+
+# ---------------------------------------------------------------------------
 # Trace channels: one row per recorded PWM period.
 # ---------------------------------------------------------------------------
 T_T = 0
@@ -759,6 +789,52 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     every ``trace_every`` periods (counted from this call's start) while it has
     room; pass a (0, N_TRACE) array for none. Returns the rows written.
     """
+    return _advance(c, s, acc, u_arr, None, n_periods, trace, trace_every)
+
+
+@_jit
+def run_periods_law(c, s, acc, u_arr, law, n_periods, trace, trace_every):
+    """:func:`run_periods` with the damping law ``law`` (``L_*``) on top.
+
+    Each period the law reads the drive's samples of the period before (one
+    PWM period of computation) and adds its current to the q residual
+    ``U_IQ``; gains of zero add exactly nothing.
+    """
+    return _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every)
+
+
+@_jit_inline
+def law_current(law, e_w, e_theta, angle, dt):
+    """One period of the damping law (see ``L_*``): updates its state, returns its current (A)."""
+    e_lp = law[L_E_LP] + law[L_HP_ALPHA] * (e_theta - law[L_E_LP])
+    law[L_E_LP] = e_lp
+    i = law[L_KV] * e_w + law[L_KP] * (e_theta - e_lp)
+    limit = law[L_LIMIT]
+    if (law[L_KR1] != 0.0 or law[L_KI1] != 0.0 or law[L_KR2] != 0.0 or law[L_KI2] != 0.0
+            or law[L_KR4] != 0.0 or law[L_KI4] != 0.0 or law[L_A1] != 0.0 or law[L_B1] != 0.0
+            or law[L_A2] != 0.0 or law[L_B2] != 0.0 or law[L_A4] != 0.0 or law[L_B4] != 0.0):
+        s1, c1 = sincos(angle)
+        s2, c2, s4, c4 = harmonics(s1, c1)
+        sn = (s1, s2, s4)
+        cn = (c1, c2, c4)
+        for k in range(3):
+            kr, ki = law[L_KR1 + 2 * k], law[L_KI1 + 2 * k]
+            es, ec = e_w * sn[k], e_w * cn[k]
+            a = law[L_A1 + 2 * k] + dt * (kr * es - ki * ec)
+            b = law[L_B1 + 2 * k] + dt * (ki * es + kr * ec)
+            a = min(max(a, -limit), limit)
+            b = min(max(b, -limit), limit)
+            law[L_A1 + 2 * k] = a
+            law[L_B1 + 2 * k] = b
+            i += a * sn[k] + b * cn[k]
+    i = min(max(i, -limit), limit)
+    law[L_SUM_I2] += i * i
+    return i
+
+
+@_jit
+def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
+    """The fused loop; ``law`` None (pruned at compile time) or an ``L_*`` row."""
     p = plant_params(c)
     q = controller_params(c)
     u = (u_arr[0], u_arr[1], u_arr[2], u_arr[3], u_arr[4], u_arr[5], u_arr[6])
@@ -788,7 +864,13 @@ def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
         t = period * dt
         # Computation delay: this period applies what the previous one computed.
         va, vb = va_next, vb_next
-        cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u)
+        if law is None:
+            cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u)
+        else:
+            # The law's current from the previous period's samples, then held.
+            i_law = law_current(law, obs[2] - cs[3], obs[1] - cs[2], obs[7], dt)
+            u_law = (u[0], u[1], u[2], u[3], u[4], u[5], u[6] + i_law)
+            cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u_law)
         va_next, vb_next = v_next
 
         # Metrics of the sample at the period's start.
@@ -868,3 +950,11 @@ def run_batch(configs, states, accs, inputs, n_periods):
     empty = np.zeros((0, N_TRACE))
     for i in range(configs.shape[0]):
         run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, 1)
+
+
+@_jit
+def run_batch_law(configs, states, accs, inputs, laws, n_periods):
+    """:func:`run_batch` with each drive's damping law (rows of ``laws``)."""
+    empty = np.zeros((0, N_TRACE))
+    for i in range(configs.shape[0]):
+        _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, 1)

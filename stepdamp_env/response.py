@@ -8,11 +8,15 @@ in time, and return a complex gain. They serve the model-based baselines
 
 from __future__ import annotations
 
+import cmath
 import math
 
-from .params import SystemParams
+import numpy as np
 
-__all__ = ["current_path", "velocity_filter", "servo_loop", "torque_to_velocity"]
+from .params import DETENT_HARMONICS, FeedforwardModel, SystemParams
+
+__all__ = ["current_path", "velocity_filter", "servo_loop", "torque_to_velocity", "phasors",
+           "torque_paths"]
 
 
 def _z(system: SystemParams, w: float) -> tuple[complex, float]:
@@ -67,3 +71,31 @@ def torque_to_velocity(system: SystemParams, w: float, mode: str) -> complex:
         k = m.Km * system.drive.holding_current * m.Nr
         return jw / (k + m.J * jw * jw + m.D * jw)
     return 1.0 / (m.J * jw) / (1.0 + servo_loop(system, w))
+
+
+def phasors(model: FeedforwardModel) -> np.ndarray:
+    """The model's harmonics 1, 2, 4 as complex phasors (N*m)."""
+    c = model.coefficients()
+    return np.array([complex(c[0], c[1]), complex(c[2], c[3]), complex(c[4], c[5])])
+
+
+def torque_paths(system: SystemParams, mode: str, speed_rps: float,
+                 friction: FeedforwardModel | None = None) -> np.ndarray:
+    """G for h = 1, 2, 4 at the held speed, from the drive model.
+
+    The current path (sampled current loop, computation delay, held voltage).
+    In open loop the rotor also trails its command by the static lag
+    (Fs + D*w)/(Km*holding_current*Nr), so the detent it feels runs h*Nr*lag
+    behind the feedforward's angle: G carries that as a phase lead (with Fs
+    from ``friction``, the drive's friction estimate, if given).
+    """
+    w = 2.0 * math.pi * abs(speed_rps)
+    m = system.motor
+    lag = 0.0
+    if mode == "open-loop":
+        fs = friction.Fs if friction is not None else m.Fs
+        lag = (fs + m.D * w) / (m.Km * system.drive.holding_current * m.Nr)
+    out = np.zeros(3, dtype=complex)
+    for i, h in enumerate(DETENT_HARMONICS):
+        out[i] = current_path(system, h * m.Nr * w) * cmath.exp(1j * h * m.Nr * lag)
+    return out

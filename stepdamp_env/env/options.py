@@ -15,7 +15,7 @@ from .registration import ENV_ID
 
 __all__ = ["EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
            "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
-           "check_number", "check_choice", "OPTIONS_DOC"]
+           "check_number", "check_choice", "check_pair", "OPTIONS_DOC"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -83,7 +83,7 @@ def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
     return value
 
 
-def _pair(name: str, value: Any) -> tuple[float, float]:
+def check_pair(name: str, value: Any) -> tuple[float, float]:
     try:
         low, high = value
     except (TypeError, ValueError):
@@ -137,7 +137,7 @@ class EnvOptions:
                                      "'nominal'] or a FeedforwardModel")
         if self.speed_rps is not None:
             check_number("speed_rps", self.speed_rps, 1e-6, 100.0)
-        lo, hi = _pair("speed_range_rps", self.speed_range_rps)
+        lo, hi = check_pair("speed_range_rps", self.speed_range_rps)
         if not 1e-6 <= lo <= hi <= 100.0:
             raise _bad("speed_range_rps", self.speed_range_rps, "1e-6 <= low <= high <= 100 (rev/s)")
         check_number("resonance_prob", self.resonance_prob, 0.0, 1.0)
@@ -172,7 +172,7 @@ class EnvOptions:
                 raise ParameterError(f"randomize: unknown field(s) {unknown}; allowed: "
                                      f"{list(RANDOMIZABLE_FIELDS)}")
             for name, rng in self.randomize.items():
-                lo, hi = _pair(f"randomize[{name!r}]", rng)
+                lo, hi = check_pair(f"randomize[{name!r}]", rng)
                 if name in PHASE_FIELDS:
                     ok = -TWO_PI <= lo <= hi <= TWO_PI
                     allowed = "-2*pi <= low <= high <= 2*pi (rad)"

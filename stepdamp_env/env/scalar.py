@@ -14,6 +14,7 @@ from . import compiled as C
 from .actions import action_error, as_action
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
+from .render import render_episode, trace_rows
 from .sampler import EpisodeSampler
 
 __all__ = ["StepperDampEnv"]
@@ -254,10 +255,7 @@ class StepperDampEnv(gym.Env):
 
     # -- rendering ------------------------------------------------------------------
     def _record(self) -> None:
-        tr = self._trace
-        # t, velocity error, ia, ib, injected iq: every PWM period of the step.
-        self._history.append(np.stack([tr[:, K.T_T], tr[:, K.T_OMEGA_CMD] - tr[:, K.T_OMEGA],
-                                       tr[:, K.T_IA], tr[:, K.T_IB], tr[:, K.T_IQ_FF]]))
+        self._history.append(trace_rows(self._trace))
 
     def render(self) -> np.ndarray | None:
         """RGB array (H, W, 3) of velocity error and currents of the episode so far."""
@@ -265,25 +263,5 @@ class StepperDampEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; pass "
                             "render_mode='rgb_array' to the constructor")
             return None
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(6.4, 4.8), dpi=80)
-        canvas = FigureCanvasAgg(fig)
-        ax1, ax2 = fig.subplots(2, 1, sharex=True)
-        if self._history:
-            h = np.concatenate(self._history, axis=1)
-            t_ms = 1e3 * h[0]
-            ax1.plot(t_ms, h[1], lw=0.8)
-            ax2.plot(t_ms, h[2], lw=0.8, label="ia")
-            ax2.plot(t_ms, h[3], lw=0.8, label="ib")
-            ax2.plot(t_ms, h[4], lw=0.8, label="iq injected")
-            ax2.legend(loc="upper right", fontsize=7)
         speed = self._par[C.P_W_REF] / TWO_PI
-        ax1.set_title(f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}", fontsize=9)
-        ax1.set_ylabel("w_cmd - w (rad/s)")
-        ax2.set_ylabel("current (A)")
-        ax2.set_xlabel("t (ms)")
-        fig.tight_layout()
-        canvas.draw()
-        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+        return render_episode(self._history, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")

@@ -1,0 +1,560 @@
+"""``StepperDamp-v1``: the residual damping task in units the motor sets, scalar and vector.
+
+Both classes advance a :class:`DriveBatch` (N drives, one compiled call per
+step: :func:`stepdamp_env.kernel.run_batch_law`); the scalar env is a batch of
+one, so the two agree step for step by construction.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .. import kernel as K
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..response import phasors, torque_paths
+from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, initial_state,
+                          merge_accumulators, metrics_from_accumulators, new_accumulators)
+from . import compiled as C
+from . import v1_compiled as V
+from .actions import action_error, as_action
+from .render import render_episode, trace_rows
+from .registration import ENV_ID_V1
+from .sampler import EpisodeSampler
+from .v1_options import (ACTION_NAMES_V1, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
+                         MotorUnits)
+
+__all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv"]
+
+TWO_PI = 2.0 * math.pi
+_FF_COLUMNS = (K.C_FF_S1, K.C_FF_C1, K.C_FF_S2, K.C_FF_C2, K.C_FF_S4, K.C_FF_C4)
+
+
+class TaskV1:
+    """What one v1 env is: its options, the drive's units, spaces and action scales.
+
+    Read-only. Episodes are drawn by v0's :class:`EpisodeSampler` (``draws``), so a
+    seed gives the same motor and speed in v0 and v1.
+    """
+
+    def __init__(self, options: EnvOptionsV1) -> None:
+        self.options = o = options
+        self.draws = EpisodeSampler(o.shared())
+        self.nominal: SystemParams = self.draws.nominal
+        self.units = u = MotorUnits.of(self.nominal)
+        self.n_periods = self.draws.n_periods
+        self.seconds_per_step = self.draws.seconds_per_step
+        self.max_episode_steps = o.max_episode_steps
+        self.action_names = ACTION_NAMES_V1[o.action_mode]
+        self.act_dim = len(self.action_names)
+        m = self.nominal.motor
+        drive = self.nominal.drive
+        kv = 2.0 * o.damping_ratio_scale * m.J * u.wn_rad_s / m.Km
+        kr = o.resonant_rate_scale * m.J * u.wn_rad_s ** 2 / m.Km
+        harmonic, current = self.draws.harmonic_scale_nm, self.draws.current_scale_a
+        if o.action_mode == "damping-gains":
+            # (kv, kp) = (cos phi, -sin phi) is velocity feedback with a lead phi at wn.
+            scales = (kv, kv * u.wn_rad_s) + (kr,) * 6
+            self.law_actions, self.input_offset = True, K.L_KV
+        elif o.action_mode == "harmonic":
+            scales, self.law_actions, self.input_offset = (harmonic,) * 6, False, K.U_DS1
+        elif o.action_mode == "current":
+            scales, self.law_actions, self.input_offset = (current,), False, K.U_IQ
+        else:
+            scales, self.law_actions, self.input_offset = ((harmonic,) * 6 + (current,), False,
+                                                           K.U_DS1)
+        self.action_scales = tuple(float(x) for x in scales)
+        # The high-pass of the position error: corner wn/4 (13 degrees of lead at wn).
+        self.law_hp_alpha = 1.0 - math.exp(-0.25 * u.wn_rad_s / drive.pwm_hz)
+        self.law_limit_a = o.law_limit_factor * drive.holding_current
+        self.n_context = V.N_CONTEXT if o.context == "visible" else 0
+        self.obs_dim = (V.N_BASE_OBS + self.act_dim + V.N_HISTORY_SIGNALS * o.history
+                        + self.n_context + (V.N_PRIVILEGED if o.privileged else 0))
+
+    def observation_space(self) -> spaces.Box:
+        high = np.full(self.obs_dim, C.OBS_BOUND, dtype=np.float32)
+        high[V.OBS_SIN_X:V.OBS_COS_4X + 1] = 1.0
+        high[V.N_BASE_OBS:V.N_BASE_OBS + self.act_dim] = 1.0
+        return spaces.Box(-high, high, dtype=np.float32)
+
+    def action_space(self) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, shape=(self.act_dim,), dtype=np.float32)
+
+    def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
+        """The detent model the base controller uses in an episode of ``system``."""
+        return self.draws.episode_estimate(system)
+
+    def base_coefficients(self, system: SystemParams, speed_rps: float) -> np.ndarray:
+        """The base controller's feedforward sin/cos coefficients (N*m) of an episode."""
+        model = self.episode_estimate(system)
+        p = phasors(model)
+        if self.options.base_controller == "ff-delay-comp":
+            p = p / torque_paths(self.nominal, self.options.mode, speed_rps, model)
+        out = np.empty(6)
+        out[0::2], out[1::2] = p.real, p.imag
+        return out
+
+    def context(self, system: SystemParams, speed_rps: float) -> np.ndarray:
+        """The visible context of an episode (``CONTEXT_NAMES``), float32."""
+        res = self.nominal.predicted_resonances_rps()
+        model = np.asarray(self.episode_estimate(system).coefficients())
+        kd = self.units.current_unit_a * self.nominal.motor.Km
+        return np.concatenate([[speed_rps / res[h] for h in (4, 2, 1)], model / kd]
+                              ).astype(np.float32)
+
+    def new_episode(self, rng: np.random.Generator, c: np.ndarray, s: np.ndarray,
+                    par: np.ndarray, law: np.ndarray, ctx: np.ndarray
+                    ) -> tuple[dict[str, Any], SystemParams]:
+        """Draw an episode into the rows; returns (reset info, system)."""
+        o, d = self.options, self.draws
+        system = d.draw_system(rng)
+        speed, h = d.draw_speed(rng, system)
+        noise_seed = int(rng.integers(2 ** 53))
+        estimate = self.episode_estimate(system)
+        settings = RunSettings(mode=o.mode, damping="patent-ff" if o.base_controller != "none"
+                               else "none", substeps=int(o.substeps), estimate=estimate,
+                               velocity_estimator=o.velocity_estimator, noise_seed=noise_seed)
+        window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
+        c[:] = build_config(system, SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2),
+                            settings, window_start_s=window)
+        if o.base_controller == "ff-delay-comp":
+            c[list(_FF_COLUMNS)] = self.base_coefficients(system, speed)
+        s[:] = initial_state(c)
+        u, hold = self.units, system.drive.holding_current
+        par[V.P_POS_UNIT] = u.position_unit_rad
+        par[V.P_VEL_UNIT] = u.velocity_unit_rad_s
+        par[V.P_CUR_UNIT] = u.current_unit_a
+        par[V.P_SPEED_UNIT] = u.speed_unit_rad_s
+        par[V.P_ID_CMD] = hold if o.mode == "open-loop" else 0.0
+        par[V.P_FULL_STEP] = system.motor.full_step_rad
+        par[V.P_HOLD] = hold
+        par[V.P_I_LIMIT] = o.current_limit_factor * hold
+        par[V.P_CUR_PEN] = o.current_penalty
+        par[V.P_ACT_SCALE:V.P_ACT_SCALE + self.act_dim] = self.action_scales
+        law[:] = 0.0
+        law[K.L_HP_ALPHA] = self.law_hp_alpha
+        law[K.L_LIMIT] = self.law_limit_a
+        if self.n_context:
+            ctx[:] = self.context(system, speed)
+        return {"speed_rps": speed, "target_harmonic": h}, system
+
+
+class DriveBatch:
+    """N drives of one :class:`TaskV1`: their arrays, their resets, their steps."""
+
+    def __init__(self, task: TaskV1, n: int) -> None:
+        self.task = t = task
+        self.n = n
+        self.c = np.zeros((n, K.N_CONFIG))
+        self.s = np.zeros((n, K.N_STATE))
+        self.acc = np.zeros((n, K.N_ACC))
+        self.u = np.zeros((n, K.N_INPUT))
+        self.law = np.zeros((n, K.N_LAW))
+        self.par = np.zeros((n, V.N_PAR))
+        self.history = np.zeros((n, V.N_HISTORY_SIGNALS * t.options.history), dtype=np.float32)
+        self.ctx = np.zeros((n, t.n_context), dtype=np.float32)
+        self.obs = np.zeros((n, t.obs_dim), dtype=np.float32)
+        self.out = np.zeros((n, V.N_OUT))
+        self.a = np.zeros((n, t.act_dim))
+        self.t = np.zeros(n, dtype=np.int64)
+        self.speeds_rps = np.zeros(n)
+        self.systems: list[SystemParams | None] = [None] * n
+        self._dest = self.law if t.law_actions else self.u
+        self._privileged = bool(t.options.privileged)
+
+    def reset_drive(self, i: int, rng: np.random.Generator) -> dict[str, Any]:
+        info, self.systems[i] = self.task.new_episode(rng, self.c[i], self.s[i], self.par[i],
+                                                      self.law[i], self.ctx[i])
+        self.u[i] = 0.0
+        self.a[i] = 0.0
+        self.t[i] = 0
+        self.history[i] = 0.0
+        self.speeds_rps[i] = info["speed_rps"]
+        self.acc[i] = 0.0
+        self.acc[i, K.A_COUNT_ALL] = 1.0
+        self._observe(slice(i, i + 1))
+        return info
+
+    def _observe(self, rows: slice = slice(None)) -> None:
+        V.observe(self.s[rows], self.acc[rows], self.law[rows], self.a[rows], self.par[rows],
+                  C.KERNEL_INDEX, V.LAW_INDEX, self.history[rows], self.ctx[rows],
+                  self._privileged, C.OBS_BOUND, REWARD_BOUND, self.obs[rows], self.out[rows])
+
+    def load(self, actions: Any, shape: tuple[int, ...]) -> None:
+        """Check the actions (of ``shape``: (n, k), or (k,) for one drive) and scale
+        them into the kernel's inputs or the law's gains."""
+        a = as_action(actions, shape).reshape(self.n, self.task.act_dim)
+        if V.load_actions(a, self._dest, self.task.input_offset, self.par, self.acc, self.law,
+                          V.LAW_INDEX) >= 0:
+            raise action_error(actions, shape)
+        self.a[:] = a
+
+    def advance(self, trace: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Run one agent step of every drive; returns (terminated, truncated) masks.
+
+        ``out`` holds each drive's physics and reward (the termination loss included).
+        """
+        n = self.task.n_periods
+        if trace is None:
+            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
+        else:
+            K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
+                              trace, 1)
+        self._observe()
+        self.t += 1
+        out = self.out
+        terminated = out[:, V.O_TERMINATED] != 0.0
+        left = self.task.max_episode_steps - self.t
+        if terminated.any():
+            # The worst reward of every step it did not play: ending early never pays.
+            out[terminated, V.O_REWARD] -= (REWARD_BOUND * (1.0 + self.par[terminated, V.P_CUR_PEN])
+                                            * np.maximum(left[terminated], 0))
+        truncated = (left <= 0) & ~terminated
+        return terminated, truncated
+
+    def info(self, i: int) -> dict[str, Any]:
+        """The physics of drive i's last step (SI units)."""
+        out = self.out[i]
+        return {"velocity_error_rms_rad_s": float(out[V.O_VEL_RMS]),
+                "lag_rad": float(out[V.O_LAG]),
+                "injected_current_rms_a": float(out[V.O_IINJ_RMS]),
+                "damping_current_rms_a": float(out[V.O_LAW_RMS]),
+                "peak_current_a": float(out[V.O_PEAK_I]),
+                "step_loss": bool(out[V.O_STEP_LOSS]), "overcurrent": bool(out[V.O_OVERCURRENT]),
+                "time_s": float(self.t[i] * self.task.seconds_per_step)}
+
+
+_DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), version 1.
+
+    ## Description
+
+    One episode is one operating point of one drive, drawn exactly as in
+    ``StepperDamp-v0`` (a preset, a motor file or a randomised draw; open loop
+    or servo; a speed command that ramps from rest and is then held; the same
+    seed gives the same motor and speed in both). A model-based base
+    controller runs in the drive (``base_controller``, "ff-delay-comp" by
+    default); the agent acts on top of it every ``1/agent_hz`` s (1 ms) while
+    the PWM period, current loops, damping law and plant run at ``pwm_hz`` (20
+    kHz). A zero action is the base controller alone.
+
+    Units are those the motor sets itself, computed from the drive's nominal
+    (datasheet) model, never from the episode's true plant (``env.task.units``,
+    :class:`MotorUnits`): the rotor on the spring of its holding current,
+    k = Km*I_hold*Nr, wn = sqrt(k/J); Kd = max(Kd1, Kd2, Kd4);
+    ``position_unit_rad`` = Kd/k, ``velocity_unit_rad_s`` = wn*Kd/k (0.36 rad/s
+    for "patent"), ``current_unit_a`` = Kd/Km (the current that cancels the
+    largest detent harmonic).
+
+    ## Action Space
+
+    ``Box(-1, 1, (k,), float32)``, scaled inside, held for one agent step:
+
+    * ``"damping-gains"`` (default, k = 8): gains of a damping law that the
+      compiled kernel evaluates every PWM period from the drive's own samples
+      (one period old) and adds to the q current, bounded by
+      ``law_limit_factor`` * holding current:
+      ``iq = kv*Kv*e_w + kp*Kv*wn*hp(e_theta) + sum_h (a_h sin hx + b_h cos hx)``,
+      e_w = w_cmd - w_estimate, e_theta = theta_cmd - theta_encoder, hp a
+      high-pass at wn/4 (drops the static lag), Kv = 2*``damping_ratio_scale``*J*wn/Km
+      (kv = 1 adds a damping ratio of 0.5 to the nominal rotor; (kv, kp) =
+      (cos phi, -sin phi) leads by phi at wn). Per harmonic h = 1, 2, 4 a
+      resonant term: its phasor a_h + j b_h integrates (r<h>_re + j r<h>_im) *
+      Kr * e_w * (sin hx + j cos hx), Kr = ``resonant_rate_scale``*J*wn^2/Km,
+      and is kept when its gains go back to zero. Names:
+      ``kv, kp, r1_re, r1_im, r2_re, r2_im, r4_re, r4_im``.
+    * ``"harmonic"`` (k = 6), ``"current"`` (k = 1), ``"harmonic+current"`` (k = 7):
+      as in v0 (corrections of the feedforward's coefficients, times
+      ``harmonic_scale_nm``; a q current, times ``current_scale_a``).
+
+    An action of the wrong shape, non-finite or outside [-1, 1] raises ValueError.
+
+    ## Observation Space
+
+    ``Box(float32)``, what the drive senses at the end of the step, clipped to
+    [-10, 10] (typical ranges: base controller at the resonances of randomised
+    motors, README "StepperDamp-v1"):
+
+    | idx | name | meaning (unit) |
+    |-----|------|----------------|
+    | 0 | position_error | (theta_cmd - encoder angle) / position_unit_rad |
+    | 1 | velocity_error | (w_cmd - velocity estimate) / velocity_unit_rad_s |
+    | 2-7 | sin_x .. cos_4x | sin, cos of the electrical angle x, 2x, 4x |
+    | 8 | speed_command | w_cmd / (2*pi * predicted h = 1 resonance speed) |
+    | 9 | id_error | (measured id - id command) / current_unit_a |
+    | 10 | iq | measured iq / current_unit_a |
+    | 11- | last_action_* | the last action (k entries) |
+
+    Then, with ``history=h``, the position and velocity error of the h steps
+    before (``position_error_1, velocity_error_1, ...``, newest first; zeros
+    before the first step). With ``context="visible"``, what the drive knows
+    of the episode (CARL's visible context): the held speed over the three
+    predicted resonance speeds of the nominal motor (h = 4, 2, 1), and the
+    base controller's detent model as sin/cos coefficients of x, 2x, 4x over
+    Kd. With ``privileged=True`` the true position and velocity error (same
+    units) and ia, ib / holding current. Names:
+    ``stepdamp_env.env.observation_names_v1(...)``.
+
+    ## Rewards
+
+    ``-min(rms(w_cmd - w)/velocity_unit_rad_s, 10) - current_penalty *
+    min(rms(iq_injected)/current_unit_a, 10)``, RMS over the step's PWM
+    periods of the true speed error and of the injected q current (base,
+    residual and law). With the base controller at a resonance it is about
+    -0.1 to -1 per step. Summed over the held part of an episode, minus the
+    return divided by the number of steps is about the ripple RMS in
+    velocity units; the leaderboard's headline divides that ripple by the
+    undamped drive's. A terminating step also loses 10*(1 + current_penalty)
+    for every step left in the episode.
+
+    ## Episode End
+
+    Terminated on step loss (lag past one full step), an unsafe phase current
+    (past ``current_limit_factor`` times the holding current) or a non-finite
+    state. Truncated after ``round(episode_s * agent_hz)`` steps (400); the
+    scalar env raises ``gymnasium.error.ResetNeeded`` on a step after either.
+    ``info`` (SI units): ``velocity_error_rms_rad_s``, ``lag_rad``,
+    ``injected_current_rms_a``, ``damping_current_rms_a``, ``peak_current_a``,
+    ``step_loss``, ``overcurrent``, ``time_s``; reset info ``speed_rps``,
+    ``target_harmonic``.
+    """ + OPTIONS_DOC_V1 + """
+    ## Version History
+
+    * v1 (package 0.3): units the motor sets, history, visible context, a
+      dimensionless reward, the damping-gains law in the kernel, ff-delay-comp
+      as a base controller, the env's own time limit.
+    * v0: frozen (``StepperDamp-v0``).
+    """
+
+
+class StepperDampV1Env(gym.Env):
+    __doc__ = _DOC
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ParameterError(f"render_mode={render_mode!r} is not one of "
+                                 f"{[None] + self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.options = EnvOptionsV1.from_kwargs(options)
+        self.task = task = TaskV1(self.options)
+        self.observation_space = task.observation_space()
+        self.action_space = task.action_space()
+        self._drives = DriveBatch(task, 1)
+        self._trace = np.zeros((task.n_periods if render_mode else 0, K.N_TRACE))
+        self._frames: list[np.ndarray] = []
+        self._run_acc = new_accumulators()
+        self.system: SystemParams | None = None
+        self._ready = False
+        self._ended: str | None = None
+
+    @property
+    def drive_state(self) -> np.ndarray:
+        """Copy of the kernel's state vector (``kernel.S_*``; SI units)."""
+        return self._drives.s[0].copy()
+
+    @property
+    def speed_rps(self) -> float:
+        """The held command speed of the current episode (rev/s; 0 before reset)."""
+        return float(self._drives.speeds_rps[0])
+
+    def run_metrics(self) -> RunMetrics:
+        """The simulation core's metrics of the episode so far (needs ``measure_from_s``)."""
+        if self.options.measure_from_s is None:
+            raise ParameterError("run_metrics() needs the option measure_from_s")
+        if self.system is None:
+            raise gym.error.ResetNeeded("call reset() before run_metrics()")
+        return metrics_from_accumulators(self._run_acc, self.system, self.speed_rps)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        info = self._drives.reset_drive(0, self.np_random)
+        self.system = self._drives.systems[0]
+        self._frames = []
+        self._run_acc[:] = 0.0
+        self._ready = True
+        self._ended = None
+        return self._drives.obs[0].copy(), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self._ready:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if self._ended is not None:
+            raise gym.error.ResetNeeded(f"the episode has {self._ended}; call reset() before step()")
+        d = self._drives
+        d.load(action, (self.task.act_dim,))
+        terminated, truncated = d.advance(self._trace)
+        if self.options.measure_from_s is not None:
+            merge_accumulators(self._run_acc, d.acc[0])
+        if self.render_mode is not None:
+            self._frames.append(trace_rows(self._trace))
+        term, trunc = bool(terminated[0]), bool(truncated[0])
+        if term:
+            self._ended = "terminated (step loss, over-current or a non-finite state)"
+        elif trunc:
+            self._ended = "been truncated (time limit)"
+        return d.obs[0].copy(), float(d.out[0, V.O_REWARD]), term, trunc, d.info(0)
+
+    def render(self) -> np.ndarray | None:
+        """RGB array (H, W, 3) of velocity error and currents of the episode so far."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass "
+                            "render_mode='rgb_array' to the constructor")
+            return None
+        return render_episode(self._frames, f"{ENV_ID_V1}: {self.speed_rps:.3g} rev/s, "
+                              f"{self.options.mode}, {self.options.base_controller}")
+
+
+class StepperDampV1VectorEnv(VectorEnv):
+    __doc__ = """Native vectorised ``StepperDamp-v1``: N drives stepped by one compiled call.
+
+    Spaces, rewards and episode ends are those of :class:`StepperDampV1Env`; the
+    same seeds give the same episodes as N scalar envs reset with ``seed + i``,
+    step for step. Drives reset automatically: ``autoreset_mode`` NEXT_STEP
+    (default: the step after an episode end resets that drive, its action is
+    ignored, reward 0) or SAME_STEP (``infos["final_obs"]``,
+    ``infos["final_info"]``). ``infos`` holds the scalar env's step info as
+    arrays with ``_key`` masks. Rendering: None only.
+    """ + OPTIONS_DOC_V1
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, *,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 render_mode: str | None = None, **options: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
+                or not 1 <= num_envs <= 1_000_000:
+            raise ParameterError(f"num_envs={num_envs!r} is outside its allowed range "
+                                 "[1, 1000000] (integer)")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ParameterError(f"autoreset_mode={autoreset_mode!r} is not one of "
+                                 f"{[m.value for m in AutoresetMode]}") from None
+        if mode == AutoresetMode.DISABLED:
+            raise ParameterError("autoreset_mode='Disabled' is not supported; allowed: "
+                                 "NextStep, SameStep")
+        if render_mode is not None:
+            raise ParameterError(f"render_mode={render_mode!r}: the vector environment does "
+                                 "not render; allowed: None (render a scalar env instead)")
+        self.render_mode = None
+        self.metadata = {**type(self).metadata, "autoreset_mode": mode}
+        self.autoreset_mode = mode
+        self.options = EnvOptionsV1.from_kwargs(options)
+        if self.options.measure_from_s is not None:
+            raise ParameterError("measure_from_s is an option of the scalar env only; allowed "
+                                 "here: None")
+        self.task = task = TaskV1(self.options)
+        n = self.num_envs = int(num_envs)
+        self.single_observation_space = task.observation_space()
+        self.single_action_space = task.action_space()
+        self.observation_space = batch_space(self.single_observation_space, n)
+        self.action_space = batch_space(self.single_action_space, n)
+        self._drives = DriveBatch(task, n)
+        self._autoreset = np.zeros(n, dtype=bool)
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._ready = False
+
+    @property
+    def systems(self) -> list[SystemParams | None]:
+        """The system of each drive's current episode."""
+        return list(self._drives.systems)
+
+    @property
+    def speeds_rps(self) -> np.ndarray:
+        """The held command speed of each drive's current episode (rev/s); a copy."""
+        return self._drives.speeds_rps.copy()
+
+    def _reset_drive(self, i: int) -> dict[str, Any]:
+        if self._rngs[i] is None:
+            self._rngs[i], _ = seeding.np_random(None)
+        return self._drives.reset_drive(i, self._rngs[i])
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        n = self.num_envs
+        if seed is None:
+            seeds: list[int | None] = [None] * n
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != n:
+                raise ParameterError(f"seed: a list of seeds must have num_envs={n} entries, "
+                                     f"got {len(seeds)}")
+        mask = np.ones(n, dtype=bool)
+        if options and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+            if mask.shape != (n,):
+                raise ParameterError(f"options['reset_mask'] must have shape ({n},), got "
+                                     f"{mask.shape}")
+        if seed is not None or not self._ready:
+            for i, sd in enumerate(seeds):
+                if mask[i] and (sd is not None or self._rngs[i] is None):
+                    self._rngs[i], _ = seeding.np_random(sd)
+        speeds = np.zeros(n)
+        harm = np.zeros(n, dtype=np.int64)
+        for i in np.flatnonzero(mask):
+            info = self._reset_drive(int(i))
+            speeds[i], harm[i] = info["speed_rps"], info["target_harmonic"]
+        self._autoreset[mask] = False
+        self._ready = True
+        return self._drives.obs.copy(), {"speed_rps": speeds, "_speed_rps": mask.copy(),
+                                         "target_harmonic": harm, "_target_harmonic": mask.copy()}
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          dict[str, Any]]:
+        if not self._ready:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        d = self._drives
+        d.load(actions, (self.num_envs, self.task.act_dim))
+        terminated, truncated = d.advance()
+        out = d.out.copy()
+        rewards = out[:, V.O_REWARD]
+        valid = np.ones(self.num_envs, dtype=bool)
+        infos: dict[str, Any] = {}
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            if self._autoreset.any():
+                # These drives ended last step: they start over now.
+                valid = ~self._autoreset
+                for i in np.flatnonzero(self._autoreset):
+                    self._reset_drive(int(i))
+                rewards[~valid] = 0.0
+                terminated &= valid
+                truncated &= valid
+            self._autoreset = terminated | truncated
+            obs = d.obs.copy()
+        else:
+            done = terminated | truncated
+            obs = d.obs.copy()
+            if done.any():
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                final_info = np.full(self.num_envs, None, dtype=object)
+                for i in np.flatnonzero(done):
+                    final_obs[i] = obs[i].copy()
+                    final_info[i] = d.info(int(i))
+                    self._reset_drive(int(i))
+                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+                infos["final_info"], infos["_final_info"] = final_info, done.copy()
+                obs = d.obs.copy()
+        physics = {"velocity_error_rms_rad_s": out[:, V.O_VEL_RMS], "lag_rad": out[:, V.O_LAG],
+                   "injected_current_rms_a": out[:, V.O_IINJ_RMS],
+                   "damping_current_rms_a": out[:, V.O_LAW_RMS],
+                   "peak_current_a": out[:, V.O_PEAK_I],
+                   "step_loss": out[:, V.O_STEP_LOSS] != 0.0,
+                   "overcurrent": out[:, V.O_OVERCURRENT] != 0.0}
+        for key, value in physics.items():
+            infos[key] = value
+            infos["_" + key] = valid
+        return obs, rewards, terminated, truncated, infos
+
+    def render(self) -> None:
+        return None
