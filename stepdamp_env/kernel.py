@@ -248,7 +248,8 @@ L_B2 = 14
 L_A4 = 15
 L_B4 = 16
 L_SUM_I2 = 17      # sum over periods of the law's current squared (A^2), zeroed by the caller
-N_LAW = 18
+L_RESONANT = 18    # 1.0 while a resonant gain or coefficient is non-zero (set by the caller)
+N_LAW = 19
 N_LAW_GAINS = 8    # L_KV .. L_KI4: what an agent sets
 
 # ---------------------------------------------------------------------------
@@ -706,7 +707,8 @@ def control_step(period, theta, ia, ib, cs, q, u):
     ``q`` is :func:`controller_params`, ``u`` the external inputs.
 
     Returns (new cs, (va, vb) winding voltages to apply next period,
-    (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle)).
+    (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle, sin angle,
+    cos angle)).
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est = cs
     dt, nr = q[Q_DT], q[Q_NR]
@@ -775,7 +777,7 @@ def control_step(period, theta, ia, ib, cs, q, u):
     int_d = pi_update(err_d, int_d, vd, vd_app, kp, ki, dt)
     int_q = pi_update(err_q, int_q, vq, vq_app, kp, ki, dt)
     return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est), (va, vb),
-            (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle))
+            (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
 
 
 # ---------------------------------------------------------------------------
@@ -804,16 +806,14 @@ def run_periods_law(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 
 
 @_jit_inline
-def law_current(law, e_w, e_theta, angle, dt):
-    """One period of the damping law (see ``L_*``): updates its state, returns its current (A)."""
+def law_current(law, e_w, e_theta, s1, c1, dt):
+    """One period of the damping law (see ``L_*``) at the Park angle whose sin and
+    cos are given: updates its state, returns its current (A)."""
     e_lp = law[L_E_LP] + law[L_HP_ALPHA] * (e_theta - law[L_E_LP])
     law[L_E_LP] = e_lp
     i = law[L_KV] * e_w + law[L_KP] * (e_theta - e_lp)
     limit = law[L_LIMIT]
-    if (law[L_KR1] != 0.0 or law[L_KI1] != 0.0 or law[L_KR2] != 0.0 or law[L_KI2] != 0.0
-            or law[L_KR4] != 0.0 or law[L_KI4] != 0.0 or law[L_A1] != 0.0 or law[L_B1] != 0.0
-            or law[L_A2] != 0.0 or law[L_B2] != 0.0 or law[L_A4] != 0.0 or law[L_B4] != 0.0):
-        s1, c1 = sincos(angle)
+    if law[L_RESONANT] != 0.0:
         s2, c2, s4, c4 = harmonics(s1, c1)
         sn = (s1, s2, s4)
         cn = (c1, c2, c4)
@@ -850,8 +850,9 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
           s[S_THETA_EST])
     va_next, vb_next = s[S_VA_NEXT], s[S_VB_NEXT]
     period = s[S_PERIOD]
+    sin_prev, cos_prev = sincos(s[S_PARK_ANGLE])
     obs = (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], 0.0,
-           s[S_IQ_FF], s[S_PARK_ANGLE])
+           s[S_IQ_FF], s[S_PARK_ANGLE], sin_prev, cos_prev)
     n_win, sum_e, sum_e2, min_e, max_e, sum_iff2 = (acc[A_COUNT], acc[A_SUM_E],
                                                      acc[A_SUM_E2], acc[A_MIN_E],
                                                      acc[A_MAX_E], acc[A_SUM_IFF2])
@@ -868,7 +869,7 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
             cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u)
         else:
             # The law's current from the previous period's samples, then held.
-            i_law = law_current(law, obs[2] - cs[3], obs[1] - cs[2], obs[7], dt)
+            i_law = law_current(law, obs[2] - cs[3], obs[1] - cs[2], obs[8], obs[9], dt)
             u_law = (u[0], u[1], u[2], u[3], u[4], u[5], u[6] + i_law)
             cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u_law)
         va_next, vb_next = v_next
@@ -933,7 +934,7 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
     s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT], s[S_THETA_EST] = cs
     s[S_VA_NEXT], s[S_VB_NEXT] = va_next, vb_next
     (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], _iq_cmd,
-     s[S_IQ_FF], s[S_PARK_ANGLE]) = obs
+     s[S_IQ_FF], s[S_PARK_ANGLE], _sin, _cos) = obs
     acc[A_COUNT], acc[A_SUM_E], acc[A_SUM_E2], acc[A_MIN_E], acc[A_MAX_E] = (
         n_win, sum_e, sum_e2, min_e, max_e)
     acc[A_SUM_IFF2] = sum_iff2

@@ -47,6 +47,7 @@ class TaskV1:
     def __init__(self, options: EnvOptionsV1) -> None:
         self.options = o = options
         self.draws = EpisodeSampler(o.shared())
+        self._nominal_episode_estimate: FeedforwardModel | None = None
         self.nominal: SystemParams = self.draws.nominal
         self.units = u = MotorUnits.of(self.nominal)
         self.n_periods = self.draws.n_periods
@@ -89,11 +90,15 @@ class TaskV1:
 
     def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
         """The detent model the base controller uses in an episode of ``system``."""
+        if system is self.nominal:                  # not randomised: the same every episode
+            if self._nominal_episode_estimate is None:
+                self._nominal_episode_estimate = self.draws.episode_estimate(system)
+            return self._nominal_episode_estimate
         return self.draws.episode_estimate(system)
 
-    def base_coefficients(self, system: SystemParams, speed_rps: float) -> np.ndarray:
-        """The base controller's feedforward sin/cos coefficients (N*m) of an episode."""
-        model = self.episode_estimate(system)
+    def base_coefficients(self, model: FeedforwardModel, speed_rps: float) -> np.ndarray:
+        """The base controller's feedforward sin/cos coefficients (N*m) of an episode
+        whose detent model is ``model``."""
         p = phasors(model)
         if self.options.base_controller == "ff-delay-comp":
             p = p / torque_paths(self.nominal, self.options.mode, speed_rps, model)
@@ -101,10 +106,11 @@ class TaskV1:
         out[0::2], out[1::2] = p.real, p.imag
         return out
 
-    def context(self, system: SystemParams, speed_rps: float) -> np.ndarray:
-        """The visible context of an episode (``CONTEXT_NAMES``), float32."""
+    def context(self, model: FeedforwardModel, speed_rps: float) -> np.ndarray:
+        """The visible context of an episode (``CONTEXT_NAMES``) whose detent model is
+        ``model``, float32."""
         res = self.nominal.predicted_resonances_rps()
-        model = np.asarray(self.episode_estimate(system).coefficients())
+        model = np.asarray(model.coefficients())
         kd = self.units.current_unit_a * self.nominal.motor.Km
         return np.concatenate([[speed_rps / res[h] for h in (4, 2, 1)], model / kd]
                               ).astype(np.float32)
@@ -125,7 +131,7 @@ class TaskV1:
         c[:] = build_config(system, SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2),
                             settings, window_start_s=window)
         if o.base_controller == "ff-delay-comp":
-            c[list(_FF_COLUMNS)] = self.base_coefficients(system, speed)
+            c[list(_FF_COLUMNS)] = self.base_coefficients(estimate, speed)
         s[:] = initial_state(c)
         u, hold = self.units, system.drive.holding_current
         par[V.P_POS_UNIT] = u.position_unit_rad
@@ -142,7 +148,7 @@ class TaskV1:
         law[K.L_HP_ALPHA] = self.law_hp_alpha
         law[K.L_LIMIT] = self.law_limit_a
         if self.n_context:
-            ctx[:] = self.context(system, speed)
+            ctx[:] = self.context(estimate, speed)
         return {"speed_rps": speed, "target_harmonic": h}, system
 
 
@@ -202,11 +208,17 @@ class DriveBatch:
         ``out`` holds each drive's physics and reward (the termination loss included).
         """
         n = self.task.n_periods
-        if trace is None:
+        # Without gain actions the law stays off: the kernel's plain loop.
+        if trace is not None:
+            if self.task.law_actions:
+                K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
+                                  trace, 1)
+            else:
+                K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
+        elif self.task.law_actions:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:
-            K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
-                              trace, 1)
+            K.run_batch(self.c, self.s, self.acc, self.u, n)
         self._observe()
         self.t += 1
         out = self.out

@@ -67,7 +67,13 @@ O_LAW_RMS = 9       # rms current of the damping law (A)
 N_OUT = 10
 
 IX_LAW_SUM_I2 = 0
-LAW_INDEX = np.array([K.L_SUM_I2], dtype=np.int64)
+IX_LAW_RESONANT = 1
+IX_LAW_GAINS_FIRST = 2  # law[first:end]: the resonant gains; then their coefficients
+IX_LAW_GAINS_END = 3
+IX_LAW_COEFFS_FIRST = 4
+IX_LAW_COEFFS_END = 5
+LAW_INDEX = np.array([K.L_SUM_I2, K.L_RESONANT, K.L_KR1, K.L_KI4 + 1, K.L_A1, K.L_B4 + 1],
+                     dtype=np.int64)
 
 
 @_jit
@@ -106,6 +112,15 @@ def load_actions(a, dest, offset, par, acc, law, lx):
         for j in range(acc.shape[1]):
             acc[i, j] = 0.0
         law[i, lx[IX_LAW_SUM_I2]] = 0.0
+        # The resonant terms run while a gain or a coefficient is non-zero.
+        on = 0.0
+        for j in range(lx[IX_LAW_GAINS_FIRST], lx[IX_LAW_GAINS_END]):
+            if law[i, j] != 0.0:
+                on = 1.0
+        for j in range(lx[IX_LAW_COEFFS_FIRST], lx[IX_LAW_COEFFS_END]):
+            if law[i, j] != 0.0:
+                on = 1.0
+        law[i, lx[IX_LAW_RESONANT]] = on
     return -1
 
 
