@@ -24,13 +24,14 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvIndices,
                                                            VecEnvStepReturn)
 
-from .env import DEFAULT_EPISODE_STEPS, StepperDampVectorEnv
+from .env import DEFAULT_EPISODE_STEPS, StepperDampV1VectorEnv, StepperDampVectorEnv
 
-__all__ = ["StepperDampSB3VecEnv", "make_sb3_vec_env"]
+__all__ = ["StepperDampSB3VecEnv", "make_sb3_vec_env", "make_sb3_vec_env_v1"]
 
 
 class StepperDampSB3VecEnv(VecEnv):
-    """SB3 ``VecEnv`` view of a :class:`StepperDampVectorEnv` (SAME_STEP autoreset).
+    """SB3 ``VecEnv`` view of a :class:`StepperDampVectorEnv` or
+    :class:`StepperDampV1VectorEnv` (SAME_STEP autoreset).
 
     Args:
         venv: the native vector env; it must use ``autoreset_mode=SAME_STEP``
@@ -40,14 +41,18 @@ class StepperDampSB3VecEnv(VecEnv):
             dicts per step cost time.
     """
 
-    def __init__(self, venv: StepperDampVectorEnv, info_keys: Sequence[str] = ()) -> None:
-        if not isinstance(venv, StepperDampVectorEnv):
-            raise ValueError(f"venv must be a StepperDampVectorEnv, got {type(venv).__name__}")
+    def __init__(self, venv: StepperDampVectorEnv | StepperDampV1VectorEnv,
+                 info_keys: Sequence[str] = ()) -> None:
+        if not isinstance(venv, (StepperDampVectorEnv, StepperDampV1VectorEnv)):
+            raise ValueError("venv must be a StepperDampVectorEnv or StepperDampV1VectorEnv, got "
+                             f"{type(venv).__name__}")
         if venv.autoreset_mode != AutoresetMode.SAME_STEP:
             raise ValueError("venv must use autoreset_mode=AutoresetMode.SAME_STEP (SB3 resets "
                              f"within the step), got {venv.autoreset_mode}")
         allowed = ("velocity_error_rms_rad_s", "lag_rad", "injected_current_rms_a",
                    "peak_current_a", "step_loss", "overcurrent")
+        if isinstance(venv, StepperDampV1VectorEnv):
+            allowed += ("damping_current_rms_a",)
         bad = sorted(set(info_keys) - set(allowed))
         if bad:
             raise ValueError(f"info_keys: unknown key(s) {bad}; allowed: {list(allowed)}")
@@ -122,4 +127,13 @@ def make_sb3_vec_env(num_envs: int = 16, max_episode_steps: int | None = DEFAULT
     """
     venv = StepperDampVectorEnv(num_envs=num_envs, max_episode_steps=max_episode_steps,
                                 autoreset_mode=AutoresetMode.SAME_STEP, **options)
+    return StepperDampSB3VecEnv(venv, info_keys=info_keys)
+
+
+def make_sb3_vec_env_v1(num_envs: int = 16, info_keys: Sequence[str] = (),
+                        **options: Any) -> StepperDampSB3VecEnv:
+    """A native ``StepperDamp-v1`` vector env of ``num_envs`` drives wrapped for SB3
+    (its time limit is its own ``episode_s``)."""
+    venv = StepperDampV1VectorEnv(num_envs=num_envs, autoreset_mode=AutoresetMode.SAME_STEP,
+                                  **options)
     return StepperDampSB3VecEnv(venv, info_keys=info_keys)
