@@ -10,7 +10,8 @@ from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError,
                      SystemParams, load_system, predicted_resonances)
 from .presets import PRESETS, get_preset, preset_names
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
-from .env import StepperDampEnv, StepperDampVectorEnv, register_envs
+from .env import (StepperDampEnv, StepperDampV1Env, StepperDampV1VectorEnv, StepperDampVectorEnv,
+                  register_envs)
 from .version import __version__
 
 
@@ -34,8 +35,10 @@ __all__ = [
     "simulate",
     "StepperDampEnv",
     "StepperDampVectorEnv",
+    "StepperDampV1Env",
+    "StepperDampV1VectorEnv",
     "register_envs",
 ]
 
-# gym.make("StepperDamp-v0") works after `import stepdamp_env`.
+# gym.make("StepperDamp-v0") and gym.make("StepperDamp-v1") work after `import stepdamp_env`.
 register_envs()

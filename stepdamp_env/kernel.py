@@ -248,7 +248,7 @@ L_B2 = 14
 L_A4 = 15
 L_B4 = 16
 L_SUM_I2 = 17      # sum over periods of the law's current squared (A^2), zeroed by the caller
-L_RESONANT = 18    # 1.0 while a resonant gain or coefficient is non-zero (set by the caller)
+L_RESONANT = 18    # 1.0 while a resonant gain or coefficient is non-zero (set at each call)
 N_LAW = 19
 N_LAW_GAINS = 8    # L_KV .. L_KI4: what an agent sets
 
@@ -835,6 +835,17 @@ def law_current(law, e_w, e_theta, s1, c1, dt):
 @_jit
 def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
     """The fused loop; ``law`` None (pruned at compile time) or an ``L_*`` row."""
+    if law is not None:
+        # The resonant terms cost a third of the law: they run only while a gain
+        # or a coefficient is non-zero (gains are held for the call).
+        on = 0.0
+        for j in range(L_KR1, L_KI4 + 1):
+            if law[j] != 0.0:
+                on = 1.0
+        for j in range(L_A1, L_B4 + 1):
+            if law[j] != 0.0:
+                on = 1.0
+        law[L_RESONANT] = on
     p = plant_params(c)
     q = controller_params(c)
     u = (u_arr[0], u_arr[1], u_arr[2], u_arr[3], u_arr[4], u_arr[5], u_arr[6])

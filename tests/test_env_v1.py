@@ -152,6 +152,20 @@ def test_visible_context_is_the_speed_over_the_predicted_resonances():
     np.testing.assert_allclose(obs[19:22], [1.0 / res[h] for h in (4, 2, 1)], rtol=1e-6)
 
 
+def test_context_and_infos_stay_in_their_space_and_match_the_scalar_env():
+    env = StepperDampV1Env(context="visible", speed_rps=8.0)     # 12x the h = 4 resonance
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs) and obs[19] == 10.0
+    venv = StepperDampV1VectorEnv(2, episode_s=0.01)
+    venv.reset(seed=0)
+    infos = venv.step(np.zeros((2, 8), np.float32))[4]
+    env = StepperDampV1Env(episode_s=0.01)
+    env.reset(seed=0)
+    info = env.step(np.zeros(8, np.float32))[4]
+    assert set(info) <= set(infos) and infos["time_s"][0] == info["time_s"] == 0.001
+    assert infos["_lag_rad"] is not infos["_step_loss"]
+
+
 def test_termination_loses_the_worst_reward_of_every_step_left():
     # A load beyond the holding torque: the rotor slips at once.
     env = StepperDampV1Env(overrides={"load_torque": 0.9}, speed_rps=1.0, base_controller="none")

@@ -67,13 +67,19 @@ O_LAW_RMS = 9       # rms current of the damping law (A)
 N_OUT = 10
 
 IX_LAW_SUM_I2 = 0
-IX_LAW_RESONANT = 1
-IX_LAW_GAINS_FIRST = 2  # law[first:end]: the resonant gains; then their coefficients
-IX_LAW_GAINS_END = 3
-IX_LAW_COEFFS_FIRST = 4
-IX_LAW_COEFFS_END = 5
-LAW_INDEX = np.array([K.L_SUM_I2, K.L_RESONANT, K.L_KR1, K.L_KI4 + 1, K.L_A1, K.L_B4 + 1],
-                     dtype=np.int64)
+LAW_INDEX = np.array([K.L_SUM_I2], dtype=np.int64)
+
+# Positions in compiled.KERNEL_INDEX, copied so that this module's cache never
+# depends on another file; the import fails if they drift apart.
+IX_THETA_FB, IX_OMEGA_FB, IX_THETA_CMD, IX_OMEGA_CMD = 0, 1, 2, 3
+IX_ID_MEAS, IX_IQ_MEAS, IX_PARK_ANGLE, IX_THETA, IX_OMEGA, IX_IA, IX_IB = 4, 5, 6, 7, 8, 9, 10
+IX_SUM_E2_ALL, IX_COUNT_ALL, IX_SUM_IFF2_ALL, IX_MAX_LAG, IX_MAX_CURRENT = 11, 12, 13, 14, 15
+assert (IX_THETA_FB, IX_OMEGA_FB, IX_THETA_CMD, IX_OMEGA_CMD, IX_ID_MEAS, IX_IQ_MEAS,
+        IX_PARK_ANGLE, IX_THETA, IX_OMEGA, IX_IA, IX_IB, IX_SUM_E2_ALL, IX_COUNT_ALL,
+        IX_SUM_IFF2_ALL, IX_MAX_LAG, IX_MAX_CURRENT) == (
+    C.IX_THETA_FB, C.IX_OMEGA_FB, C.IX_THETA_CMD, C.IX_OMEGA_CMD, C.IX_ID_MEAS, C.IX_IQ_MEAS,
+    C.IX_PARK_ANGLE, C.IX_THETA, C.IX_OMEGA, C.IX_IA, C.IX_IB, C.IX_SUM_E2_ALL, C.IX_COUNT_ALL,
+    C.IX_SUM_IFF2_ALL, C.IX_MAX_LAG, C.IX_MAX_CURRENT)
 
 
 @_jit
@@ -112,15 +118,6 @@ def load_actions(a, dest, offset, par, acc, law, lx):
         for j in range(acc.shape[1]):
             acc[i, j] = 0.0
         law[i, lx[IX_LAW_SUM_I2]] = 0.0
-        # The resonant terms run while a gain or a coefficient is non-zero.
-        on = 0.0
-        for j in range(lx[IX_LAW_GAINS_FIRST], lx[IX_LAW_GAINS_END]):
-            if law[i, j] != 0.0:
-                on = 1.0
-        for j in range(lx[IX_LAW_COEFFS_FIRST], lx[IX_LAW_COEFFS_END]):
-            if law[i, j] != 0.0:
-                on = 1.0
-        law[i, lx[IX_LAW_RESONANT]] = on
     return -1
 
 
@@ -135,9 +132,9 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
     n_hist = history.shape[1]
     for i in range(s.shape[0]):
         p_unit, v_unit, c_unit = par[i, P_POS_UNIT], par[i, P_VEL_UNIT], par[i, P_CUR_UNIT]
-        theta_fb, omega_fb = s[i, ix[C.IX_THETA_FB]], s[i, ix[C.IX_OMEGA_FB]]
-        theta_cmd, omega_cmd = s[i, ix[C.IX_THETA_CMD]], s[i, ix[C.IX_OMEGA_CMD]]
-        angle = s[i, ix[C.IX_PARK_ANGLE]]
+        theta_fb, omega_fb = s[i, ix[IX_THETA_FB]], s[i, ix[IX_OMEGA_FB]]
+        theta_cmd, omega_cmd = s[i, ix[IX_THETA_CMD]], s[i, ix[IX_OMEGA_CMD]]
+        angle = s[i, ix[IX_PARK_ANGLE]]
         s1, c1 = math.sin(angle), math.cos(angle)
         s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
         s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
@@ -146,8 +143,8 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
             (omega_cmd - omega_fb) / v_unit,
             s1, c1, s2, c2, s4, c4,
             omega_cmd / par[i, P_SPEED_UNIT],
-            (s[i, ix[C.IX_ID_MEAS]] - par[i, P_ID_CMD]) / c_unit,
-            s[i, ix[C.IX_IQ_MEAS]] / c_unit,
+            (s[i, ix[IX_ID_MEAS]] - par[i, P_ID_CMD]) / c_unit,
+            s[i, ix[IX_IQ_MEAS]] / c_unit,
         )
         nonfinite = False
         for j in range(N_BASE_OBS):
@@ -165,22 +162,22 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
             history[i, 1] = obs[i, OBS_VELOCITY_ERROR]
         k += n_hist
         for j in range(context.shape[1]):
-            obs[i, k + j] = context[i, j]
+            _store(obs, i, k + j, context[i, j], bound)
         k += context.shape[1]
         if privileged:
             hold = par[i, P_HOLD]
-            pv = ((theta_cmd - s[i, ix[C.IX_THETA]]) / p_unit,
-                  (omega_cmd - s[i, ix[C.IX_OMEGA]]) / v_unit,
-                  s[i, ix[C.IX_IA]] / hold, s[i, ix[C.IX_IB]] / hold)
+            pv = ((theta_cmd - s[i, ix[IX_THETA]]) / p_unit,
+                  (omega_cmd - s[i, ix[IX_OMEGA]]) / v_unit,
+                  s[i, ix[IX_IA]] / hold, s[i, ix[IX_IB]] / hold)
             for j in range(N_PRIVILEGED):
                 nonfinite |= _store(obs, i, k + j, pv[j], bound)
 
-        n = max(acc[i, ix[C.IX_COUNT_ALL]], 1.0)
-        e2 = acc[i, ix[C.IX_SUM_E2_ALL]] / n
-        i2 = acc[i, ix[C.IX_SUM_IFF2_ALL]] / n
+        n = max(acc[i, ix[IX_COUNT_ALL]], 1.0)
+        e2 = acc[i, ix[IX_SUM_E2_ALL]] / n
+        i2 = acc[i, ix[IX_SUM_IFF2_ALL]] / n
         l2 = law[i, lx[IX_LAW_SUM_I2]] / n
-        lag = acc[i, ix[C.IX_MAX_LAG]]
-        peak = acc[i, ix[C.IX_MAX_CURRENT]]
+        lag = acc[i, ix[IX_MAX_LAG]]
+        peak = acc[i, ix[IX_MAX_CURRENT]]
         step_loss = lag > par[i, P_FULL_STEP]
         overcurrent = peak > par[i, P_I_LIMIT]
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)
