@@ -566,9 +566,10 @@ class StepperDampV1VectorEnv(VectorEnv):
                    "step_loss": out[:, V.O_STEP_LOSS] != 0.0,
                    "overcurrent": out[:, V.O_OVERCURRENT] != 0.0,
                    "time_s": d.t * self.task.seconds_per_step}
+        mask = valid.copy()                 # one mask for every key, as in v0
         for key, value in physics.items():
             infos[key] = value
-            infos["_" + key] = valid.copy()
+            infos["_" + key] = mask
         return obs, rewards, terminated, truncated, infos
 
     def render(self) -> None:
