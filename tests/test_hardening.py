@@ -174,6 +174,11 @@ def test_a_simulated_move_measures_the_move(capsys):
 
 
 def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
+    # A short sweep first: a fresh clone compiles the kernel (many seconds), and the
+    # interrupt below must land inside the sweep, not inside numba's compiler.
+    subprocess.run([sys.executable, "-m", "stepdamp_env.cli", "sweep", "--speeds", "1:1.02:0.02",
+                    "--out", str(tmp_path / "warm"), "--workers", "2", "--no-progress"],
+                   check=True, capture_output=True, env={**os.environ, "MPLBACKEND": "Agg"})
     script = textwrap.dedent(f"""
         import sys
         from stepdamp_env.cli import main
@@ -192,6 +197,7 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
         "stepdamp sweep: interrupted; earlier results are unchanged"]
     assert not (tmp_path / "o").exists()
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
+    assert sorted(os.listdir(tmp_path)) == ["warm"]
 
 
 # -- result files ------------------------------------------------------------------------
