@@ -185,9 +185,12 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
         sys.exit(main(["sweep", "--speeds", "0.3:3.0:0.0001", "--out", {str(tmp_path / 'o')!r},
                        "--workers", "2", "--no-progress"]))
     """)
+    # Ctrl-C's default action even where this runs in the background (a shell
+    # starts background jobs with SIGINT ignored, and children inherit that).
     proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True,
-                            env={**os.environ, "MPLBACKEND": "Agg"})
+                            env={**os.environ, "MPLBACKEND": "Agg"},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler))
     time.sleep(6.0)                     # inside the sweep (27001 runs, about a minute)
     assert proc.poll() is None
     proc.send_signal(signal.SIGINT)
