@@ -12,6 +12,7 @@ from ..params import ParameterError, SystemParams
 from ..simulation import RunMetrics, merge_accumulators, metrics_from_accumulators, new_accumulators
 from . import compiled as C
 from .actions import action_error, as_action
+from .arguments import check_render_mode
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
 from .render import render_episode, trace_rows
@@ -114,10 +115,7 @@ class StepperDampEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ParameterError(f"render_mode={render_mode!r} is not one of "
-                                 f"{[None] + self.metadata['render_modes']}")
-        self.render_mode = render_mode
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.options = EnvOptions.from_kwargs(options)
         self._sampler = f = EpisodeSampler(self.options)
         self.observation_space = f.observation_space()

@@ -25,6 +25,7 @@ from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, i
 from . import compiled as C
 from . import v1_compiled as V
 from .actions import action_error, as_action
+from .arguments import check_render_mode, check_vector_args, reseed
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
@@ -353,10 +354,7 @@ class StepperDampV1Env(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ParameterError(f"render_mode={render_mode!r} is not one of "
-                                 f"{[None] + self.metadata['render_modes']}")
-        self.render_mode = render_mode
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.options = EnvOptionsV1.from_kwargs(options)
         self.task = task = TaskV1(self.options)
         self.observation_space = task.observation_space()
@@ -444,21 +442,7 @@ class StepperDampV1VectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, **options: Any) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
-                or not 1 <= num_envs <= 1_000_000:
-            raise ParameterError(f"num_envs={num_envs!r} is outside its allowed range "
-                                 "[1, 1000000] (integer)")
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ParameterError(f"autoreset_mode={autoreset_mode!r} is not one of "
-                                 f"{[m.value for m in AutoresetMode]}") from None
-        if mode == AutoresetMode.DISABLED:
-            raise ParameterError("autoreset_mode='Disabled' is not supported; allowed: "
-                                 "NextStep, SameStep")
-        if render_mode is not None:
-            raise ParameterError(f"render_mode={render_mode!r}: the vector environment does "
-                                 "not render; allowed: None (render a scalar env instead)")
+        mode = check_vector_args(num_envs, autoreset_mode, render_mode)
         self.render_mode = None
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
@@ -495,25 +479,7 @@ class StepperDampV1VectorEnv(VectorEnv):
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         n = self.num_envs
-        if seed is None:
-            seeds: list[int | None] = [None] * n
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != n:
-                raise ParameterError(f"seed: a list of seeds must have num_envs={n} entries, "
-                                     f"got {len(seeds)}")
-        mask = np.ones(n, dtype=bool)
-        if options and "reset_mask" in options:
-            mask = np.asarray(options["reset_mask"], dtype=bool)
-            if mask.shape != (n,):
-                raise ParameterError(f"options['reset_mask'] must have shape ({n},), got "
-                                     f"{mask.shape}")
-        if seed is not None or not self._ready:
-            for i, sd in enumerate(seeds):
-                if mask[i] and (sd is not None or self._rngs[i] is None):
-                    self._rngs[i], _ = seeding.np_random(sd)
+        mask = reseed(self._rngs, seed, options, first=not self._ready)
         speeds = np.zeros(n)
         harm = np.zeros(n, dtype=np.int64)
         for i in np.flatnonzero(mask):

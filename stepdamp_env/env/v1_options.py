@@ -129,12 +129,8 @@ class EnvOptionsV1:
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> "EnvOptionsV1":
-        """Options from keyword arguments; unknown names raise ``ValueError``."""
-        allowed = list(cls.__dataclass_fields__)
-        unknown = sorted(set(kwargs) - set(allowed))
-        if unknown:
-            raise ParameterError(f"unknown option(s) {unknown} for {ENV_ID_V1}; allowed: {allowed}")
-        return cls(**kwargs)
+        """Options from keyword arguments; unknown names raise ``ValueError`` (v0's rule)."""
+        return EnvOptions.from_kwargs.__func__(cls, kwargs, ENV_ID_V1)
 
     def __post_init__(self) -> None:
         check_choice("base_controller", self.base_controller, BASE_CONTROLLERS_V1)

@@ -14,6 +14,7 @@ from .. import kernel as K
 from ..params import ParameterError, SystemParams
 from . import compiled as C
 from .actions import action_error, as_action
+from .arguments import check_vector_args, reseed
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import DEFAULT_EPISODE_STEPS
 from .sampler import EpisodeSampler
@@ -44,26 +45,12 @@ class StepperDampVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, **options: Any) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
-                or not 1 <= num_envs <= 1_000_000:
-            raise ParameterError(f"num_envs={num_envs!r} is outside its allowed range "
-                                 "[1, 1000000] (integer)")
+        mode = check_vector_args(num_envs, autoreset_mode, render_mode)
         if max_episode_steps is not None and (
                 isinstance(max_episode_steps, bool)
                 or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ParameterError(f"max_episode_steps={max_episode_steps!r} is outside its "
                                  "allowed range [1, inf) (integer) or None")
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ParameterError(f"autoreset_mode={autoreset_mode!r} is not one of "
-                                 f"{[m.value for m in AutoresetMode]}") from None
-        if mode == AutoresetMode.DISABLED:
-            raise ParameterError("autoreset_mode='Disabled' is not supported; allowed: "
-                                 "NextStep, SameStep")
-        if render_mode is not None:
-            raise ParameterError(f"render_mode={render_mode!r}: the vector environment does "
-                                 "not render; allowed: None (render a scalar env instead)")
         self.render_mode = None
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
@@ -127,27 +114,7 @@ class StepperDampVectorEnv(VectorEnv):
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         n = self.num_envs
-        if seed is None:
-            seeds: list[int | None] = [None] * n
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != n:
-                raise ParameterError(f"seed: a list of seeds must have num_envs={n} entries, "
-                                     f"got {len(seeds)}")
-        mask = self._all
-        if options and "reset_mask" in options:
-            mask = np.asarray(options["reset_mask"], dtype=bool)
-            if mask.shape != (n,):
-                raise ParameterError(f"options['reset_mask'] must have shape ({n},), got "
-                                     f"{mask.shape}")
-        if seed is not None or not self._ready:
-            # Gymnasium's convention: seed i seeds drive i; None draws fresh entropy
-            # only where no generator exists yet.
-            for i, sd in enumerate(seeds):
-                if mask[i] and (sd is not None or self._rngs[i] is None):
-                    self._rngs[i], _ = seeding.np_random(sd)
+        mask = reseed(self._rngs, seed, options, first=not self._ready)
         speeds = np.zeros(n)
         harm = np.zeros(n, dtype=np.int64)
         for i in np.flatnonzero(mask):
