@@ -9,6 +9,16 @@
                           the PWM hold's delay (and, in open loop, the rotor's lag)
 ``adaptive-ff``           identified feedforward corrected online from the velocity
                           error (Kalman filter on the ripple phasors, filterpy)
+``velocity-feedback``     ``ff-delay-comp`` plus a damping current from the encoder's
+                          velocity error, gains from a damping ratio on the nominal model
+``sensorless-damping``    the same without an encoder: speed from the back-EMF
+                          (currents and winding voltages; US 5,847,535's idea)
+``calibrated-table``      a fixed feedforward table tuned by golden-section search on
+                          a calibration rig (US 5,659,234, Prusa's phase stepping)
+``repetitive-control``    the feedforward learned online per electrical period from
+                          the encoder (repetitive / iterative learning control)
+``oracle-floor``          exact cancellation and state feedback on the true state
+                          (oracle): how far the ripple can fall on this drive
 ========================  ==========================================================
 
 Every baseline implements the policy contract of :mod:`stepdamp_env.bench.policy`.
@@ -21,20 +31,33 @@ from stepdamp_env.bench.policy import Policy, ZeroAction, reference_policy
 from stepdamp_env.bench.protocol import REFERENCE_POLICY
 from stepdamp_env.bench.registry import register_policy
 
+from .feedback import OracleFloor, SensorlessDamping, VelocityFeedback
 from .harmonic import AdaptiveFF, DelayCompensatedFF
+from .learning import CalibratedTable, RepetitiveControl
 
-__all__ = ["AdaptiveFF", "DelayCompensatedFF", "BASELINE_NAMES", "make_baseline",
-           "register_policies"]
+__all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
+           "CalibratedTable", "RepetitiveControl", "OracleFloor", "BASELINE_NAMES",
+           "make_baseline", "register_policies"]
 
 BASELINE_NAMES = (REFERENCE_POLICY, "patent-ff-oracle", "patent-ff-identified",
-                  "ff-delay-comp", "adaptive-ff")
+                  "ff-delay-comp", "adaptive-ff", "velocity-feedback", "sensorless-damping",
+                  "calibrated-table", "repetitive-control", "oracle-floor")
 
 _DESCRIPTIONS = {
     "patent-ff-oracle": "patent feedforward, exact model (oracle)",
     "patent-ff-identified": "patent feedforward, identified model",
     "ff-delay-comp": "identified feedforward with drive-model delay compensation",
     "adaptive-ff": "identified feedforward corrected online (Kalman ripple tracker)",
+    "velocity-feedback": "ff-delay-comp plus velocity-feedback damping (encoder)",
+    "sensorless-damping": "ff-delay-comp plus back-EMF damping (no encoder)",
+    "calibrated-table": "feedforward table calibrated on a rig (golden-section search)",
+    "repetitive-control": "feedforward learned online per electrical period (encoder)",
+    "oracle-floor": "exact cancellation and true-state feedback (oracle floor)",
 }
+
+_CLASSES = {"velocity-feedback": VelocityFeedback, "sensorless-damping": SensorlessDamping,
+            "calibrated-table": CalibratedTable, "repetitive-control": RepetitiveControl,
+            "oracle-floor": OracleFloor}
 
 
 def make_baseline(name: str) -> Policy:
@@ -49,6 +72,8 @@ def make_baseline(name: str) -> Policy:
         return DelayCompensatedFF()
     if name == "adaptive-ff":
         return AdaptiveFF()
+    if name in _CLASSES:
+        return _CLASSES[name]()
     raise ValueError(f"unknown baseline {name!r}; choose one of {list(BASELINE_NAMES)}")
 
 

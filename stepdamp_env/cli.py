@@ -319,7 +319,7 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from .bench.report import load_leaderboard, render_markdown, render_results
+    from .bench.report import load_leaderboard, render_ladder, render_markdown, render_results
 
     path = os.path.join(args.dir, "leaderboard.json")
     if not os.path.isfile(path):
@@ -333,8 +333,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if args.full:
         print(render_markdown(board), end="")
         return 0
-    suites = board["protocol"]["suites"] if args.suite == "all" else [args.suite]
-    print("\n".join(render_results(board, suite) for suite in suites), end="")
+    if args.suite == "all":
+        print(render_ladder(board), end="")
+        return 0
+    print(render_results(board, args.suite), end="")
     return 0
 
 
@@ -415,7 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run only these registered entries, baselines and reference agents "
                         "(default: all; 'none' always runs)")
     p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
-                   help="which suite")
+                   help="one suite's ranked table; 'all' (default): every entry's headline "
+                        "in each suite beside its knowledge (the README's table)")
     _add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.set_defaults(func=_cmd_leaderboard)
@@ -423,7 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("report", "print a result table from a leaderboard directory")
     p.add_argument("dir", metavar="DIR", help="a directory `stepdamp leaderboard` wrote")
     p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
-                   help="which suite")
+                   help="one suite's ranked table; 'all' (default): every entry's headline "
+                        "in each suite beside its knowledge (the README's table)")
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
     p.set_defaults(func=_cmd_report)
 

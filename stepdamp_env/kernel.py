@@ -87,13 +87,17 @@ C_I_NOISE = 43     # current-sensor noise, standard deviation per sample (A)
 C_I_OFFSET_A = 44  # current-sensor offsets of phases A and B (A)
 C_I_OFFSET_B = 45
 C_NOISE_SEED = 46  # seed of the sensor noise (an integer below 2**53)
-C_VEL_EST = 47     # velocity estimator: 0 difference + low-pass, 1 Kalman filter
+C_VEL_EST = 47     # velocity estimator: 0 encoder difference + low-pass, 1 Kalman filter,
+                   # 2 back-EMF observer (no encoder)
 C_KF_K0 = 48       # steady-state Kalman gains on the encoder innovation
 C_KF_K1 = 49       # (position: dimensionless, velocity: 1/s)
-N_CONFIG = 50
+C_BEMF_G1 = 50     # back-EMF observer: e = v - G1*i_k + G2*i_(k-1) (Ohm), the exact
+C_BEMF_G2 = 51     # one-period winding solution, G1 = R/(1-a), G2 = R*a/(1-a), a = exp(-R*dt/L)
+N_CONFIG = 52
 
 VEL_EST_LOWPASS = 0
 VEL_EST_KALMAN = 1
+VEL_EST_BACK_EMF = 2
 
 MODE_OPEN_LOOP = 0
 MODE_SERVO = 1
@@ -156,6 +160,8 @@ Q_NOISE_SEED = 29  # seed of the sensor noise (integer-valued)
 Q_VEL_EST = 30     # VEL_EST_LOWPASS or VEL_EST_KALMAN
 Q_KF_K0 = 31       # Kalman gain on the innovation, position (dimensionless)
 Q_KF_K1 = 32       # Kalman gain on the innovation, velocity (1/s)
+Q_BEMF_G1 = 33     # back-EMF observer constants (Ohm), see C_BEMF_G1
+Q_BEMF_G2 = 34
 
 # ---------------------------------------------------------------------------
 # State vector (per drive, float64).
@@ -185,7 +191,11 @@ S_IQ_MEAS = 21
 S_IQ_FF = 22       # last injected feedforward + residual q current (A)
 S_PARK_ANGLE = 23  # last Park (electrical) angle (rad)
 S_THETA_EST = 24   # Kalman estimate of the shaft angle (rad)
-N_STATE = 25
+S_IA_PREV = 25     # measured phase currents of the previous sample (A), back-EMF observer
+S_IB_PREV = 26
+S_VA_OLD = 27      # winding voltages applied during the period that just ended (V)
+S_VB_OLD = 28
+N_STATE = 29
 
 # ---------------------------------------------------------------------------
 # Accumulated metrics (per drive). Window sums use samples with t >= window start.
@@ -671,7 +681,7 @@ def controller_params(c):
     Kp_i, Ki_i, encoder angle, velocity filter alpha, Kp_vel, Kp_pos, Ki_pos,
     mode, ff_on, Km_est, Fs_est, ff s1, c1, s2, c2, s4, c4, Vdc, profile kind,
     speed, accel, distance, current noise, offset a, offset b, noise seed,
-    velocity estimator, Kalman k0, k1).
+    velocity estimator, Kalman k0, k1, back-EMF G1, G2).
     """
     return (c[C_DT], c[C_NR], c[C_HOLD], c[C_MICROSTEP], c[C_KP_I], c[C_KI_I],
             c[C_ENCODER], c[C_VEL_ALPHA], c[C_KP_VEL], c[C_KP_POS], c[C_KI_POS],
@@ -679,7 +689,7 @@ def controller_params(c):
             c[C_FF_S1], c[C_FF_C1], c[C_FF_S2], c[C_FF_C2], c[C_FF_S4], c[C_FF_C4],
             c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE],
             c[C_I_NOISE], c[C_I_OFFSET_A], c[C_I_OFFSET_B], c[C_NOISE_SEED], c[C_VEL_EST],
-            c[C_KF_K0], c[C_KF_K1])
+            c[C_KF_K0], c[C_KF_K1], c[C_BEMF_G1], c[C_BEMF_G2])
 
 
 @_jit_inline
@@ -703,20 +713,45 @@ def control_step(period, theta, ia, ib, cs, q, u):
     ``theta``, ``ia``, ``ib`` are the true shaft angle and winding currents
     (the current sensors add their offset and noise here); ``cs`` =
     (integrator d, integrator q, previous encoder angle, velocity estimate,
-    position-error integral, Kalman angle estimate) is the controller's state;
+    position-error integral, Kalman angle estimate, previous measured ia, ib,
+    voltages va, vb applied during the period that just ended) is the
+    controller's state (the caller sets the last two);
     ``q`` is :func:`controller_params`, ``u`` the external inputs.
 
     Returns (new cs, (va, vb) winding voltages to apply next period,
     (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle, sin angle,
     cos angle)).
     """
-    int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est = cs
+    int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
+        vb_old = cs
     dt, nr = q[Q_DT], q[Q_NR]
     t = period * dt
     theta_cmd, omega_cmd = command(t, q[Q_PROFILE], q[Q_SPEED], q[Q_ACCEL], q[Q_DISTANCE])
     # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[Q_ENCODER])
-    if q[Q_VEL_EST] == VEL_EST_KALMAN:
+    if q[Q_I_NOISE] != 0.0:
+        noise_a, noise_b = gaussian_pair(q[Q_NOISE_SEED], period)
+        ia = ia + q[Q_I_OFFSET_A] + q[Q_I_NOISE] * noise_a
+        ib = ib + q[Q_I_OFFSET_B] + q[Q_I_NOISE] * noise_b
+    else:
+        ia = ia + q[Q_I_OFFSET_A]
+        ib = ib + q[Q_I_OFFSET_B]
+    if q[Q_VEL_EST] == VEL_EST_BACK_EMF:
+        # No encoder for the speed: the back-EMF over the period that just
+        # ended, from its applied voltage and the measured currents at both
+        # ends, projected on the electrical angle at the period's middle (open
+        # loop: the command's, which the rotor trails by its load angle) and
+        # low-passed like the encoder's difference.
+        ea = va_old - q[Q_BEMF_G1] * ia + q[Q_BEMF_G2] * ia_prev
+        eb = vb_old - q[Q_BEMF_G1] * ib + q[Q_BEMF_G2] * ib_prev
+        if q[Q_MODE] == MODE_OPEN_LOOP:
+            x_mid = nr * (theta_cmd - 0.5 * dt * omega_cmd)
+        else:
+            x_mid = nr * (theta_fb + 0.5 * q[Q_ENCODER])
+        s_p, c_p = sincos(x_mid)
+        w_raw = (c_p * eb - s_p * ea) * (1.0 / q[Q_KM_EST])
+        omega_fb = omega_fb + q[Q_VEL_ALPHA] * (w_raw - omega_fb)
+    elif q[Q_VEL_EST] == VEL_EST_KALMAN:
         # Steady-state Kalman filter, constant-velocity model, measuring the
         # centre of the encoder count.
         predicted = theta_est + dt * omega_fb
@@ -726,13 +761,6 @@ def control_step(period, theta, ia, ib, cs, q, u):
     else:
         omega_fb = omega_fb + q[Q_VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt)
                                                - omega_fb)
-    if q[Q_I_NOISE] != 0.0:
-        noise_a, noise_b = gaussian_pair(q[Q_NOISE_SEED], period)
-        ia = ia + q[Q_I_OFFSET_A] + q[Q_I_NOISE] * noise_a
-        ib = ib + q[Q_I_OFFSET_B] + q[Q_I_NOISE] * noise_b
-    else:
-        ia = ia + q[Q_I_OFFSET_A]
-        ib = ib + q[Q_I_OFFSET_B]
 
     if q[Q_MODE] == MODE_OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
@@ -776,7 +804,8 @@ def control_step(period, theta, ia, ib, cs, q, u):
     vd_app, vq_app = park_sc(va, vb, sin_a, cos_a)
     int_d = pi_update(err_d, int_d, vd, vd_app, kp, ki, dt)
     int_q = pi_update(err_q, int_q, vq, vq_app, kp, ki, dt)
-    return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est), (va, vb),
+    return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old, vb_old),
+            (va, vb),
             (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
 
 
@@ -858,7 +887,7 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
     x = (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
          s[S_E_FRIC], s[S_E_LOAD])
     cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT],
-          s[S_THETA_EST])
+          s[S_THETA_EST], s[S_IA_PREV], s[S_IB_PREV], s[S_VA_OLD], s[S_VB_OLD])
     va_next, vb_next = s[S_VA_NEXT], s[S_VB_NEXT]
     period = s[S_PERIOD]
     sin_prev, cos_prev = sincos(s[S_PARK_ANGLE])
@@ -884,6 +913,8 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
             u_law = (u[0], u[1], u[2], u[3], u[4], u[5], u[6] + i_law)
             cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u_law)
         va_next, vb_next = v_next
+        # What this period applies is, at the next sample, the period that just ended.
+        cs = (cs[0], cs[1], cs[2], cs[3], cs[4], cs[5], cs[6], cs[7], va, vb)
 
         # Metrics of the sample at the period's start.
         err = obs[2] - x[1]
@@ -942,7 +973,8 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
     s[S_PERIOD] = period
     (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
      s[S_E_FRIC], s[S_E_LOAD]) = x
-    s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT], s[S_THETA_EST] = cs
+    (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT], s[S_THETA_EST],
+     s[S_IA_PREV], s[S_IB_PREV], s[S_VA_OLD], s[S_VB_OLD]) = cs
     s[S_VA_NEXT], s[S_VB_NEXT] = va_next, vb_next
     (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], _iq_cmd,
      s[S_IQ_FF], s[S_PARK_ANGLE], _sin, _cos) = obs

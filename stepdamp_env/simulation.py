@@ -38,7 +38,8 @@ __all__ = [
 
 MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
 DAMPINGS = ("none", "patent-ff")
-VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN}
+VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN,
+                       "back-emf": K.VEL_EST_BACK_EMF}
 TWO_PI = 2.0 * math.pi
 # Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
 DEFAULT_ACCEL_RPS2 = 50.0
@@ -126,8 +127,11 @@ class RunSettings:
         estimate: the controller's own motor model for the feedforward;
             ``None`` takes the plant's exact values.
         velocity_estimator: ``"lowpass"`` (difference of encoder angles through
-            a first-order low-pass, the patent's) or ``"kalman"`` (steady-state
-            Kalman filter, :mod:`stepdamp_env.estimators`).
+            a first-order low-pass, the patent's), ``"kalman"`` (steady-state
+            Kalman filter, :mod:`stepdamp_env.estimators`) or ``"back-emf"``
+            (no encoder: the winding's back-EMF from the applied voltages and
+            the measured currents, with the winding's R and L, through the same
+            low-pass; the servo still reads its position from the encoder).
         noise_seed: seed of the current-sensor noise (integer in [0, 2**53)).
     """
 
@@ -242,6 +246,11 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     if settings.velocity_estimator == "kalman":
         c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER],
                                                          sv.kalman_accel_std)
+    # The winding's R and L as the drive's standstill measurement gives them (the
+    # current loop's tuning uses the same values).
+    x = m.R * dt / m.L
+    c[K.C_BEMF_G1] = m.L / dt * (x / -math.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
+    c[K.C_BEMF_G2] = c[K.C_BEMF_G1] * math.exp(-x)
     return c
 
 
@@ -309,6 +318,8 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
         s[K.S_IA] = config[K.C_HOLD]
         s[K.S_INT_D] = config[K.C_R] * config[K.C_HOLD]
         s[K.S_VA_NEXT] = config[K.C_R] * config[K.C_HOLD]
+        s[K.S_VA_OLD] = s[K.S_VA_NEXT]
+        s[K.S_IA_PREV] = config[K.C_HOLD]
         s[K.S_ID_MEAS] = config[K.C_HOLD]
     return s
 

@@ -12,6 +12,7 @@ from stepdamp_baselines.harmonic import phasors, torque_paths
 from stepdamp_env import kernel as K
 from stepdamp_env.bench import MotorKnowledge, run_episode
 from stepdamp_env.identify import identify
+from stepdamp_env.bench.rig import CalibrationRig
 from stepdamp_env.params import FeedforwardModel, get_preset
 from stepdamp_env.response import current_path
 from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window
@@ -38,7 +39,8 @@ def patent_case():
 
 def _knowledge(nominal, plant, identified):
     return MotorKnowledge(nominal=nominal, identified=identified,
-                          exact=FeedforwardModel.from_motor(plant.motor))
+                          exact=FeedforwardModel.from_motor(plant.motor), plant=plant,
+                          rig=CalibrationRig(plant, noise_seed=0, accel_rps2=50.0))
 
 
 def test_baseline_registry():

@@ -27,13 +27,14 @@ from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
 from .motors import ProtocolMotor, protocol_motors
-from .policy import MotorKnowledge, policy_env_options
+from .policy import MotorKnowledge, policy_card, policy_env_options
+from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, Protocol
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import run_episode
 from .scoring import make_entry, reference_index
 
-__all__ = ["LeaderboardJob", "run_leaderboard", "package_versions"]
+__all__ = ["LeaderboardJob", "run_leaderboard", "package_versions", "protocol_knowledge"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,16 @@ def _run_job(job: LeaderboardJob) -> dict[str, Any]:
     return result.record(motor.name, job.seed, speed, motor.speed_labels[job.speed_index])
 
 
+def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
+                       protocol: Protocol) -> MotorKnowledge:
+    """What the drive of a protocol run knows (the oracle-only fields included:
+    entries that read them are flagged by their card)."""
+    return MotorKnowledge(nominal=motor.nominal, identified=identified,
+                          exact=FeedforwardModel.from_motor(motor.system.motor),
+                          plant=motor.system,
+                          rig=CalibrationRig(motor.system, seed, protocol.accel_rps2))
+
+
 def _warm_up(system: SystemParams) -> None:
     """Load the compiled kernel and env helpers once, before forking, so that the
     workers inherit them instead of each loading the numba cache again."""
@@ -123,9 +134,26 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
                "nominal" if est == FeedforwardModel.from_motor(knowledge.nominal.motor) else
                "exact" if est == knowledge.exact else "model")
     options["estimate"] = est
-    oracle = est == "exact" and \
-        options.get("base_controller", EnvOptions.base_controller) != "none"
-    return {"oracle": bool(oracle), "env_options": options}
+    card = policy_card(policy)
+    if card is not None:
+        oracle = card.oracle
+    else:
+        oracle = est == "exact" and \
+            options.get("base_controller", EnvOptions.base_controller) != "none"
+    out = {"oracle": bool(oracle), "env_options": options}
+    if card is not None:
+        out["knowledge"] = card.knowledge()
+        out["learned"] = card.learned
+    return out
+
+
+def _suites(source: PolicySource, knowledge: MotorKnowledge, protocol: Protocol
+            ) -> tuple[tuple[str, ...], str]:
+    """The protocol's suites this policy runs in, and why not in the others."""
+    card = policy_card(source.make())
+    if card is None:
+        return protocol.suites, ""
+    return tuple(s for s in protocol.suites if s in card.suites), card.not_in_suites
 
 
 def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *,
@@ -165,16 +193,16 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
                           initargs=init, max_chunk=16, bar=bar)
     if bar is not None:
         bar.close()
-    knowledge = {(i, seed): MotorKnowledge(nominal=motors[i].nominal, identified=model,
-                                           exact=FeedforwardModel.from_motor(motors[i].system.motor))
+    knowledge = {(i, seed): protocol_knowledge(motors[i], seed, model, protocol)
                  for (i, seed), model in zip(pairs, identified)}
 
     # Options and oracle flag per policy, for the record; the last motor is a drawn
     # one in the full protocol, where nominal, identified and exact all differ.
     meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
+    suites = {spec: _suites(src, knowledge[pairs[-1]], protocol) for spec, src in sources.items()}
 
     jobs = [LeaderboardJob(spec, suite, i, seed, j)
-            for spec in specs for suite in protocol.suites
+            for spec in specs for suite in suites[spec][0]
             for i, m in enumerate(motors) for seed in protocol.eval_seeds
             for j in range(len(m.speeds_rps))]
     bar = progress_bar(len(jobs), "leaderboard", "run")
@@ -192,7 +220,7 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
         reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
         suite_entries = [make_entry(sources[spec].name, sources[spec].spec, suite,
                                     by_entry[(spec, suite)], reference, protocol, meta[spec])
-                         for spec in specs]
+                         for spec in specs if (spec, suite) in by_entry]
         suite_entries.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
                                           e["headline"]["iqm"], e["name"]))
         for rank, e in enumerate(suite_entries, 1):
@@ -201,6 +229,11 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     identification = [{"motor": motors[i].name, "seed": seed,
                        "model": dataclasses.asdict(m) if m is not None else None}
                       for (i, seed), m in zip(pairs, identified)]
-    return {"protocol": {**protocol.to_dict(), "motors": [m.to_dict() for m in motors]},
-            "versions": package_versions(), "identification": identification,
-            "entries": entries}
+    not_run = [{"name": sources[spec].name, "suite": suite, "reason": suites[spec][1]}
+               for spec in specs for suite in protocol.suites if suite not in suites[spec][0]]
+    out = {"protocol": {**protocol.to_dict(), "motors": [m.to_dict() for m in motors]},
+           "versions": package_versions(), "identification": identification,
+           "entries": entries}
+    if not_run:
+        out["not_run"] = not_run
+    return out

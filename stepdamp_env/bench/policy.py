@@ -20,15 +20,17 @@ import numpy as np
 from ..env.options import BASE_CONTROLLERS, ESTIMATES, EnvOptions, default_action_scales
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
-from .protocol import POLICY_OPTIONS, REFERENCE_POLICY
+from .protocol import POLICY_OPTIONS, REFERENCE_POLICY, SUITES
 
-__all__ = ["MotorKnowledge", "PolicyContext", "Policy", "ZeroAction", "reference_policy",
-           "KNOWLEDGE_ESTIMATES",
+__all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
+           "ZeroAction", "reference_policy", "KNOWLEDGE_ESTIMATES", "ORACLE_OPTIONS",
            "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
            "check_policy"]
 
 # What a policy may name as its base controller's model.
 KNOWLEDGE_ESTIMATES = ("exact", "identified", "nominal")
+# Env options only an entry whose card says ``oracle`` may set (the true states).
+ORACLE_OPTIONS = ("privileged",)
 
 
 @dataclass(frozen=True)
@@ -41,11 +43,62 @@ class MotorKnowledge:
         identified: the detent model identified on this very motor
             (``stepdamp_env.identify``), or ``None`` when not available.
         exact: the plant's own detent model, for oracle baselines only.
+        plant: the true plant itself (every parameter), for oracle baselines
+            only; None where the caller does not give it.
+        rig: a calibration rig on this very motor (:class:`.rig.CalibrationRig`)
+            for entries that calibrate before they run; None where the caller
+            does not give it.
     """
 
     nominal: SystemParams
     identified: FeedforwardModel | None
     exact: FeedforwardModel
+    plant: SystemParams | None = None
+    rig: Any = None
+
+
+@dataclass(frozen=True)
+class PolicyCard:
+    """What an entry knows and senses, shown in LEADERBOARD.md's knowledge column.
+
+    Attributes:
+        sensors: what it reads while it runs, e.g. "encoder", "currents +
+            voltages (no encoder)", "true state".
+        model: the motor model it uses: "none", "nominal", "identified",
+            "exact" or "true plant".
+        calibration: what it measures before the run ("" for nothing); the
+            simulated seconds are reported per run, never scored.
+        oracle: uses what no drive can know (the plant's exact model or true
+            states); only such entries may set ``ORACLE_OPTIONS``.
+        suites: the suites it runs in; ``not_in_suites`` says why not in the
+            others.
+        learned: its settings come from training (an agent).
+    """
+
+    sensors: str
+    model: str
+    calibration: str = ""
+    oracle: bool = False
+    suites: tuple[str, ...] = SUITES
+    not_in_suites: str = ""
+    learned: bool = False
+
+    def knowledge(self) -> str:
+        """One line for the knowledge column."""
+        parts = [f"sensors: {self.sensors}", f"model: {self.model}"]
+        if self.calibration:
+            parts.append(f"calibration: {self.calibration}")
+        if self.learned:
+            parts.append("learned")
+        if self.oracle:
+            parts.append("oracle")
+        return "; ".join(parts)
+
+
+def policy_card(policy: Any) -> PolicyCard | None:
+    """The policy's :class:`PolicyCard` (its ``card`` attribute), or None."""
+    card = getattr(policy, "card", None)
+    return card if isinstance(card, PolicyCard) else None
 
 
 @dataclass(frozen=True)
@@ -168,10 +221,13 @@ def policy_env_options(policy: Policy, knowledge: MotorKnowledge) -> dict[str, A
     """The policy's env options, checked against ``POLICY_OPTIONS`` and made fair:
     "nominal" is the nominal preset and unset action scales come from it."""
     options = dict(policy.env_options(knowledge))
-    bad = sorted(set(options) - set(POLICY_OPTIONS))
+    card = policy_card(policy)
+    allowed = POLICY_OPTIONS + (ORACLE_OPTIONS if card is not None and card.oracle else ())
+    bad = sorted(set(options) - set(allowed))
     if bad:
         raise ParameterError(f"policy {policy.name!r} sets env option(s) {bad} that the "
-                             f"protocol fixes; a policy may set only {list(POLICY_OPTIONS)}")
+                             f"protocol fixes; a policy may set only {list(POLICY_OPTIONS)} "
+                             f"(an oracle also {list(ORACLE_OPTIONS)})")
     if options.get("estimate") == "nominal":
         options["estimate"] = FeedforwardModel.from_motor(knowledge.nominal.motor)
     harmonic, current = default_action_scales(knowledge.nominal)

@@ -24,12 +24,14 @@ from ..params import FeedforwardModel
 from ..plots import (POLICY_COLOURS, POLICY_MARKERS, finish_ripple_axes, legend_outside,
                      mark_resonances, pyplot, save_figure)
 from .motors import ProtocolMotor, protocol_motors
+from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, Protocol
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
 __all__ = ["RESULT_FILES", "RUNS_FILE", "format_summary", "render_markdown", "render_results",
+           "render_ladder", "entry_knowledge",
            "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
            "plot_resonance_traces", "trace_run", "write_outputs"]
 
@@ -58,14 +60,18 @@ def render_markdown(board: Mapping[str, Any]) -> str:
              f"{p['current_noise_a']} A, encoder {p['encoder_cpr']} counts/rev.",
              "Headline: mean RMS velocity ripple at the three resonant speeds over that of "
              "`none` (lower is better); IQM over motors x seeds with a 95 % stratified "
-             "bootstrap interval. `oracle` entries use the plant's exact detent model.", ""]
+             "bootstrap interval. `oracle` entries use what no drive can know (the plant's "
+             "exact model or true states). Knowledge: what each entry senses while it runs, "
+             "the motor model it uses, what it calibrates before the run (simulated rig time "
+             "per run, not scored).", ""]
     for suite in p["suites"]:
         rows = sorted((e for e in board["entries"] if e["suite"] == suite),
                       key=lambda e: e["rank"])
         lines += [f"## {suite}", "",
                   "| rank | policy | headline IQM [95 % CI] | sweep mean ratio | "
-                  "sweep worst (IQM / max) | step losses | RMS injected current (A) |",
-                  "|---|---|---|---|---|---|---|"]
+                  "sweep worst (IQM / max) | step losses | RMS injected current (A) | "
+                  "knowledge |",
+                  "|---|---|---|---|---|---|---|---|"]
         for e in rows:
             name = e["name"] + (" (oracle)" if e.get("oracle") else "")
             sw = e["sweep_worst_ratio"]
@@ -73,10 +79,53 @@ def render_markdown(board: Mapping[str, Any]) -> str:
             lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
                          f"{format_summary(e['sweep_mean_ratio'])} | "
                          f"{sw['iqm']:.4g} / {sw['max']:.4g} | {sl['runs_lost']}/{sl['runs']} | "
-                         f"{e['rms_injected_current_a']['iqm']:.4g} |")
+                         f"{e['rms_injected_current_a']['iqm']:.4g} | {entry_knowledge(e)} |")
         lines.append("")
+        for x in board.get("not_run", []):
+            if x["suite"] == suite:
+                lines += [f"Not run in {suite}: `{x['name']}` ({x['reason']}).", ""]
     v = board["versions"]
     lines.append("Versions: " + ", ".join(f"{k} {val}" for k, val in v.items()))
+    return "\n".join(lines) + "\n"
+
+
+def entry_knowledge(e: Mapping[str, Any]) -> str:
+    """An entry's knowledge column: its card's line, else what its env options say."""
+    text = e.get("knowledge")
+    if not text:
+        opts = e.get("env_options", {})
+        model = opts.get("estimate", "exact") if opts.get("base_controller") != "none" else "none"
+        text = f"sensors: encoder, currents (observation); model: {model}"
+        if e.get("oracle"):
+            text += "; oracle"
+    calib = [r.get("calibration_s", 0.0) for r in e.get("runs", [])]
+    if calib and max(calib) > 0:
+        text += f" ({float(np.mean(calib)):.3g} s per run)"
+    return text
+
+
+def render_ladder(board: Mapping[str, Any]) -> str:
+    """The README's table of the whole ladder: every entry's headline in each suite
+    beside its knowledge, ranked by the first suite."""
+    p = board["protocol"]
+    suites = list(p["suites"])
+    by = {(e["name"], e["suite"]): e for e in board["entries"]}
+    names = [e["name"] for e in sorted((e for e in board["entries"] if e["suite"] == suites[0]),
+                                       key=lambda e: e["rank"])]
+    names += sorted({e["name"] for e in board["entries"]} - set(names))
+    lines = [f"{p['name']} {p['version']} ({p['variant']}): mean RMS ripple at the resonances "
+             "over undamped, IQM [95 % CI] over motors x seeds (lower is better)", "",
+             "| policy | " + " | ".join(suites) + " | knowledge |",
+             "|---|" + "---|" * len(suites) + "---|"]
+    for name in names:
+        cells, know = [], ""
+        for suite in suites:
+            e = by.get((name, suite))
+            cells.append(format_summary(e["headline"]) if e else "not run")
+            know = know or (entry_knowledge(e) if e else "")
+        oracle = any(by[(name, s)].get("oracle") for s in suites if (name, s) in by)
+        lines.append(f"| {name}{' (oracle)' if oracle else ''} | " + " | ".join(cells)
+                     + f" | {know} |")
     return "\n".join(lines) + "\n"
 
 
@@ -163,12 +212,12 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
     save_figure(fig, path)
 
 
-def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int) -> MotorKnowledge:
+def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int,
+               protocol: Protocol) -> MotorKnowledge:
     ident = next(x["model"] for x in board["identification"]
                  if x["motor"] == motor.name and x["seed"] == seed)
-    return MotorKnowledge(nominal=motor.nominal,
-                          identified=FeedforwardModel(**ident) if ident else None,
-                          exact=FeedforwardModel.from_motor(motor.system.motor))
+    return protocol_knowledge(motor, seed, FeedforwardModel(**ident) if ident else None,
+                              protocol)
 
 
 #: The patent's method as a user has it (identified model), drawn in the overview.
@@ -176,9 +225,11 @@ PATENT_ENTRY = "patent-ff-identified"
 
 
 def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
-    """The best-ranked entry other than the reference and the patent's own feedforward."""
+    """The best-ranked entry other than the reference, the patent's own feedforward
+    and oracles (a floor, not a method a drive can use)."""
     return next((e for e in _suite_rows(board, suite)
-                 if e["spec"] not in (REFERENCE_POLICY, PATENT_ENTRY)), None)
+                 if e["spec"] not in (REFERENCE_POLICY, PATENT_ENTRY) and not e.get("oracle")),
+                None)
 
 
 def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
@@ -191,7 +242,7 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
     """
     motor = protocol_motors(protocol)[0]
     seed = protocol.eval_seeds[0]
-    knowledge = _knowledge(board, motor, seed)
+    knowledge = _knowledge(board, motor, seed, protocol)
     res = motor.system.predicted_resonances_rps()
     speeds = np.geomspace(0.6 * min(res.values()), 1.3 * max(res.values()), points)
     rows = _suite_rows(board, suite)
@@ -253,7 +304,7 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     styles = policy_styles([e["name"] for e in rows])
     motor = protocol_motors(protocol)[0]
     seed = protocol.eval_seeds[0]
-    knowledge = _knowledge(board, motor, seed)
+    knowledge = _knowledge(board, motor, seed, protocol)
     res = motor.system.predicted_resonances_rps()
     plt = pyplot()
     fig, axes = plt.subplots(len(res), 1, figsize=(9, 7), sharex=True, squeeze=False)

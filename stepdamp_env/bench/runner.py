@@ -35,6 +35,8 @@ class EpisodeResult:
         metrics: the simulation core's metrics over the window
             (``RunMetrics.to_dict()``), None if the run ended before it opened.
         trace: what ``on_step`` collected (empty without it).
+        calibration_s: simulated seconds the policy spent calibrating on its
+            rig before the run (its ``calibration_s`` after reset; not scored).
     """
 
     terminated: bool
@@ -45,6 +47,7 @@ class EpisodeResult:
     window_s: float
     metrics: dict[str, Any] | None
     trace: list[Any] = field(default_factory=list)
+    calibration_s: float = 0.0
 
     def record(self, motor: str, seed: int, speed_rps: float, speed_label: str
                ) -> dict[str, Any]:
@@ -57,7 +60,7 @@ class EpisodeResult:
         return {"terminated": self.terminated, "termination": self.termination,
                 "failed": self.failed, "steps": self.steps,
                 "window_start_s": self.window_start_s, "window_s": self.window_s,
-                "metrics": self.metrics}
+                "metrics": self.metrics, "calibration_s": self.calibration_s}
 
 
 def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
@@ -119,5 +122,5 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     failed = terminated or (metrics is not None and bool(metrics["step_loss"]))
     return EpisodeResult(terminated=bool(terminated), termination=reason, failed=bool(failed),
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
-                         trace=trace)
+                         trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)))
 

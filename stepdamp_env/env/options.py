@@ -229,8 +229,10 @@ OPTIONS_DOC = """
       ``current_limit_factor`` (3.0): see Rewards and Episode End.
     * ``privileged`` (False): append the true states to the observation.
     * ``substeps`` (1): RK4 plant steps per PWM period.
-    * ``velocity_estimator`` ("lowpass"): the drive's encoder velocity estimate,
-      "lowpass" (difference + first-order low-pass, the patent's) or "kalman".
+    * ``velocity_estimator`` ("lowpass"): the drive's velocity estimate,
+      "lowpass" (encoder difference + first-order low-pass, the patent's),
+      "kalman", or "back-emf" (no encoder: from the winding voltages and
+      currents; added in 0.4.0, v0's rollouts with the other two are unchanged).
     * ``measure_from_s`` (None; scalar env only): open the simulation core's
       measuring window at this time (s) so that ``env.run_metrics()`` returns the
       core's metrics of the episode (used by the leaderboard).

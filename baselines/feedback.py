@@ -1,0 +1,291 @@
+"""Damping by feedback: velocity feedback, sensorless damping and the oracle floor.
+
+Each adds a q current ``i = a*e + b*f`` at the agent rate on top of the
+delay-compensated feedforward (:class:`~.harmonic.DelayCompensatedFF`), where
+``e`` is a velocity-error estimate (rad/s) and ``f`` a quadrature signal that
+gives the law its phase lead. The rotor on its holding spring (open loop) or in
+its servo loop is a lightly damped mode at wn; a current ``i`` proportional to
+the speed error adds the damping torque ``c*(w_cmd - w)`` if, at wn, the
+signals, the agent's hold and the current path (:func:`~stepdamp_env.response.current_path`)
+together turn ``a*E + b*Q`` into the real number ``c/(Km*G*D)``: two real
+equations, two gains (:func:`design_gains`). ``c = 2*zeta_add*J*wn`` adds
+``zeta_add`` to the damping ratio (first-order theory; ``tests/test_ladder.py``
+measures it). All models are the nominal ones (datasheet), except the oracle's.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from typing import Any
+
+import numpy as np
+
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext
+from stepdamp_env.env.layout import OBS, observation_names
+from stepdamp_env.params import SystemParams
+from stepdamp_env.response import current_path, phasors, torque_paths, velocity_filter
+
+from .harmonic import DelayCompensatedFF, harmonic_actions
+
+__all__ = ["VelocityFeedback", "SensorlessDamping", "OracleFloor", "design_gains",
+           "hold_response", "DEFAULT_ZETA_ADD", "DEFAULT_SENSORLESS_ZETA_ADD"]
+
+# Added damping ratios, chosen on training motors (scripts/ladder_tuning.py);
+# the rule then sets each motor's gains from its nominal model.
+DEFAULT_ZETA_ADD = 0.03
+DEFAULT_FILTER_HZ = 30.0
+DEFAULT_SENSORLESS_ZETA_ADD = 0.05
+DEFAULT_SENSORLESS_FILTER_HZ = 30.0
+ORACLE_ZETA_ADD = 0.5
+
+
+def hold_response(w: float, pwm_hz: float, agent_hz: float) -> complex:
+    """From a sample at the end of an agent step to the current the controller
+    computes over the next step's PWM periods, at w (rad/s): the mean of
+    exp(-j*w*m*dt), m = 1..n (n PWM periods per agent step)."""
+    n = int(round(pwm_hz / agent_hz))
+    dt = 1.0 / pwm_hz
+    return sum(cmath.exp(-1j * w * m * dt) for m in range(1, n + 1)) / n
+
+
+def design_gains(target: complex, e_response: complex, f_response: complex
+                 ) -> tuple[float, float]:
+    """Real gains (a, b) with a*e_response + b*f_response = target."""
+    m = np.array([[e_response.real, f_response.real], [e_response.imag, f_response.imag]])
+    a, b = np.linalg.solve(m, np.array([target.real, target.imag]))
+    return float(a), float(b)
+
+
+def _lowpass(w: float, alpha: float, dt: float) -> complex:
+    """First-order low-pass y += alpha*(x - y), run every dt, at w."""
+    return alpha / (1.0 - (1.0 - alpha) * cmath.exp(-1j * w * dt))
+
+
+def _law_target(system: SystemParams, mode: str, agent_hz: float, zeta_add: float,
+                wn: float) -> complex:
+    """c/(Km*G*D) at wn: what the law's signals must turn the speed error into."""
+    m = system.motor
+    c = 2.0 * zeta_add * m.J * wn
+    g = current_path(system, wn)
+    d = hold_response(wn, system.drive.pwm_hz, agent_hz)
+    return c / (m.Km * g * d)
+
+
+class _FeedbackOnFF(DelayCompensatedFF):
+    """``ff-delay-comp``'s harmonic actions plus a q current, in "harmonic+current"."""
+
+    velocity_estimator = "lowpass"
+    privileged = False
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        out = super().env_options(knowledge)
+        out["action_mode"] = "harmonic+current"
+        out["velocity_estimator"] = self.velocity_estimator
+        if self.privileged:
+            out["privileged"] = True
+        return out
+
+    def _feedforward(self, context: PolicyContext, system: SystemParams) -> np.ndarray:
+        model = self._model(context)
+        base = phasors(model)
+        g = torque_paths(system, context.mode, context.speed_rps, model)
+        return harmonic_actions(base / g, base, context.action_scale)
+
+    def _model(self, context: PolicyContext):
+        from stepdamp_env.bench.policy import estimate_model
+        return estimate_model(self.estimate, context.knowledge)
+
+    def _start(self, context: PolicyContext, system: SystemParams) -> None:
+        self._action = np.zeros(7, dtype=np.float32)
+        self._action[:6] = self._feedforward(context, system)
+        self._w_ref = 2.0 * math.pi * abs(context.speed_rps)
+        self._to_action = 1.0 / context.current_scale_a
+        self._full_step = system.motor.full_step_rad
+
+
+class VelocityFeedback(_FeedbackOnFF):
+    """``velocity-feedback``: the classic anti-resonance law, with an encoder.
+
+    Source idea: velocity-feedback damping of the rotor's resonance (what
+    commercial "anti-resonance" does; ``damping-methods.md``). Senses the
+    encoder (the drive's low-passed velocity estimate and its position error);
+    model: nominal (datasheet) for the law, identified for the feedforward.
+
+    Law: ``i = a*e_w + b*hp(e_theta)`` on top of ``ff-delay-comp``, where
+    ``e_w`` is the drive's velocity error estimate (rad/s) and ``hp(e_theta)``
+    the encoder's position error through a first-order high-pass at wn/5 (it
+    drops the static lag; at wn it is the speed error turned by 90 degrees,
+    which supplies the phase lead the low-pass, the hold and the current loop
+    take away). Settings: (a, b) from :func:`design_gains` for an added damping
+    ratio ``zeta_add`` at the nominal wn of the holding spring. Open loop
+    only (see ``card.not_in_suites``). Both signals pass a first-order low-pass at ``filter_hz`` (its
+    phase is in the design): the 4000-count encoder's quantisation noise, fed
+    back, would otherwise add more ripple than the damping removes.
+    ``zeta_add`` = 0.03 and ``filter_hz`` = 30 were chosen on training motors
+    (``scripts/ladder_tuning.py``: larger added damping loses to that noise).
+    """
+
+    card = PolicyCard(sensors="encoder (velocity estimate, position error), currents",
+                      model="nominal (law), identified (feedforward)",
+                      suites=("open-loop",),
+                      not_in_suites="the servo's own loop is velocity feedback already "
+                                    "(eq. 15): a second one on top retunes the servo (and, "
+                                    "designed for the open-loop spring, loses steps there)")
+
+    def __init__(self, zeta_add: float = DEFAULT_ZETA_ADD,
+                 filter_hz: float = DEFAULT_FILTER_HZ) -> None:
+        super().__init__()
+        self.name = "velocity-feedback"
+        self.zeta_add = float(zeta_add)
+        self.filter_hz = float(filter_hz)
+
+    def reset(self, context: PolicyContext) -> None:
+        nominal = context.knowledge.nominal
+        self._start(context, nominal)
+        wn = nominal.natural_frequency()
+        dt_a = 1.0 / context.agent_hz
+        self._hp_alpha = 1.0 - math.exp(-wn / 5.0 * dt_a)
+        self._beta = 1.0 - math.exp(-2.0 * math.pi * self.filter_hz * dt_a)
+        hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
+        lp = _lowpass(wn, self._beta, dt_a)
+        target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
+        self.gains = design_gains(target, velocity_filter(nominal, wn) * lp,
+                                  hp * lp / complex(0.0, wn))
+        self._lp = None
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        e_w = float(observation[OBS.velocity_error]) * self._w_ref
+        e_theta = float(observation[OBS.position_error]) * self._full_step
+        if self._lp is None:
+            self._lp, self._fw, self._fp = e_theta, e_w, 0.0
+        self._lp += self._hp_alpha * (e_theta - self._lp)
+        # Both signals through the same low-pass: less of the encoder's
+        # quantisation noise reaches the current (its phase is in the design).
+        self._fw += self._beta * (e_w - self._fw)
+        self._fp += self._beta * (e_theta - self._lp - self._fp)
+        a, b = self.gains
+        self._action[6] = np.clip((a * self._fw + b * self._fp) * self._to_action, -1.0, 1.0)
+        return self._action
+
+
+class SensorlessDamping(_FeedbackOnFF):
+    """``sensorless-damping``: damping without an encoder (the idea of US 5,847,535).
+
+    Senses the phase currents and the applied winding voltages only: the
+    drive's ``velocity_estimator="back-emf"`` estimates the rotor's speed from
+    the back-EMF, ``e = v - R*i - L*di/dt`` solved exactly over each PWM period
+    with the winding's R and L, projected on the command's electrical angle and
+    low-passed (:mod:`stepdamp_env.kernel`). Model: nominal (Km, J, wn) for the
+    law, identified for the feedforward, the winding's R and L as a standstill
+    measurement gives them.
+
+    Law: ``i = a*e_w + b*(e_w - e_w_prev)`` on top of ``ff-delay-comp``; the
+    difference of successive estimates supplies the phase lead (there is no
+    position to take it from), after a low-pass at ``filter_hz`` against the
+    current sensors' noise. Settings: (a, b) from :func:`design_gains` for an
+    added damping ratio ``zeta_add`` at the nominal wn; ``zeta_add`` = 0.05
+    and ``filter_hz`` = 30 chosen on training motors
+    (``scripts/ladder_tuning.py``).
+
+    Open loop only: a servo has an encoder by definition (it closes its
+    position loop on it), so sensorless damping has nothing to add there that
+    ``velocity-feedback`` does not.
+    """
+
+    card = PolicyCard(sensors="currents + winding voltages (no encoder)",
+                      model="nominal (law), identified (feedforward), winding R, L",
+                      suites=("open-loop",),
+                      not_in_suites="a servo closes its loop on an encoder: sensorless "
+                                    "damping is for open-loop drives")
+    velocity_estimator = "back-emf"
+
+    def __init__(self, zeta_add: float = DEFAULT_SENSORLESS_ZETA_ADD,
+                 filter_hz: float = DEFAULT_SENSORLESS_FILTER_HZ) -> None:
+        super().__init__()
+        self.name = "sensorless-damping"
+        self.zeta_add = float(zeta_add)
+        self.filter_hz = float(filter_hz)
+
+    def reset(self, context: PolicyContext) -> None:
+        nominal = context.knowledge.nominal
+        self._start(context, nominal)
+        wn = nominal.natural_frequency()
+        dt = 1.0 / nominal.drive.pwm_hz
+        alpha = 1.0 - math.exp(-2.0 * math.pi * nominal.servo.velocity_cutoff_hz * dt)
+        # The back-EMF of the period before the sample: half a period late.
+        dt_a = 1.0 / context.agent_hz
+        self._beta = 1.0 - math.exp(-2.0 * math.pi * self.filter_hz * dt_a)
+        est = (_lowpass(wn, alpha, dt) * cmath.exp(-0.5j * wn * dt)
+               * _lowpass(wn, self._beta, dt_a))
+        diff = est * (1.0 - cmath.exp(-1j * wn * dt_a))
+        target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
+        self.gains = design_gains(target, est, diff)
+        self._prev = None
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        raw = float(observation[OBS.velocity_error]) * self._w_ref
+        if self._prev is None:
+            self._prev = self._fw = raw
+        # A further low-pass against the current sensors' noise (in the design).
+        self._fw += self._beta * (raw - self._fw)
+        e_w, prev = self._fw, self._prev
+        self._prev = e_w
+        a, b = self.gains
+        self._action[6] = np.clip((a * e_w + b * (e_w - prev)) * self._to_action, -1.0, 1.0)
+        return self._action
+
+
+class OracleFloor(_FeedbackOnFF):
+    """``oracle-floor`` (oracle): how far the ripple can fall on this drive.
+
+    Knows what no drive knows: the true plant (every parameter) and its true
+    state (``privileged`` observation: the true position and speed error). It
+    cancels the detent with the exact model sent through the true plant's
+    current path (``ff-delay-comp`` with perfect knowledge) and adds state
+    feedback on the true speed error and the high-passed true position error
+    (the law of :class:`VelocityFeedback` without sensor lag, quantisation or
+    noise) for an added damping ratio of 0.5 at the true wn. What remains is
+    what the drive cannot do: the current loop's bandwidth and noise, the PWM
+    and agent-step hold, the bus voltage, the microstep quantisation of the
+    open-loop command. In servo the servo's own loop damps the rotor and the
+    state feedback is left out (zeta_add = 0 there): the floor of exact
+    cancellation.
+    """
+
+    card = PolicyCard(sensors="true state (position, speed)", model="true plant (exact)",
+                      oracle=True)
+    privileged = True
+
+    def __init__(self, zeta_add: float = ORACLE_ZETA_ADD) -> None:
+        super().__init__(estimate="exact")
+        self.name = "oracle-floor"
+        self.zeta_add = float(zeta_add)
+
+    def reset(self, context: PolicyContext) -> None:
+        plant = context.knowledge.plant
+        if plant is None:
+            raise ValueError("oracle-floor needs MotorKnowledge.plant (the true plant)")
+        self._start(context, plant)
+        names = observation_names("harmonic+current", privileged=True)
+        self._i_w = names.index("true_velocity_error")
+        self._i_theta = names.index("true_position_error")
+        wn = plant.natural_frequency()
+        dt_a = 1.0 / context.agent_hz
+        self._hp_alpha = 1.0 - math.exp(-wn / 5.0 * dt_a)
+        hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
+        zeta = self.zeta_add if context.mode == "open-loop" else 0.0
+        target = _law_target(plant, context.mode, context.agent_hz, zeta, wn)
+        self.gains = design_gains(target, complex(1.0, 0.0), hp / complex(0.0, wn))
+        self._lp = None
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        e_w = float(observation[self._i_w]) * self._w_ref
+        e_theta = float(observation[self._i_theta]) * self._full_step
+        if self._lp is None:
+            self._lp = e_theta
+        self._lp += self._hp_alpha * (e_theta - self._lp)
+        a, b = self.gains
+        self._action[6] = np.clip((a * e_w + b * (e_theta - self._lp)) * self._to_action,
+                                  -1.0, 1.0)
+        return self._action

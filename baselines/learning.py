@@ -1,0 +1,264 @@
+"""Feedforward that is learned on the motor: a calibrated table and repetitive control.
+
+Both act in ``action_mode="harmonic"`` on the identified patent feedforward and
+describe the feedforward of detent harmonic h as a phasor A_h (N*m; see
+:mod:`.harmonic`). Both start from ``ff-delay-comp``'s A_h = P_h/G_h.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, estimate_model
+from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
+from stepdamp_env.params import DETENT_HARMONICS
+from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
+
+from .harmonic import DelayCompensatedFF, harmonic_actions
+
+__all__ = ["CalibratedTable", "RepetitiveControl", "golden_section"]
+
+_INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+def golden_section(f, low: float, high: float, iterations: int,
+                   start: float | None = None) -> float:
+    """The minimiser of ``f`` on [low, high] by golden-section search
+    (``iterations`` evaluations after the first two; the bracket shrinks by
+    0.618 each). Returns the best point evaluated, ``start`` included if
+    given: a measured objective is noisy and need not be unimodal, and a
+    search must never end worse than where it began."""
+    best_x, best_f = (start, f(start)) if start is not None else (None, math.inf)
+    a, b = low, high
+    c = b - _INV_PHI * (b - a)
+    d = a + _INV_PHI * (b - a)
+    fc, fd = f(c), f(d)
+    seen = [(fc, c), (fd, d)]
+    for _ in range(iterations):
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - _INV_PHI * (b - a)
+            fc = f(c)
+            seen.append((fc, c))
+        else:
+            a, c, fc = c, d, fd
+            d = a + _INV_PHI * (b - a)
+            fd = f(d)
+            seen.append((fd, d))
+    f_min, x_min = min(seen)
+    return x_min if f_min < best_f else best_x
+
+
+# One calibration per motor, drive mode and model (a drive calibrates its motor
+# once); deterministic, so a cache per process changes no number.
+_TABLES: dict[tuple, tuple[np.ndarray, float]] = {}
+
+
+class CalibratedTable(DelayCompensatedFF):
+    """``calibrated-table``: a feedforward table found by measurement before the run.
+
+    Source idea: US 5,659,234 (a test rig measures the speed ripple at a fixed
+    step rate and corrects the microstep table until the ripple is least) and
+    Prusa's phase stepping (at constant speed, one DFT bin per harmonic; each
+    harmonic's correction tuned by golden-section search, phase first, then
+    magnitude, coarse then fine). Senses nothing while it runs (a fixed table);
+    calibrates on a rig (:class:`~stepdamp_env.bench.rig.CalibrationRig`: the
+    same motor and drive, a noise-free reference speed sensor). Model: the
+    identified one as the starting table, the nominal one to pick the speeds.
+
+    Calibration: for h = 4, 2, 1, at the nominal model's resonant speed of
+    harmonic h (where its ripple is largest), A_h = m*exp(j*phi)*A0_h with A0_h
+    the ``ff-delay-comp`` value: phi by golden section on [-60, 60] degrees,
+    then m on [0.5, 1.5], then both again on a bracket a quarter as wide
+    (``iterations`` each); the objective is the rig's amplitude of harmonic h.
+    The table is kept as the detent torque each A_h cancels (A_h times the
+    current path G_h at its calibration speed) and sent at every run speed
+    through that speed's G_h, as ``ff-delay-comp`` sends its model. Its
+    simulated rig time is reported (``calibration_s``), not scored.
+    """
+
+    card = PolicyCard(sensors="none while running (a fixed table)",
+                      model="identified (start), nominal (speeds)",
+                      calibration="rig runs at the resonant speeds, golden-section search")
+
+    def __init__(self, iterations: int = 10, window_s: float = 0.1) -> None:
+        super().__init__()
+        self.name = "calibrated-table"
+        self.iterations = int(iterations)
+        self.window_s = float(window_s)
+        self.calibration_s = 0.0
+
+    def reset(self, context: PolicyContext) -> None:
+        knowledge = context.knowledge
+        rig = knowledge.rig
+        if rig is None:
+            raise ValueError("calibrated-table needs a calibration rig (MotorKnowledge.rig)")
+        model = estimate_model(self.estimate, knowledge)
+        key = (rig.key, context.mode, repr(model), self.iterations, self.window_s)
+        if key not in _TABLES:
+            _TABLES[key] = self._calibrate(knowledge, context.mode, model)
+        torque, self.calibration_s = _TABLES[key]
+        g = torque_paths(knowledge.nominal, context.mode, context.speed_rps, model)
+        self._action = harmonic_actions(torque / g, phasors(model), context.action_scale)
+
+    def _calibrate(self, knowledge: MotorKnowledge, mode: str, model) -> tuple[np.ndarray, float]:
+        nominal = knowledge.nominal
+        base = phasors(model)
+        resonances = nominal.predicted_resonances_rps()
+        table = np.array([base[i] / torque_paths(nominal, mode, resonances[h], model)[i]
+                          for i, h in enumerate(DETENT_HARMONICS)])
+        seconds = 0.0
+        for h in (4, 2, 1):
+            i = DETENT_HARMONICS.index(h)
+            speed = resonances[h]
+            start = table[i]
+
+            def ripple(value: complex) -> float:
+                nonlocal seconds
+                trial = table.copy()
+                trial[i] = value
+                corr = np.empty(6)
+                corr[0::2] = (trial - base).real
+                corr[1::2] = (trial - base).imag
+                amps, s = knowledge.rig.harmonic_ripple(mode, speed, model, corr, self.window_s)
+                seconds += s
+                return float(amps[i])
+
+            phase, mag = 0.0, 1.0
+            for width_phase, width_mag in ((math.pi / 3.0, 0.5), (math.pi / 12.0, 0.125)):
+                phase = golden_section(
+                    lambda p: ripple(start * mag * complex(math.cos(p), math.sin(p))),
+                    phase - width_phase, phase + width_phase, self.iterations, start=phase)
+                rot = start * complex(math.cos(phase), math.sin(phase))
+                mag = golden_section(lambda m: ripple(rot * m), max(0.0, mag - width_mag),
+                                     mag + width_mag, self.iterations, start=mag)
+            table[i] = start * mag * complex(math.cos(phase), math.sin(phase))
+        # Stored as the detent torque it cancels (times G at the calibration
+        # speed), so each run speed gets it through its own current path.
+        paths = np.array([torque_paths(nominal, mode, resonances[h], model)[i]
+                          for i, h in enumerate(DETENT_HARMONICS)])
+        return table * paths, seconds
+
+
+class RepetitiveControl(DelayCompensatedFF):
+    """``repetitive-control``: learns the periodic correction online, from the encoder.
+
+    Source idea: repetitive control / iterative learning control of periodic
+    torque ripple in PMSM drives: after each period of the disturbance,
+    ``u_(k+1) = Q*(u_k + L*e_k)``. The detent is periodic in the electrical
+    angle, so the period is one electrical revolution and the correction is
+    held as the phasors of harmonics 1, 2, 4 (the kernel evaluates them at
+    every PWM period, at the exact angle). Senses the encoder (the drive's
+    velocity error estimate); model: nominal for the learning filter,
+    identified for the starting table.
+
+    After the ramp, each electrical period's velocity error is projected on
+    sin(h*x) and cos(h*x) (one DFT bin per harmonic over the whole period,
+    from the observation's own sin/cos entries), giving phasors R_h, and
+
+        A_h <- A0_h + q*(A_h - A0_h) + gain * conj(P_h) / Pmax_h^2 * R_h
+
+    with P = G*H*F: G the current path, H the rotor's torque-to-speed response
+    and F the velocity estimate's, all at h*Nr*speed from the nominal model.
+    conj(P) is the phase lead that compensates the plant's delay (a gradient
+    step); Pmax_h, the largest |P| within the spread of resonances a motor of
+    this type may have (0.7 to 1.4 times the frequency), bounds the loop gain
+    by ``gain`` on any such motor. Q is the
+    robustness filter: a harmonic is learned only where a period holds at
+    least ``min_samples`` agent steps per cycle of it (a low-pass on the
+    correction's frequency content; above it the DFT bin aliases) and the
+    correction leaks towards the start by (1 - q) per period. A guard: a
+    harmonic whose per-period ripple grows past ``guard_ratio`` times that of
+    the least seen so far goes back to its start and stops learning.
+    ``learning_gain`` was chosen on training motors (``scripts/ladder_tuning.py``).
+    """
+
+    card = PolicyCard(sensors="encoder (velocity estimate)",
+                      model="nominal (learning filter), identified (start)")
+
+    def __init__(self, learning_gain: float = 0.2, leak: float = 0.995,
+                 min_samples: float = 6.0, guard_ratio: float = 3.0) -> None:
+        super().__init__()
+        self.name = "repetitive-control"
+        self.guard_ratio = float(guard_ratio)
+        self.learning_gain = float(learning_gain)
+        self.leak = float(leak)
+        self.min_samples = float(min_samples)
+
+    def reset(self, context: PolicyContext) -> None:
+        nominal = context.knowledge.nominal
+        model = estimate_model(self.estimate, context.knowledge)
+        self._base = phasors(model)
+        g = torque_paths(nominal, context.mode, context.speed_rps, model)
+        self._start = self._base / g
+        self._table = self._start.copy()
+        w = 2.0 * math.pi * abs(context.speed_rps)
+        nr = nominal.motor.Nr
+        def plant(h: int, w_h: float) -> complex:
+            return (current_path_of(h, w_h) * torque_to_velocity(nominal, w_h, context.mode)
+                    * velocity_filter(nominal, w_h))
+
+        def current_path_of(h: int, w_h: float) -> complex:
+            return g[DETENT_HARMONICS.index(h)]
+
+        path = np.array([plant(h, h * nr * w) for h in DETENT_HARMONICS])
+        # The step is normalised by the largest response within the spread of
+        # resonances a motor of this type may have (wn x 0.7..1.4): a motor
+        # whose true resonance sits on the harmonic must not see a loop gain
+        # above ``learning_gain``.
+        spread = np.geomspace(0.7, 1.4, 29)
+        peak = np.array([max(abs(plant(h, f * h * nr * w)) for f in spread)
+                         for h in DETENT_HARMONICS])
+        cycle_steps = np.array([context.agent_hz / max(h * nr * abs(context.speed_rps), 1e-12)
+                                for h in DETENT_HARMONICS])
+        self._learn = (self.learning_gain * (cycle_steps >= self.min_samples)
+                       * np.conj(path) / peak ** 2)
+        self._w_ref = w
+        self._scale = context.action_scale
+        self._action = harmonic_actions(self._start, self._base, self._scale)
+        self._wait = int(round(context.ramp_s * context.agent_hz))
+        self._step = 0
+        self._angle = None
+        self._turned = 0.0
+        self._sums = np.zeros(3, dtype=complex)
+        self._count = 0
+        self._reference = None
+        self._active = np.ones(3, dtype=bool)
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        self._step += 1
+        if self._step <= self._wait:
+            return self._action
+        s = observation[HARMONIC_SIN].astype(float)
+        c = observation[HARMONIC_COS].astype(float)
+        e = float(observation[OBS.velocity_error]) * self._w_ref
+        angle = math.atan2(s[0], c[0])
+        if self._angle is not None:
+            self._turned += (angle - self._angle + math.pi) % (2.0 * math.pi) - math.pi
+        self._angle = angle
+        self._sums += e * (s + 1j * c)
+        self._count += 1
+        if abs(self._turned) >= 2.0 * math.pi:          # one electrical period done
+            ripple = 2.0 * self._sums / self._count
+            size = np.abs(ripple)
+            # A model whose phase is off by more than 90 degrees (near a shifted
+            # resonance) makes learning diverge: a harmonic whose ripple grows
+            # past guard_ratio times the least seen goes back to its start and
+            # stops learning.
+            self._reference = size if self._reference is None else \
+                np.minimum(self._reference, size)
+            diverged = self._active & (size > self.guard_ratio * self._reference)
+            self._active &= ~diverged
+            self._table = np.where(diverged, self._start, self._table)
+            self._table = (self._start + self.leak * (self._table - self._start)
+                           + self._active * self._learn * ripple)
+            self._action = harmonic_actions(self._table, self._base, self._scale)
+            self._table = self._base + self._scale * (
+                self._action[0::2].astype(float) + 1j * self._action[1::2].astype(float))
+            self._turned -= math.copysign(2.0 * math.pi, self._turned)
+            self._sums[:] = 0.0
+            self._count = 0
+        return self._action
