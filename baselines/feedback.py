@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext
+from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
+                                       estimate_model)
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.params import SystemParams
 from stepdamp_env.response import current_path, phasors, torque_paths, velocity_filter
@@ -87,14 +88,11 @@ class _FeedbackOnFF(DelayCompensatedFF):
         return out
 
     def _feedforward(self, context: PolicyContext, system: SystemParams) -> np.ndarray:
-        model = self._model(context)
+        """ff-delay-comp's actions, with the current path of ``system``."""
+        model = estimate_model(self.estimate, context.knowledge)
         base = phasors(model)
         g = torque_paths(system, context.mode, context.speed_rps, model)
         return harmonic_actions(base / g, base, context.action_scale)
-
-    def _model(self, context: PolicyContext):
-        from stepdamp_env.bench.policy import estimate_model
-        return estimate_model(self.estimate, context.knowledge)
 
     def _start(self, context: PolicyContext, system: SystemParams) -> None:
         self._action = np.zeros(7, dtype=np.float32)

@@ -8,7 +8,6 @@ describe the feedforward of detent harmonic h as a phasor A_h (N*m; see
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 

@@ -18,7 +18,7 @@ from stepdamp_env.bench.rig import CalibrationRig
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS, N_BASE_OBS
 from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, ParameterError
 from stepdamp_env.presets import get_preset
-from stepdamp_env.response import phasors, torque_paths
+from stepdamp_env.response import phasors
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 
 LADDER = ("velocity-feedback", "sensorless-damping", "calibrated-table",
