@@ -211,9 +211,9 @@ class SensorlessDamping(_FeedbackOnFF):
         wn = nominal.natural_frequency()
         dt = 1.0 / nominal.drive.pwm_hz
         alpha = 1.0 - math.exp(-2.0 * math.pi * nominal.servo.velocity_cutoff_hz * dt)
-        # The back-EMF of the period before the sample: half a period late.
         dt_a = 1.0 / context.agent_hz
         self._beta = 1.0 - math.exp(-2.0 * math.pi * self.filter_hz * dt_a)
+        # The back-EMF is that of the period before the sample: half a period late.
         est = (_lowpass(wn, alpha, dt) * cmath.exp(-0.5j * wn * dt)
                * _lowpass(wn, self._beta, dt_a))
         diff = est * (1.0 - cmath.exp(-1j * wn * dt_a))

@@ -147,8 +147,7 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
     return out
 
 
-def _suites(source: PolicySource, knowledge: MotorKnowledge, protocol: Protocol
-            ) -> tuple[tuple[str, ...], str]:
+def _suites(source: PolicySource, protocol: Protocol) -> tuple[tuple[str, ...], str]:
     """The protocol's suites this policy runs in, and why not in the others."""
     card = policy_card(source.make())
     if card is None:
@@ -199,7 +198,7 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     # Options and oracle flag per policy, for the record; the last motor is a drawn
     # one in the full protocol, where nominal, identified and exact all differ.
     meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
-    suites = {spec: _suites(src, knowledge[pairs[-1]], protocol) for spec, src in sources.items()}
+    suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
 
     jobs = [LeaderboardJob(spec, suite, i, seed, j)
             for spec in specs for suite in suites[spec][0]
