@@ -299,7 +299,8 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     resonant speeds, sampled every PWM period: ``none`` against the best entry
     (patent Figs. 4-7 style), representative motor and seed."""
     rows = _suite_rows(board, suite)
-    best = next((e for e in rows if e["spec"] != REFERENCE_POLICY), None)
+    # The best entry a drive can use: an oracle is a floor, not a method.
+    best = next((e for e in rows if e["spec"] != REFERENCE_POLICY and not e.get("oracle")), None)
     shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
     styles = policy_styles([e["name"] for e in rows])
     motor = protocol_motors(protocol)[0]
