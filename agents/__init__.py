@@ -8,9 +8,11 @@ SAC, TD3 and PPO from stable-baselines3, as residuals on the model-based baselin
 * :mod:`stepdamp_agents.train`: the training script (``stepdamp train``);
 * :mod:`stepdamp_agents.policy`: a trained agent as a leaderboard policy;
 * ``hyperparams/{sac,td3,ppo}.yml``: rl-baselines3-zoo hyperparameters;
-* ``reference/``: the reference model ``ppo-residual.zip`` (with its
-  ``.agent.json`` config and ``ppo-residual.train_log.json``), which
-  ``stepdamp leaderboard`` lists by default.
+* ``reference/``: the reference model ``ppo-residual.zip`` (training seed 1,
+  with its ``.agent.json`` config and ``ppo-residual.train_log.json``), which
+  ``stepdamp leaderboard`` lists by default, and the same configuration
+  trained with seeds 2-5 (``ppo-residual.seed<K>.*``): stepdamp-bench v1
+  pools all five in the ``ppo-residual`` entry, v0 runs seed 1 alone.
 
 :func:`register_policies` (the ``stepdamp.policies`` entry point
 ``reference-agents``) registers every committed reference model by its name
@@ -32,7 +34,8 @@ from stepdamp_env.bench.registry import PolicySource, register_loader, register_
 REFERENCE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference")
 ALGO_NAMES = ("ppo", "sac", "td3")
 
-__all__ = ["REFERENCE_DIR", "reference_names", "reference_agent", "register_policies"]
+__all__ = ["REFERENCE_DIR", "reference_names", "reference_agent", "reference_seeds",
+           "register_policies"]
 
 
 def reference_names() -> tuple[str, ...]:
@@ -53,10 +56,34 @@ def reference_agent(algo: str = "ppo"):
     return ResidualAgent(path)
 
 
+def reference_seeds(algo: str = "ppo") -> dict[int, str]:
+    """Training seed -> model path of the committed reference models of ``algo``:
+    ``<algo>-residual.zip`` (the one v0 runs) and ``<algo>-residual.seed<K>.zip``
+    (the other seeds stepdamp-bench v1 pools), each by the seed in its config."""
+    from .policy import load_agent_config
+
+    out: dict[int, str] = {}
+    stem = f"{algo}-residual"
+    for fname in sorted(os.listdir(REFERENCE_DIR)):
+        if fname == f"{stem}.zip" or (fname.startswith(f"{stem}.seed") and fname.endswith(".zip")):
+            path = os.path.join(REFERENCE_DIR, fname)
+            out[int(load_agent_config(path)["training"]["seed"])] = path
+    return dict(sorted(out.items()))
+
+
 def _reference_factory(algo: str):
     def make():
         return reference_agent(algo)
     make.__qualname__ = f"reference_agent[{algo}]"
+    return make
+
+
+def _seed_factory(path: str):
+    def make():
+        from .policy import ResidualAgent
+
+        return ResidualAgent(path)
+    make.__qualname__ = f"ResidualAgent[{os.path.basename(path)}]"
     return make
 
 
@@ -85,5 +112,7 @@ def register_policies() -> None:
     for name in reference_names():
         algo = name.split("-")[0]
         register_policy(name, _FACTORIES[algo], kind="agent",
-                        description=f"committed reference {algo.upper()} residual agent")
+                        description=f"committed reference {algo.upper()} residual agent",
+                        training_seeds={k: _seed_factory(p)
+                                        for k, p in reference_seeds(algo).items()})
     register_loader("stepdamp-train", _is_trained_model, _load_trained_model)

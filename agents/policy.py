@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyContext, resolve_estimate
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
 __all__ = ["ResidualAgent", "load_agent_config", "load_model", "forget_model", "agent_config_path"]
 
@@ -81,6 +81,9 @@ class ResidualAgent:
                           if k in ("agent_hz", "velocity_estimator")}
         self.hold_steps = int(self.config.get("hold_steps", 1))
         self.feedback_gain = float(self.config.get("feedback_gain", 0.0))
+        which = self.config.get("estimate", self.config.get("eval_estimate", "identified"))
+        self.card = PolicyCard(sensors="encoder, currents (observation)", model=which,
+                               learned=True, oracle=which == "exact")
         self._constants = EpisodeConstants(1)
         self._step = 0
         self._gain = np.zeros(1)

@@ -287,13 +287,18 @@ def _register_policies() -> None:
 
 
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
-    from .bench import (SUITES, default_policy_names, full_protocol, quick_protocol,
-                        run_leaderboard, write_outputs)
-    from .bench.report import RESULT_FILES, format_summary
+    from .bench import SUITES, default_policy_names, run_leaderboard, write_outputs
+    from .bench.protocol_v1 import load_motors_file, protocol_for
+    from .bench.report import (RESULT_FILES, entry_rows, format_summary, render_per_motor,
+                               splits)
 
     check_output_dir(args.out, "--out")
+    protocol = protocol_for(args.protocol, quick=args.quick)
+    if args.motors is not None:
+        if args.protocol == "v0":
+            raise ParameterError("--motors needs --protocol v1 (v0's motors are frozen)")
+        protocol = protocol.with_custom_motors(load_motors_file(args.motors, protocol))
     _register_policies()
-    protocol = quick_protocol() if args.quick else full_protocol()
     suites = SUITES if args.suite == "all" else (args.suite,)
     protocol = protocol.with_suites(suites)
     named = default_policy_names()
@@ -307,13 +312,16 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     with staged_directory(args.out, RESULT_FILES) as stage:
         written = write_outputs(board, stage, protocol, plots=not args.no_plots)
     for suite in protocol.suites:
-        print(f"{protocol.name} {protocol.version} ({protocol.variant}), {suite}:")
-        rows = sorted((e for e in board["entries"] if e["suite"] == suite),
-                      key=lambda e: e["rank"])
-        for e in rows:
-            print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM "
-                  f"{format_summary(e['headline']):32s} step losses "
-                  f"{e['step_losses']['runs_lost']}/{e['step_losses']['runs']}")
+        for split in splits(board):
+            where = suite if split is None else f"{suite}, {split}"
+            print(f"{protocol.name} {protocol.version} ({protocol.variant}), {where}:")
+            for e in entry_rows(board, suite, split):
+                print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM "
+                      f"{format_summary(e['headline']):32s} step losses "
+                      f"{e['step_losses']['runs_lost']}/{e['step_losses']['runs']}")
+            if split == "custom":
+                print(render_per_motor(board, suite, split), end="")
+    print(f"wall {board['wall_seconds']:.1f} s, simulated {board['simulated_seconds']:.0f} s")
     print("wrote " + ", ".join(os.path.join(args.out, n) for n in written))
     return 0
 
@@ -403,10 +411,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="result directory")
     p.set_defaults(func=_cmd_identify)
 
-    p = command("leaderboard", "run the stepdamp-bench v0 protocol on the baselines and "
-                               "given policies")
+    p = command("leaderboard", "run the stepdamp-bench protocol (v1 by default) on the "
+                               "baselines, the reference agents and given policies")
+    p.add_argument("--protocol", choices=["v0", "v1"], default="v1",
+                   help="protocol version: v1 (default; interpolation and extrapolation "
+                        "splits) or the frozen v0 of the published numbers")
     p.add_argument("--quick", action="store_true",
-                   help="reduced CI protocol: presets, one seed, resonant speeds, 0.1 s window")
+                   help="the protocol's reduced CI variant (v1: 8 motors, resonant speeds, "
+                        "two servo speeds, 0.1 s window; v0: presets, one seed)")
+    p.add_argument("--motors", metavar="FILE.json", default=None,
+                   help="v1 on your own motors (split 'custom'): a JSON list of preset names "
+                        "or motor objects (flat parameter names, optional 'base' and 'name'); "
+                        "the nominal model is the file's values")
     p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
                    help="extra policy: package.module:attr or path/file.py:attr (a Policy "
                         "class, factory or instance), a model `stepdamp train` wrote "

@@ -4,17 +4,21 @@
 module        what it holds
 ============  ================================================================
 protocol      the frozen ``stepdamp-bench v0`` spec (its docstring) and settings
-motors        the protocol's motors (presets and seeded draws), speed grids
+protocol_v1   the frozen ``stepdamp-bench v1`` spec: splits, servo grid,
+              settling, statistics; ``--motors`` files
+motors        the protocols' motors (presets, seeded draws, v1 splits), speed
+              grids, v1 settling
 policy        the policy contract: ``Policy``, ``PolicyContext``,
               ``MotorKnowledge``, estimate resolution, the fair env options
 registry      registered policies (filled by ``stepdamp_baselines`` and
               ``stepdamp_agents`` through the ``stepdamp.policies`` entry
               points), policy specs -> fresh instances
 runner        ``run_episode``: the one episode loop
-stats         interquartile mean, stratified bootstrap interval
-scoring       per-(motor, seed) scores, a leaderboard entry
+stats         interquartile mean, stratified (v0) and two-level (v1)
+              bootstrap intervals, probability of improvement
+scoring       per-cell scores, a leaderboard entry (v0, v1)
 leaderboard   ``run_leaderboard``: all of the above in a process pool
-report        LEADERBOARD.md and the figures
+report        LEADERBOARD.md and the figures (v1: performance profiles)
 ============  ================================================================
 """
 
@@ -24,12 +28,15 @@ from .policy import (MotorKnowledge, Policy, PolicyContext, ZeroAction, policy_c
                      policy_env_options, resolve_estimate)
 from .protocol import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, REFERENCE_POLICY,
                        SUITES, TRAINING_SEED_LIMIT, Protocol, full_protocol, quick_protocol)
+from .protocol_v1 import (SPLITS, ProtocolV1, full_protocol_v1, load_motors_file, protocol_for,
+                          quick_protocol_v1)
 from .registry import (PolicySource, default_policy_names, register_loader, register_policy,
                        registered_policies, resolve_policy)
 from .report import render_markdown, write_outputs
 from .runner import EpisodeResult, run_episode
 from .scoring import make_entry, reference_index, score_runs
-from .stats import iqm, stratified_bootstrap_ci, summary
+from .stats import (iqm, probability_of_improvement, stratified_bootstrap_ci, summary,
+                    two_level_bootstrap)
 
 __all__ = [
     "run_leaderboard", "ProtocolMotor", "protocol_motors", "speed_grid", "MotorKnowledge",
@@ -39,5 +46,7 @@ __all__ = [
     "quick_protocol", "PolicySource", "default_policy_names", "register_loader",
     "register_policy", "registered_policies", "resolve_policy", "render_markdown",
     "write_outputs", "EpisodeResult", "run_episode", "make_entry", "reference_index",
-    "score_runs", "iqm", "stratified_bootstrap_ci", "summary",
+    "score_runs", "iqm", "stratified_bootstrap_ci", "summary", "SPLITS", "ProtocolV1",
+    "full_protocol_v1", "quick_protocol_v1", "load_motors_file", "protocol_for",
+    "probability_of_improvement", "two_level_bootstrap",
 ]

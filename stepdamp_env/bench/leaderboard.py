@@ -15,6 +15,7 @@ import importlib.metadata
 import math
 import platform
 import sys
+import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -30,9 +31,11 @@ from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, Protocol
+from .protocol_v1 import ProtocolV1
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import run_episode
-from .scoring import make_entry, reference_index
+from .scoring import (add_probability_of_improvement, make_entry, make_entry_v1,
+                      reference_index)
 
 __all__ = ["LeaderboardJob", "run_leaderboard", "package_versions", "protocol_knowledge"]
 
@@ -46,6 +49,7 @@ class LeaderboardJob:
     motor_index: int
     seed: int
     speed_index: int
+    training_seed: int | None = None      # v1: which of a learned entry's models
 
 
 # What a worker process needs; set once per process by _init_worker.
@@ -69,26 +73,42 @@ def _source(spec: str) -> PolicySource:
     return sources[spec]
 
 
-def _identify_job(args: tuple[int, int]) -> FeedforwardModel:
+def _make(spec: str, training_seed: int | None) -> Any:
+    source = _source(spec)
+    return source.make() if training_seed is None else source.training_seeds[training_seed]()
+
+
+def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
+    """The identified model; under v1 the reason as a string if identification
+    failed (the drive then falls back to its nominal model, see protocol_v1)."""
     motor_index, seed = args
     motor = _WORKER["motors"][motor_index]
-    return identify(motor.system, method=_WORKER["protocol"].identification_method,
-                    noise_seed=seed).model
+    protocol = _WORKER["protocol"]
+    try:
+        return identify(motor.system, method=protocol.identification_method,
+                        noise_seed=seed).model
+    except (RuntimeError, ParameterError) as exc:
+        if not isinstance(protocol, ProtocolV1):
+            raise
+        return f"{type(exc).__name__}: {exc}"
 
 
 def _run_job(job: LeaderboardJob) -> dict[str, Any]:
     protocol: Protocol = _WORKER["protocol"]
     motor: ProtocolMotor = _WORKER["motors"][job.motor_index]
-    speed = motor.speeds_rps[job.speed_index]
-    result = run_episode(_source(job.spec).make(),
+    speeds, labels = motor.speeds(job.suite)
+    speed = speeds[job.speed_index]
+    result = run_episode(_make(job.spec, job.training_seed),
                          _WORKER["knowledge"][(job.motor_index, job.seed)], motor.system,
                          mode=job.suite, speed_rps=speed, seed=job.seed,
-                         accel_rps2=protocol.accel_rps2, window_s=protocol.window_s)
-    return result.record(motor.name, job.seed, speed, motor.speed_labels[job.speed_index])
+                         accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
+                         settle_s=motor.settle_s(job.suite))
+    return result.record(motor.name, job.seed, speed, labels[job.speed_index],
+                         job.training_seed)
 
 
 def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
-                       protocol: Protocol) -> MotorKnowledge:
+                       protocol: Protocol | ProtocolV1) -> MotorKnowledge:
     """What the drive of a protocol run knows (the oracle-only fields included:
     entries that read them are flagged by their card)."""
     return MotorKnowledge(nominal=motor.nominal, identified=identified,
@@ -147,7 +167,8 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
     return out
 
 
-def _suites(source: PolicySource, protocol: Protocol) -> tuple[tuple[str, ...], str]:
+def _suites(source: PolicySource, protocol: Protocol | ProtocolV1
+            ) -> tuple[tuple[str, ...], str]:
     """The protocol's suites this policy runs in, and why not in the others."""
     card = policy_card(source.make())
     if card is None:
@@ -155,7 +176,7 @@ def _suites(source: PolicySource, protocol: Protocol) -> tuple[tuple[str, ...], 
     return tuple(s for s in protocol.suites if s in card.suites), card.not_in_suites
 
 
-def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *,
+def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | None = None, *,
                     workers: int | None = None, progress: bool = True) -> dict[str, Any]:
     """Evaluate policies (registered names, module paths, model files) under ``protocol``.
 
@@ -165,8 +186,12 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     and deterministic: the result does not depend on ``workers`` (default:
     every core this process may use). If torch is loaded (SB3 policies), it is
     set to one thread in this process too, so that a serial run computes
-    exactly what a worker does.
+    exactly what a worker does. Under v1 a learned entry runs every training
+    seed it has (:meth:`.registry.PolicySource.factories`) and entries are
+    scored per split (:func:`.scoring.make_entry_v1`).
     """
+    wall_start = time.perf_counter()
+    v1 = isinstance(protocol, ProtocolV1)
     specs = list(dict.fromkeys([REFERENCE_POLICY, *(policies if policies is not None
                                                     else default_policy_names())]))
     sources = {spec: resolve_policy(spec) for spec in specs}
@@ -192,6 +217,9 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
                           initargs=init, max_chunk=16, bar=bar)
     if bar is not None:
         bar.close()
+    failures = {pair: m for pair, m in zip(pairs, identified) if isinstance(m, str)}
+    identified = [FeedforwardModel.from_motor(motors[i].nominal.motor)
+                  if (i, seed) in failures else m for (i, seed), m in zip(pairs, identified)]
     knowledge = {(i, seed): protocol_knowledge(motors[i], seed, model, protocol)
                  for (i, seed), model in zip(pairs, identified)}
 
@@ -200,10 +228,11 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
     suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
 
-    jobs = [LeaderboardJob(spec, suite, i, seed, j)
-            for spec in specs for suite in suites[spec][0]
+    jobs = [LeaderboardJob(spec, suite, i, seed, j, ts)
+            for spec in specs for ts in sources[spec].factories(pooled=v1)
+            for suite in suites[spec][0]
             for i, m in enumerate(motors) for seed in protocol.eval_seeds
-            for j in range(len(m.speeds_rps))]
+            for j in range(len(m.speeds(suite)[0]))]
     bar = progress_bar(len(jobs), "leaderboard", "run")
     # SB3 models are loaded in the parent and inherited by the forked workers.
     results = pool_map(_run_job, jobs, workers, initializer=_init_worker,
@@ -214,8 +243,8 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     by_entry: dict[tuple[str, str], list[dict]] = {}
     for job, res in zip(jobs, results):
         by_entry.setdefault((job.spec, job.suite), []).append(res)
-    entries = []
-    for suite in protocol.suites:
+    entries = _v1_entries(protocol, motors, specs, sources, by_entry, meta) if v1 else []
+    for suite in protocol.suites if not v1 else ():
         reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
         suite_entries = [make_entry(sources[spec].name, sources[spec].spec, suite,
                                     by_entry[(spec, suite)], reference, protocol, meta[spec])
@@ -226,7 +255,9 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
             e["rank"] = rank
         entries += suite_entries
     identification = [{"motor": motors[i].name, "seed": seed,
-                       "model": dataclasses.asdict(m) if m is not None else None}
+                       "model": dataclasses.asdict(m) if m is not None else None,
+                       **({"failed": failures[(i, seed)], "fallback": "nominal"}
+                          if (i, seed) in failures else {})}
                       for (i, seed), m in zip(pairs, identified)]
     not_run = [{"name": sources[spec].name, "suite": suite, "reason": suites[spec][1]}
                for spec in specs for suite in protocol.suites if suite not in suites[spec][0]]
@@ -235,4 +266,48 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
            "entries": entries}
     if not_run:
         out["not_run"] = not_run
+    run_s = sum(r["simulated_s"] for r in results)
+    calib = _calibration_seconds(jobs, results)
+    out["wall_seconds"] = time.perf_counter() - wall_start
+    out["simulated_seconds"] = run_s + calib
+    out["simulated_seconds_detail"] = {
+        "episodes": run_s, "calibration_rig": calib,
+        "note": "identification runs are not counted"}
     return out
+
+
+def _calibration_seconds(jobs: Sequence[LeaderboardJob], results: Sequence[dict]) -> float:
+    """Rig seconds, counted once per (entry, model, suite, motor): a policy reports
+    its calibration on every run, but calibrates once per motor and suite."""
+    seen: dict[tuple, float] = {}
+    for job, r in zip(jobs, results):
+        key = (job.spec, job.training_seed, job.suite, job.motor_index)
+        seen[key] = max(seen.get(key, 0.0), r.get("calibration_s", 0.0))
+    return float(sum(seen.values()))
+
+
+def _v1_entries(protocol: ProtocolV1, motors: Sequence[ProtocolMotor], specs: Sequence[str],
+                sources: dict[str, PolicySource], by_entry: dict[tuple[str, str], list[dict]],
+                meta: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """Entries per (suite, split), ranked, with every pair's probability of improvement."""
+    split_of = {m.name: m.split for m in motors}
+    strata = {m.name: m.family for m in motors}
+    entries = []
+    for suite in protocol.suites:
+        if (REFERENCE_POLICY, suite) not in by_entry:
+            continue
+        reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
+        for split in protocol.splits:
+            group = [make_entry_v1(sources[spec].name, sources[spec].spec, suite, split,
+                                   [r for r in by_entry[(spec, suite)]
+                                    if split_of[r["motor"]] == split],
+                                   reference, protocol, strata,
+                                   {**meta[spec], "learned": bool(meta[spec].get("learned"))})
+                     for spec in specs if (spec, suite) in by_entry]
+            group.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
+                                      e["headline"]["iqm"], e["name"]))
+            for rank, e in enumerate(group, 1):
+                e["rank"] = rank
+            add_probability_of_improvement(group, protocol, strata)
+            entries += group
+    return entries

@@ -53,15 +53,29 @@ class RegisteredPolicy:
     kind: str = "baseline"           # "baseline" or "agent"
     default: bool = True
     description: str = ""
+    training_seeds: Mapping[int, Callable[[], Policy]] | None = None
 
 
 @dataclass
 class PolicySource:
-    """Makes fresh policy instances for one leaderboard entry."""
+    """Makes fresh policy instances for one leaderboard entry.
+
+    ``training_seeds`` (learned entries): a factory per training seed; the
+    v1 protocol runs and pools every one. ``make`` is the entry's single
+    model (the one v0 runs).
+    """
 
     spec: str
     name: str
     make: Callable[[], Any]
+    training_seeds: Mapping[int, Callable[[], Any]] | None = None
+
+    def factories(self, pooled: bool) -> dict[int | None, Callable[[], Any]]:
+        """Training seed -> factory: every seed if ``pooled`` and known, else
+        ``{None: make}`` (one model, its seed not recorded)."""
+        if pooled and self.training_seeds:
+            return dict(sorted(self.training_seeds.items()))
+        return {None: self.make}
 
 
 _REGISTRY: dict[str, RegisteredPolicy] = {}
@@ -71,10 +85,12 @@ _PLUGINS_LOADED = False
 
 
 def register_policy(name: str, make: Callable[[], Policy], *, kind: str = "baseline",
-                    default: bool = True, description: str = "") -> None:
+                    default: bool = True, description: str = "",
+                    training_seeds: Mapping[int, Callable[[], Policy]] | None = None) -> None:
     """Make ``name`` resolvable. Registering the same name again with another
     factory is an error (names never collide silently); the same factory again
-    is a no-op."""
+    is a no-op. ``training_seeds``: a learned entry's model per training seed
+    (pooled by stepdamp-bench v1; ``make`` is the one v0 runs)."""
     old = _REGISTRY.get(name)
     if old is not None:
         if old.make is make:
@@ -83,7 +99,8 @@ def register_policy(name: str, make: Callable[[], Policy], *, kind: str = "basel
                              f"({old.description or old.kind} and {description or kind})")
     if kind not in ("baseline", "agent"):
         raise ValueError(f"kind={kind!r} is not one of ['baseline', 'agent']")
-    _REGISTRY[name] = RegisteredPolicy(name, make, kind, default, description)
+    _REGISTRY[name] = RegisteredPolicy(name, make, kind, default, description,
+                                       dict(training_seeds) if training_seeds else None)
 
 
 def register_loader(name: str, accepts: Callable[[str], bool],
@@ -234,7 +251,7 @@ def resolve_policy(spec: str) -> PolicySource:
 def _resolve(spec: str) -> PolicySource:
     registry = registered_policies()
     if spec in registry:
-        return PolicySource(spec, spec, registry[spec].make)
+        return PolicySource(spec, spec, registry[spec].make, registry[spec].training_seeds)
     if os.path.isfile(spec):
         for _, accepts, load in _LOADERS:
             if accepts(spec):

@@ -2,8 +2,7 @@
 LEADERBOARD.md and the figures, written atomically into one directory.
 
 ``leaderboard.json`` holds the protocol, versions, identification and every
-entry's summaries; each entry's per-(motor, seed) ``scores`` and raw ``runs``
-are in ``leaderboard_runs.json.gz`` (:data:`RUNS_FILE`);
+entry's summaries; each entry's per-cell ``scores`` and raw ``runs`` are in ``leaderboard_runs.json.gz`` (:data:`RUNS_FILE`);
 :func:`load_leaderboard` joins them again. Every figure draws each policy with
 the same colour and marker (:func:`policy_styles`).
 """
@@ -27,17 +26,20 @@ from .motors import ProtocolMotor, protocol_motors
 from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, Protocol
+from .protocol_v1 import ProtocolV1
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
 __all__ = ["RESULT_FILES", "RUNS_FILE", "format_summary", "render_markdown", "render_results",
-           "render_ladder", "entry_knowledge",
+           "render_ladder", "entry_knowledge", "entry_rows", "render_per_motor", "is_v1", "splits",
+           "plot_performance_profile",
            "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
            "plot_resonance_traces", "trace_run", "write_outputs"]
 
 RUNS_FILE = "leaderboard_runs.json.gz"
 #: What a leaderboard run writes (glob patterns): replaced as a set, never mixed.
 RESULT_FILES = ("leaderboard.json", RUNS_FILE, "LEADERBOARD.md", "overview.png",
+                "performance_profile.png",
                 "ripple_vs_speed_*.png", "velocity_error_resonances_*.png")
 _RAW_KEYS = ("scores", "runs")
 
@@ -51,8 +53,21 @@ def format_summary(s: Mapping[str, Any]) -> str:
     return f"{s['iqm']:#.4g} [{lo:#.4g}, {hi:#.4g}]"
 
 
+def is_v1(board: Mapping[str, Any]) -> bool:
+    """Whether the board is a stepdamp-bench v1 board (entries per split)."""
+    return board["protocol"]["version"] != "v0"
+
+
+def splits(board: Mapping[str, Any]) -> list[str]:
+    """The board's splits in protocol order ([None] for v0, which has none)."""
+    return list(board["protocol"]["splits"]) if is_v1(board) else [None]
+
+
 def render_markdown(board: Mapping[str, Any]) -> str:
-    """``LEADERBOARD.md``: one ranked table per suite."""
+    """``LEADERBOARD.md``: one ranked table per suite (v1: per split and suite,
+    with the probability of improvement of every pair)."""
+    if is_v1(board):
+        return _render_markdown_v1(board)
     p = board["protocol"]
     lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
              f"{len(p['motors'])} motors x {len(p['eval_seeds'])} seeds; "
@@ -89,6 +104,86 @@ def render_markdown(board: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _render_markdown_v1(board: Mapping[str, Any]) -> str:
+    p = board["protocol"]
+    counts = {sp: sum(m.get("split") == sp for m in p["motors"]) for sp in p["splits"]}
+    lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
+             "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
+             + f"; evaluation seeds {p['eval_seeds']}; learned entries pool their training "
+             f"seeds. Wall time {board.get('wall_seconds', math.nan):.0f} s, simulated "
+             f"{board.get('simulated_seconds', math.nan):.0f} s.",
+             "Headline: mean RMS velocity ripple at the suite's headline speeds (open loop: "
+             "the three resonances; servo: the low-speed grid) over that of `none` (lower is "
+             "better); IQM over (motor, evaluation seed, training seed) cells with a 95 % "
+             "two-level stratified bootstrap interval (motors, then cells). P(better) "
+             "columns: probability of improvement over that entry, per motor over every "
+             "pair of cells, with its interval. `oracle` entries use what no drive can know.",
+             ""]
+    for suite in p["suites"]:
+        for split in p["splits"]:
+            rows = entry_rows(board, suite, split)
+            if not rows:
+                continue
+            refs = [n for n in ("ff-delay-comp", REFERENCE_POLICY)
+                    if any(e["name"] == n for e in rows)]
+            lines += [f"## {suite}, {split}", "",
+                      "| rank | policy | headline IQM [95 % CI] | "
+                      + "".join(f"P(better than {r}) | " for r in refs)
+                      + "step losses | training seeds | knowledge |",
+                      "|---|---|---|" + "---|" * len(refs) + "---|---|---|"]
+            for e in rows:
+                name = e["name"] + (" (oracle)" if e.get("oracle") else "")
+                poi = "".join(
+                    (f"{e['probability_of_improvement'][r]:.2f} "
+                     f"[{e['probability_of_improvement_ci95'][r][0]:.2f}, "
+                     f"{e['probability_of_improvement_ci95'][r][1]:.2f}] | ")
+                    if r != e["name"] else "- | " for r in refs)
+                sl = e["step_losses"]
+                seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
+                lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
+                             f"{poi}{sl['runs_lost']}/{sl['runs']} | {seeds} | "
+                             f"{entry_knowledge(e)} |")
+            lines += ["", f"Probability of improvement, {suite}, {split} (row better than "
+                      "column):", "",
+                      "| | " + " | ".join(e["name"] for e in rows) + " |",
+                      "|---|" + "---|" * len(rows)]
+            for e in rows:
+                cells = ["-" if o is e else f"{e['probability_of_improvement'][o['name']]:.2f}"
+                         for o in rows]
+                lines.append(f"| {e['name']} | " + " | ".join(cells) + " |")
+            lines.append("")
+            if split == "custom":
+                lines += [render_per_motor(board, suite, split)]
+            for x in board.get("not_run", []):
+                if x["suite"] == suite:
+                    lines += [f"Not run in {suite}: `{x['name']}` ({x['reason']}).", ""]
+    v = board["versions"]
+    lines.append("Versions: " + ", ".join(f"{k} {val}" for k, val in v.items()))
+    return "\n".join(lines) + "\n"
+
+
+def render_per_motor(board: Mapping[str, Any], suite: str, split: str) -> str:
+    """Per motor, the entries ranked by their mean headline on it (the custom
+    split's answer to "which damping is best on my motor?")."""
+    rows = entry_rows(board, suite, split)
+    motors = [m["name"] for m in board["protocol"]["motors"] if m.get("split") == split]
+    lines = [f"Per motor, {suite}, {split} (mean headline over its cells; lower is better):",
+             "", "| motor | " + " | ".join(f"#{k}" for k in range(1, len(rows) + 1)) + " |",
+             "|---|" + "---|" * len(rows)]
+    for motor in motors:
+        ranked = sorted((e["per_motor_headline_mean"][motor], e["name"]) for e in rows
+                        if motor in e["per_motor_headline_mean"])
+        lines.append(f"| {motor} | " + " | ".join(f"{n} {v:.4g}" for v, n in ranked) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def entry_rows(board: Mapping[str, Any], suite: str, split: str | None = None
+               ) -> list[Mapping[str, Any]]:
+    """One table's entries by rank: a suite (and, on a v1 board, a split)."""
+    return sorted((e for e in board["entries"] if e["suite"] == suite
+                   and e.get("split") == split), key=lambda e: e["rank"])
+
+
 def entry_knowledge(e: Mapping[str, Any]) -> str:
     """An entry's knowledge column: its card's line, else what its env options say."""
     text = e.get("knowledge")
@@ -108,34 +203,48 @@ def render_ladder(board: Mapping[str, Any]) -> str:
     """The README's table of the whole ladder: every entry's headline in each suite
     beside its knowledge, ranked by the first suite."""
     p = board["protocol"]
-    suites = list(p["suites"])
-    by = {(e["name"], e["suite"]): e for e in board["entries"]}
-    names = [e["name"] for e in sorted((e for e in board["entries"] if e["suite"] == suites[0]),
-                                       key=lambda e: e["rank"])]
+    columns = [(suite, split) for suite in p["suites"] for split in splits(board)]
+    by = {(e["name"], e["suite"], e.get("split")): e for e in board["entries"]}
+    names = [e["name"] for e in entry_rows(board, *columns[0])]
     names += sorted({e["name"] for e in board["entries"]} - set(names))
-    lines = [f"{p['name']} {p['version']} ({p['variant']}): mean RMS ripple at the resonances "
-             "over undamped, IQM [95 % CI] over motors x seeds (lower is better)", "",
-             "| policy | " + " | ".join(suites) + " | knowledge |",
-             "|---|" + "---|" * len(suites) + "---|"]
+    if is_v1(board):
+        title = (f"{p['name']} {p['version']} ({p['variant']}): mean RMS ripple at the "
+                 "headline speeds over undamped, IQM [95 % CI] over motor x seed x "
+                 "training-seed cells, two-level bootstrap (lower is better)")
+        heads = [f"{suite}, {split}" for suite, split in columns]
+    else:
+        title = (f"{p['name']} {p['version']} ({p['variant']}): mean RMS ripple at the "
+                 "resonances over undamped, IQM [95 % CI] over motors x seeds (lower is better)")
+        heads = [suite for suite, _ in columns]
+    lines = [title, "", "| policy | " + " | ".join(heads) + " | knowledge |",
+             "|---|" + "---|" * len(heads) + "---|"]
     for name in names:
         cells, know = [], ""
-        for suite in suites:
-            e = by.get((name, suite))
+        for key in columns:
+            e = by.get((name, *key))
             cells.append(format_summary(e["headline"]) if e else "not run")
             know = know or (entry_knowledge(e) if e else "")
-        oracle = any(by[(name, s)].get("oracle") for s in suites if (name, s) in by)
+        oracle = any(by[(name, *k)].get("oracle") for k in columns if (name, *k) in by)
         lines.append(f"| {name}{' (oracle)' if oracle else ''} | " + " | ".join(cells)
                      + f" | {know} |")
     return "\n".join(lines) + "\n"
 
 
 def render_results(board: Mapping[str, Any], suite: str = "open-loop") -> str:
-    """A compact Markdown table of one suite (for a README): rank, policy, headline
-    IQM and interval, step losses."""
-    rows = sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
+    """A compact Markdown table of one suite (for a README; v1: one per split):
+    rank, policy, headline IQM and interval, step losses."""
     p = board["protocol"]
-    lines = [f"{p['name']} {p['version']} ({p['variant']}), {suite}: mean RMS ripple at the "
-             "resonances over undamped (IQM [95 % CI], lower is better)", "",
+    if is_v1(board):
+        return "\n".join(_results_table(board, suite, split) for split in p["splits"])
+    return _results_table(board, suite, None)
+
+
+def _results_table(board: Mapping[str, Any], suite: str, split: str | None) -> str:
+    rows = entry_rows(board, suite, split)
+    p = board["protocol"]
+    where = suite if split is None else f"{suite}, {split}"
+    lines = [f"{p['name']} {p['version']} ({p['variant']}), {where}: mean RMS ripple at the "
+             "headline speeds over undamped (IQM [95 % CI], lower is better)", "",
              "| rank | policy | headline | step losses |", "|---|---|---|---|"]
     for e in rows:
         name = e["name"] + (" (oracle)" if e.get("oracle") else "")
@@ -153,10 +262,10 @@ def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
     with gzip.open(os.path.join(directory, board.get("runs_file", RUNS_FILE)), "rt",
                    encoding="utf-8") as fh:
         raw = json.load(fh)
-    by_key = {(r["name"], r["suite"]): r for r in raw["entries"]}
+    by_key = {(r["name"], r["suite"], r.get("split")): r for r in raw["entries"]}
     for e in board["entries"]:
         for key in _RAW_KEYS:
-            e[key] = by_key[(e["name"], e["suite"])][key]
+            e[key] = by_key[(e["name"], e["suite"], e.get("split"))][key]
     board.pop("runs_file", None)
     return board
 
@@ -180,11 +289,19 @@ def policy_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
 
 
 def _suite_rows(board: Mapping[str, Any], suite: str) -> list[Mapping[str, Any]]:
-    return sorted((e for e in board["entries"] if e["suite"] == suite), key=lambda e: e["rank"])
+    """The suite's entries by rank, of the representative motor's split (v1)."""
+    return entry_rows(board, suite, board["protocol"]["motors"][0].get("split"))
+
+
+def _first_model(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """A learned entry's runs of its first training seed (all runs otherwise)."""
+    seeds = sorted({r["training_seed"] for r in runs if "training_seed" in r})
+    return [r for r in runs if r.get("training_seed") == (seeds[0] if seeds else None)]
 
 
 def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
-    """RMS ripple against speed per entry, for the representative motor and seed.
+    """RMS ripple against speed per entry, for the representative motor and seed
+    (a learned entry: its first training seed's model).
 
     Every entry is drawn with its own colour and marker; entries with equal
     values lie on one another, so markers shrink with rank (the leader's is the
@@ -199,8 +316,9 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
     fig, ax = plt.subplots(figsize=(9, 4.8))
     n = len(rows)
     for k, e in enumerate(rows):
-        rs = sorted((r for r in e["runs"] if r["motor"] == motor and r["seed"] == seed
-                     and r["metrics"] is not None), key=lambda r: r["speed_rps"])
+        rs = sorted((r for r in _first_model(e["runs"]) if r["motor"] == motor
+                     and r["seed"] == seed and r["metrics"] is not None),
+                    key=lambda r: r["speed_rps"])
         colour, marker = styles[e["name"]]
         ax.semilogy([r["speed_rps"] for r in rs],
                     [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], color=colour,
@@ -213,7 +331,7 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
 
 
 def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int,
-               protocol: Protocol) -> MotorKnowledge:
+               protocol: Protocol | ProtocolV1) -> MotorKnowledge:
     ident = next(x["model"] for x in board["identification"]
                  if x["motor"] == motor.name and x["seed"] == seed)
     return protocol_knowledge(motor, seed, FeedforwardModel(**ident) if ident else None,
@@ -232,7 +350,7 @@ def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
                 None)
 
 
-def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
+def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol | ProtocolV1,
                   points: int = 41, suite: str = "open-loop") -> None:
     """The README's figure: RMS ripple against speed on the representative motor,
     undamped, the patent's feedforward and the best other entry, on one axis.
@@ -259,7 +377,8 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
         for v in speeds:
             r = run_episode(resolve_policy(e["spec"]).make(), knowledge, motor.system,
                             mode=suite, speed_rps=float(v), seed=seed,
-                            accel_rps2=protocol.accel_rps2, window_s=protocol.window_s)
+                            accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
+                            settle_s=motor.settle_s(suite))
             ripple.append(r.metrics["rms_velocity_error_rad_s"] if r.metrics and not r.failed
                           else math.nan)
         colour, marker = styles[e["name"]]
@@ -271,7 +390,8 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
 
 
 def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite: str,
-              speed_rps: float, seed: int, protocol: Protocol, span_s: float | None = None
+              speed_rps: float, seed: int, protocol: Protocol | ProtocolV1,
+              span_s: float | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
     """(time in the window (s), velocity error w_cmd - w (rad/s)) at every PWM
     period of the measuring window (its first ``span_s`` if given)."""
@@ -281,10 +401,10 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
         return tr[tr[:, K.T_T] >= start - 1e-12]
 
     start, length = episode_window(motor.system, speed_rps, protocol.accel_rps2,
-                                   protocol.window_s)
+                                   protocol.window_s, motor.settle_s(suite))
     result = run_episode(resolve_policy(spec).make(), knowledge, motor.system, mode=suite,
                          speed_rps=speed_rps, seed=seed, accel_rps2=protocol.accel_rps2,
-                         window_s=protocol.window_s,
+                         window_s=protocol.window_s, settle_s=motor.settle_s(suite),
                          until_s=None if span_s is None else start + span_s,
                          on_step=sample, pwm_trace=True)
     rows = np.concatenate(result.trace) if result.trace else np.zeros((0, K.N_TRACE))
@@ -294,7 +414,7 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
 
 
 def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
-                          protocol: Protocol) -> None:
+                          protocol: Protocol | ProtocolV1) -> None:
     """Velocity error against time over the whole measuring window at the three
     resonant speeds, sampled every PWM period: ``none`` against the best entry
     (patent Figs. 4-7 style), representative motor and seed."""
@@ -325,6 +445,38 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     save_figure(fig, path)
 
 
+def plot_performance_profile(board: Mapping[str, Any], path: str) -> None:
+    """Performance profiles (v1): per suite and split, the fraction of an entry's
+    cells whose headline is at or below tau, against tau (log axis); higher and
+    further left is better. Oracles dashed, ``none`` (1 everywhere) left out."""
+    p = board["protocol"]
+    panels = [(suite, split) for suite in p["suites"] for split in p["splits"]]
+    names = sorted({e["name"] for e in board["entries"]})
+    styles = policy_styles(names)
+    plt = pyplot()
+    fig, axes = plt.subplots(len(p["suites"]), len(p["splits"]), squeeze=False,
+                             figsize=(5.2 * len(p["splits"]) + 2.6, 3.6 * len(p["suites"])))
+    for ax, (suite, split) in zip(axes.ravel(), panels):
+        rows = [e for e in entry_rows(board, suite, split) if e["name"] != REFERENCE_POLICY]
+        values = [np.sort([s["headline"] for s in e["scores"]]) for e in rows]
+        finite = np.concatenate([v[np.isfinite(v)] for v in values] or [np.ones(1)])
+        taus = np.geomspace(max(finite.min() * 0.8, 1e-4), max(finite.max() * 1.25, 1.1), 300)
+        for e, v in zip(rows, values):
+            colour, marker = styles[e["name"]]
+            frac = np.searchsorted(v, taus, side="right") / max(v.size, 1)
+            ax.semilogx(taus, frac, color=colour, lw=1.3, ls="--" if e.get("oracle") else "-",
+                        label=f"{e['name']} ({e['headline']['iqm']:.3g})")
+        ax.set_title(f"{suite}, {split}", fontsize=9, loc="left")
+        ax.set_xlabel("headline tau (ripple over undamped)")
+        ax.set_ylabel("fraction of cells <= tau")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(True, which="both", alpha=0.3)
+        legend_outside(ax, fontsize=6)
+    fig.suptitle(f"Performance profiles, {p['name']} {p['version']} ({p['variant']}): "
+                 "legend gives the IQM", fontsize=10)
+    save_figure(fig, path)
+
+
 def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """(leaderboard.json without the per-run data, the runs file's content)."""
     compact = {k: v for k, v in board.items() if k != "entries"}
@@ -332,11 +484,12 @@ def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     compact["entries"] = [{k: v for k, v in e.items() if k not in _RAW_KEYS}
                           for e in board["entries"]]
     raw = {"entries": [{"name": e["name"], "suite": e["suite"],
+                        **({"split": e["split"]} if "split" in e else {}),
                         **{k: e[k] for k in _RAW_KEYS}} for e in board["entries"]]}
     return compact, raw
 
 
-def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
+def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol | ProtocolV1,
                   plots: bool = True) -> list[str]:
     """Write leaderboard.json, its runs file, LEADERBOARD.md and the figures into
     ``out_dir``, each atomically; returns the file names written."""
@@ -350,6 +503,9 @@ def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
             fh.write(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
     write_text(os.path.join(out_dir, written[2]), render_markdown(board))
     if plots:
+        if is_v1(board):
+            plot_performance_profile(board, os.path.join(out_dir, "performance_profile.png"))
+            written.append("performance_profile.png")
         if "open-loop" in board["protocol"]["suites"]:
             plot_overview(board, os.path.join(out_dir, "overview.png"), protocol)
             written.append("overview.png")

@@ -37,6 +37,7 @@ class EpisodeResult:
         trace: what ``on_step`` collected (empty without it).
         calibration_s: simulated seconds the policy spent calibrating on its
             rig before the run (its ``calibration_s`` after reset; not scored).
+        simulated_s: simulated seconds the episode ran (ramp, settling, window).
     """
 
     terminated: bool
@@ -48,33 +49,40 @@ class EpisodeResult:
     metrics: dict[str, Any] | None
     trace: list[Any] = field(default_factory=list)
     calibration_s: float = 0.0
+    simulated_s: float = 0.0
 
-    def record(self, motor: str, seed: int, speed_rps: float, speed_label: str
-               ) -> dict[str, Any]:
-        """The leaderboard's record of the run: where it ran, then :meth:`to_dict`."""
-        return {"motor": motor, "seed": seed, "speed_rps": speed_rps,
-                "speed_label": speed_label, **self.to_dict()}
+    def record(self, motor: str, seed: int, speed_rps: float, speed_label: str,
+               training_seed: int | None = None) -> dict[str, Any]:
+        """The leaderboard's record of the run: where it ran (and the training seed
+        of the model, for learned entries), then :meth:`to_dict`."""
+        where: dict[str, Any] = {"motor": motor, "seed": seed, "speed_rps": speed_rps,
+                                 "speed_label": speed_label}
+        if training_seed is not None:
+            where["training_seed"] = training_seed
+        return {**where, **self.to_dict()}
 
     def to_dict(self) -> dict[str, Any]:
         """What the run gave (without the trace)."""
         return {"terminated": self.terminated, "termination": self.termination,
                 "failed": self.failed, "steps": self.steps,
                 "window_start_s": self.window_start_s, "window_s": self.window_s,
-                "metrics": self.metrics, "calibration_s": self.calibration_s}
+                "metrics": self.metrics, "calibration_s": self.calibration_s,
+                "simulated_s": self.simulated_s}
 
 
 def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
-                   window_s: float) -> tuple[float, float]:
-    """(start, length) of the measuring window in s: the core's settling after the
-    ramp, ``window_s`` rounded up to whole periods of the first detent harmonic."""
+                   window_s: float, settle_s: float | None = None) -> tuple[float, float]:
+    """(start, length) of the measuring window in s: ``settle_s`` (default: the
+    core's settling) after the ramp, ``window_s`` rounded up to whole periods of
+    the first detent harmonic."""
     return measuring_window(system, SpeedProfile(speed_rps=speed_rps, accel_rps2=accel_rps2),
-                            RunSettings(window_s=window_s))
+                            RunSettings(window_s=window_s, settle_s=settle_s))
 
 
 def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams, *,
                 mode: str, speed_rps: float, seed: int,
                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
-                measure_from_s: float | None = None, until_s: float | None = None,
+                settle_s: float | None = None, measure_from_s: float | None = None, until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
                 pwm_trace: bool = False) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` on the true plant ``system``.
@@ -85,12 +93,13 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     which the simulated time reaches the end of the measuring window (or
     ``until_s``), or until the env terminates. The window opens a settling time
     after the ramp (:func:`episode_window`) unless ``measure_from_s`` says
-    when. ``on_step(env, observation, window_start_s)`` is called after every
+    when; ``settle_s`` replaces the core's settling (stepdamp-bench v1 sets each
+    motor's own). ``on_step(env, observation, window_start_s)`` is called after every
     step; what it returns (if not None) is kept in ``trace``. With
     ``pwm_trace`` the env records every PWM period of a step
     (``env.step_trace``) for ``on_step`` to read; the run is otherwise the same.
     """
-    start, length = episode_window(system, speed_rps, accel_rps2, window_s)
+    start, length = episode_window(system, speed_rps, accel_rps2, window_s, settle_s)
     if measure_from_s is not None:
         start, length = float(measure_from_s), float(window_s)
     options = policy_env_options(policy, knowledge)
@@ -114,6 +123,7 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
             reason = ("step_loss" if info["step_loss"] else
                       "overcurrent" if info["overcurrent"] else "non_finite")
             break
+    time_s = env.time_s
     try:
         metrics: dict[str, Any] | None = env.run_metrics().to_dict()
     except ValueError:                  # terminated before the window opened
@@ -122,5 +132,6 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     failed = terminated or (metrics is not None and bool(metrics["step_loss"]))
     return EpisodeResult(terminated=bool(terminated), termination=reason, failed=bool(failed),
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
-                         trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)))
+                         trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
+                         simulated_s=float(time_s))
 

@@ -8,9 +8,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .protocol import FAILURE_RATIO, Protocol
-from .stats import summary
+from .stats import cell_summary, probability_of_improvement, summary
 
-__all__ = ["reference_index", "score_runs", "make_entry", "SCORE_KEYS"]
+__all__ = ["reference_index", "score_runs", "make_entry", "make_entry_v1",
+           "add_probability_of_improvement", "SCORE_KEYS"]
 
 # The per-(motor, seed) scores summarised in an entry, headline first.
 SCORE_KEYS = ("headline", "sweep_mean_ratio", "sweep_worst_ratio", "rms_injected_current_a")
@@ -22,23 +23,28 @@ def reference_index(runs: Sequence[Mapping[str, Any]]) -> dict[tuple, Mapping[st
 
 
 def score_runs(runs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapping[str, Any]],
-               failure_ratio: float = FAILURE_RATIO) -> list[dict[str, Any]]:
-    """Per (motor, seed) scores of one entry against the reference runs.
+               failure_ratio: float = FAILURE_RATIO, failed_reference_counts: bool = False
+               ) -> list[dict[str, Any]]:
+    """Per-cell scores of one entry against the reference runs; a cell is a
+    (motor, seed) pair, and a training seed too where runs carry one.
 
-    ``headline``: mean ripple at the resonant speeds (labels other than "off")
+    ``headline``: mean ripple at the headline speeds (labels other than "off")
     over the reference's; ``sweep_mean_ratio`` / ``sweep_worst_ratio``: mean and
     maximum of the per-speed ratios; a failed run counts with
-    ``failure_ratio`` times the reference's ripple (its own if larger).
+    ``failure_ratio`` times the reference's ripple (its own if larger). A
+    reference run that lost steps is left out (v0) or taken as measured
+    (``failed_reference_counts``, v1); one that ended before its window always is.
     """
-    groups: dict[tuple[str, int], list[Mapping[str, Any]]] = {}
+    groups: dict[tuple[str, int, Any], list[Mapping[str, Any]]] = {}
     for r in runs:
-        groups.setdefault((r["motor"], r["seed"]), []).append(r)
+        groups.setdefault((r["motor"], r["seed"], r.get("training_seed")), []).append(r)
     out = []
-    for (motor, seed), rs in groups.items():
+    for (motor, seed, training_seed), rs in groups.items():
         ratios, res_p, res_n, currents = [], [], [], []
         for r in rs:
             ref = reference.get((motor, seed, r["speed_rps"]))
-            ok_ref = ref is not None and not ref["failed"] and ref["metrics"] is not None
+            ok_ref = ref is not None and ref["metrics"] is not None and \
+                (failed_reference_counts or not ref["failed"])
             ref_rms = ref["metrics"]["rms_velocity_error_rad_s"] if ok_ref else math.nan
             own = r["metrics"]["rms_velocity_error_rad_s"] if r["metrics"] else math.nan
             if r["failed"]:
@@ -54,8 +60,11 @@ def score_runs(runs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapp
         fin = ratios_a[np.isfinite(ratios_a)]
         pn, nn = np.asarray(res_p, dtype=float), np.asarray(res_n, dtype=float)
         both = np.isfinite(pn) & np.isfinite(nn)
+        cell: dict[str, Any] = {"motor": motor, "seed": seed}
+        if training_seed is not None:
+            cell["training_seed"] = training_seed
         out.append({
-            "motor": motor, "seed": seed,
+            **cell,
             "headline": float(pn[both].mean() / nn[both].mean()) if both.any() else math.nan,
             "sweep_mean_ratio": float(fin.mean()) if fin.size else math.nan,
             "sweep_worst_ratio": float(fin.max()) if fin.size else math.nan,
@@ -87,3 +96,56 @@ def make_entry(name: str, spec: str, suite: str, runs: list[dict[str, Any]],
     entry["scores"] = scores
     entry["runs"] = runs
     return entry
+
+
+def make_entry_v1(name: str, spec: str, suite: str, split: str, runs: list[dict[str, Any]],
+                  reference: Mapping[tuple, Mapping[str, Any]], protocol: Any,
+                  strata: Mapping[str, str], meta: Mapping[str, Any]) -> dict[str, Any]:
+    """One stepdamp-bench v1 entry (one split, one suite): summaries over the
+    (motor, seed, training seed) cells with the two-level interval (``strata``:
+    motor -> stratum), per-motor means, raw data."""
+    scores = score_runs(runs, reference, protocol.failure_ratio, failed_reference_counts=True)
+    motors = [s["motor"] for s in scores]
+    seeds = sorted({s["training_seed"] for s in scores if "training_seed" in s})
+    entry: dict[str, Any] = {"name": name, "spec": spec, "suite": suite, "split": split,
+                             **meta, "training_seeds": seeds}
+    for key in SCORE_KEYS:
+        entry[key] = cell_summary([s[key] for s in scores], motors, strata,
+                                  resamples=protocol.bootstrap_resamples,
+                                  seed=protocol.bootstrap_seed, confidence=protocol.confidence)
+    entry["sweep_worst_ratio"]["max"] = float(np.nanmax([s["sweep_worst_ratio"]
+                                                         for s in scores]))
+    entry["step_losses"] = {"runs_lost": int(sum(r["failed"] for r in runs)),
+                            "runs": len(runs)}
+    per_motor: dict[str, list[float]] = {}
+    for s in scores:
+        per_motor.setdefault(s["motor"], []).append(s["headline"])
+    entry["per_motor_headline_mean"] = {k: float(np.mean(v)) for k, v in per_motor.items()}
+    entry["scores"] = scores
+    entry["runs"] = runs
+    return entry
+
+
+def add_probability_of_improvement(entries: Sequence[dict[str, Any]], protocol: Any,
+                                   strata: Mapping[str, str]) -> None:
+    """For every ordered pair of entries (one split and suite): P(row improves on
+    other), lower headline better, into ``probability_of_improvement`` and
+    ``probability_of_improvement_ci95`` keyed by the other entry's name."""
+    cells = {e["name"]: ([s["headline"] for s in e["scores"]],
+                         [s["motor"] for s in e["scores"]]) for e in entries}
+    for e in entries:
+        e["probability_of_improvement"] = {}
+        e["probability_of_improvement_ci95"] = {}
+        for other in entries:
+            if other is e:
+                continue
+            x, y = cells[e["name"]], cells[other["name"]]
+            keep_x = [i for i, v in enumerate(x[0]) if math.isfinite(v)]
+            keep_y = [i for i, v in enumerate(y[0]) if math.isfinite(v)]
+            res = probability_of_improvement(
+                [x[0][i] for i in keep_x], [x[1][i] for i in keep_x],
+                [y[0][i] for i in keep_y], [y[1][i] for i in keep_y], strata=strata,
+                resamples=protocol.bootstrap_resamples, seed=protocol.bootstrap_seed,
+                confidence=protocol.confidence)
+            e["probability_of_improvement"][other["name"]] = res["p"]
+            e["probability_of_improvement_ci95"][other["name"]] = res["ci95"]

@@ -1,13 +1,15 @@
-"""Statistics of the leaderboard: interquartile mean and its stratified bootstrap interval."""
+"""Statistics of the leaderboard: interquartile mean, stratified (v0) and two-level
+(v1) bootstrap intervals, probability of improvement."""
 
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["iqm", "stratified_bootstrap_ci", "summary"]
+__all__ = ["iqm", "stratified_bootstrap_ci", "summary", "two_level_bootstrap",
+           "probability_of_improvement", "cell_summary"]
 
 
 def _iqm_weights(n: int) -> np.ndarray:
@@ -67,3 +69,136 @@ def summary(values: Sequence[float], strata: Sequence[Any], *, resamples: int = 
     low, high = stratified_bootstrap_ci(x, s, resamples=resamples, seed=seed,
                                         confidence=confidence)
     return {"iqm": iqm(x), "ci95": [low, high], "n": int(x.size)}
+
+
+# ---------------------------------------------------------------------------
+# stepdamp-bench v1: cells grouped by motor, motors grouped in strata.
+# ---------------------------------------------------------------------------
+def _cell_table(values: Sequence[float], motors: Sequence[Any]
+                ) -> tuple[list[Any], np.ndarray, np.ndarray]:
+    """(motor keys in sorted order, values padded to (motors, max cells), counts)."""
+    x = np.asarray(values, dtype=float)
+    keys = list(motors)
+    if len(keys) != x.size:
+        raise ValueError(f"motors has {len(keys)} labels for {x.size} values")
+    groups: dict[Any, list[float]] = {}
+    for k, v in zip(keys, x):
+        groups.setdefault(k, []).append(float(v))
+    order = sorted(groups, key=str)
+    width = max((len(groups[k]) for k in order), default=0)
+    table = np.full((len(order), width), np.nan)
+    for i, k in enumerate(order):
+        table[i, :len(groups[k])] = groups[k]
+    return order, table, np.array([len(groups[k]) for k in order])
+
+
+def _motor_draws(order: Sequence[Any], strata: Mapping[Any, Any] | None,
+                 rng: np.random.Generator, resamples: int) -> np.ndarray:
+    """Level 1: (resamples, motors) indices, motors drawn with replacement within
+    their stratum (each stratum keeps its size); strata in sorted order."""
+    by: dict[Any, list[int]] = {}
+    for i, k in enumerate(order):
+        by.setdefault(None if strata is None else strata[k], []).append(i)
+    cols = []
+    for s in sorted(by, key=str):
+        idx = np.asarray(by[s])
+        cols.append(idx[rng.integers(0, idx.size, size=(resamples, idx.size))])
+    return np.concatenate(cols, axis=1)
+
+
+def _cell_draws(counts: np.ndarray, motor_idx: np.ndarray, rng: np.random.Generator
+                ) -> np.ndarray:
+    """Level 2: for every drawn motor, as many of its cells as it has, with
+    replacement: (resamples, motors, max cells) column indices (padding repeats)."""
+    width = int(counts.max())
+    u = rng.random(size=motor_idx.shape + (width,))
+    return np.floor(u * counts[motor_idx][..., None]).astype(int)
+
+
+def two_level_bootstrap(values: Sequence[float], motors: Sequence[Any],
+                        strata: Mapping[Any, Any] | None = None, *, resamples: int = 2000,
+                        seed: int = 2000, confidence: float = 0.95) -> tuple[float, float]:
+    """Percentile interval of the IQM under a two-level bootstrap.
+
+    Level 1 draws motors with replacement, within their stratum (``strata``:
+    motor -> stratum; one stratum if None); level 2 draws, for every drawn
+    motor, as many of its cells (evaluation seed x training seed) as it has,
+    with replacement. The IQM of each resample is over all the drawn cells.
+    With one cell per motor it is the ordinary bootstrap over motors.
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r} is outside (0, 1)")
+    order, table, counts = _cell_table(values, motors)
+    if not order:
+        return (math.nan, math.nan)
+    rng = np.random.default_rng(seed)
+    m_idx = _motor_draws(order, strata, rng, resamples)
+    c_idx = _cell_draws(counts, m_idx, rng)
+    drawn = table[m_idx[..., None], c_idx]                 # (R, M, W)
+    valid = np.arange(table.shape[1])[None, None, :] < counts[m_idx][..., None]
+    n = int(counts.sum()) if np.all(counts == counts[0]) else None
+    if n is not None:                                       # equal cells: one sort
+        sample = np.sort(drawn[valid].reshape(resamples, -1), axis=1)
+        stats = sample @ _iqm_weights(sample.shape[1])
+    else:
+        stats = np.array([iqm(drawn[r][valid[r]]) for r in range(resamples)])
+    alpha = (1.0 - confidence) / 2.0
+    low, high = np.quantile(stats, [alpha, 1.0 - alpha])
+    return (float(low), float(high))
+
+
+def _mann_whitney(x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> np.ndarray:
+    """P(a cell of x < a cell of y), ties half, over the valid cells of the last
+    axis (x: (..., W) with nx valid; y likewise); NaN padding never counts."""
+    vx = np.arange(x.shape[-1]) < nx[..., None]
+    vy = np.arange(y.shape[-1]) < ny[..., None]
+    a, b = x[..., :, None], y[..., None, :]
+    score = (a < b) + 0.5 * (a == b)
+    pair = vx[..., :, None] & vy[..., None, :]
+    return (score * pair).sum(axis=(-2, -1)) / (nx * ny)
+
+
+def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
+                               y: Sequence[float], y_motors: Sequence[Any], *,
+                               strata: Mapping[Any, Any] | None = None,
+                               resamples: int = 2000, seed: int = 2000,
+                               confidence: float = 0.95) -> dict[str, Any]:
+    """P(X improves on Y) with lower scores better, and its two-level interval.
+
+    Per motor, the probability that a cell of X scores lower than a cell of Y
+    (every pair of their cells, ties half: the Mann-Whitney statistic); the
+    mean over the motors both have. rliable's probability of improvement with
+    motors as tasks and cells as runs (for scores where lower is better). The
+    interval draws the same motors for X and Y and their cells independently.
+    An entry against itself gives exactly 0.5.
+    """
+    ox, tx, cx = _cell_table(x, x_motors)
+    oy, ty, cy = _cell_table(y, y_motors)
+    common = sorted(set(ox) & set(oy), key=str)
+    if not common:
+        return {"p": math.nan, "ci95": [math.nan, math.nan], "motors": 0}
+    ix = np.array([ox.index(k) for k in common])
+    iy = np.array([oy.index(k) for k in common])
+    tx, cx, ty, cy = tx[ix], cx[ix], ty[iy], cy[iy]
+    p = float(_mann_whitney(tx, ty, cx, cy).mean())
+    rng = np.random.default_rng(seed)
+    m_idx = _motor_draws(common, strata, rng, resamples)
+    dx = np.take_along_axis(tx[m_idx], _cell_draws(cx, m_idx, rng), axis=-1)
+    dy = np.take_along_axis(ty[m_idx], _cell_draws(cy, m_idx, rng), axis=-1)
+    stats = _mann_whitney(dx, dy, cx[m_idx], cy[m_idx]).mean(axis=1)
+    alpha = (1.0 - confidence) / 2.0
+    low, high = np.quantile(stats, [alpha, 1.0 - alpha])
+    return {"p": p, "ci95": [float(low), float(high)], "motors": len(common)}
+
+
+def cell_summary(values: Sequence[float], motors: Sequence[Any],
+                 strata: Mapping[Any, Any] | None = None, *, resamples: int = 2000,
+                 seed: int = 2000, confidence: float = 0.95) -> dict[str, Any]:
+    """IQM over the finite cells, its two-level interval, the count of cells and motors."""
+    x = np.asarray(values, dtype=float)
+    keep = np.isfinite(x)
+    ms = [k for k, ok in zip(motors, keep) if ok]
+    low, high = two_level_bootstrap(x[keep], ms, strata, resamples=resamples, seed=seed,
+                                    confidence=confidence)
+    return {"iqm": iqm(x[keep]), "ci95": [low, high], "n": int(keep.sum()),
+            "motors": len(set(ms))}

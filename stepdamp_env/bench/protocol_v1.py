@@ -1,0 +1,340 @@
+"""The ``stepdamp-bench v1`` protocol: its specification and settings.
+
+Protocol ``stepdamp-bench`` version ``v1`` (frozen: any change of a value below,
+of the motor draws, the speed grids, the settling, the scoring or the
+statistics makes it v2; v0 stays in :mod:`.protocol`)
+=============================================================================
+
+Training distribution (what agents and tuning may use)
+    Around each of the four presets ``patent``, ``qsh4218-51-10-049``,
+    ``qsh5718-56-28-126``, ``qsh6018-65-28-210``: R, L scaled by U(0.8, 1.25),
+    Km by U(0.85, 1.15), J by U(0.5, 2.0), Kd1, Kd2, Kd4 and Fs by
+    U(0.5, 1.5); phases phi1, phi2 drawn U(-pi, pi) rad; everything else the
+    preset's (Nr = 50, no load torque, the preset's bus voltage), with the
+    protocol's sensors. This is the env's ``randomize=True`` (its
+    ``DEFAULT_RANDOMIZATION``, copied here so that v1 does not follow it).
+    Training uses seeds below ``TRAINING_SEED_LIMIT`` = 1_000_000 and never
+    the motors below.
+
+Splits (in the manner of CARL: a context distribution to train on, test sets
+inside and outside it)
+    ``interpolation``: ``interpolation_per_preset`` = 4 fresh draws around each
+    preset from the training distribution (16 motors, named
+    ``<preset>~i<k>``), from ``numpy.random.default_rng(motor_seed)``, preset
+    by preset, each field in the order R, L, Km, J, Kd1, Kd2, Kd4, Fs, phi1,
+    phi2. The presets themselves are not in it (agents train on them).
+    ``extrapolation``: for each shift below and each preset (20 motors, named
+    ``<preset>~x-<shift>``), a draw from the training distribution (the same
+    generator, continuing after the interpolation draws) with the shift
+    applied on top; every one lies outside the training distribution:
+
+    ============  ==========================================  ==============
+    shift         change                                      drive knows it
+    ============  ==========================================  ==============
+    inertia       J = the preset's x U(2.5, 4.0)              no
+                  (training: x 0.5-2.0)
+    detent        Kd1, Kd2, Kd4 each the preset's x           no
+                  U(1.6, 2.2) (training: x 0.5-1.5)
+    0.9-degree    Nr = 100 (training: 50)                     yes
+    low-bus       bus voltage Vdc = the preset's / 2          yes
+    load-torque   a constant load torque of U(0.1, 0.25) x    no
+                  the holding torque Km*holding_current
+                  (training: none)
+    ============  ==========================================  ==============
+
+    ``custom`` (``stepdamp leaderboard --motors FILE.json``): the user's motors
+    (:func:`load_motors_file`), nominal = the file's values.
+
+    No motor is filtered on how the undamped drive does. A draw is excluded
+    only by this physics rule, stated up front: the holding torque
+    Km*holding_current must be at least ``holding_margin`` = 3 times the sum
+    of the peak detent (Kd1 + Kd2 + Kd4), the friction Fs and the load torque
+    (a motor that cannot hold its own detent and load is not a stepper drive);
+    or by ``SystemParams`` validation. An excluded draw is redrawn from the
+    same stream (at most 100 attempts), so the set is the same on every
+    machine. A run that loses steps or terminates is scored as lost (below).
+
+Nominal model (``MotorKnowledge.nominal``)
+    Interpolation: the preset. Extrapolation: the preset with the shifts the
+    drive knows (Nr, Vdc: set on the drive like any motor's datasheet); the
+    hidden ones (inertia, detent, load) are found only by identification.
+    Custom: the file's values. ``identified`` as in v0 (the patent's
+    iteration in servo at 0.1 and 0.2 rev/s, noise seed = the evaluation
+    seed); where that run loses steps (a heavy load torque can), the drive
+    falls back to its nominal model, as a drive whose commissioning fails
+    would, and the board's ``identification`` record says so. ``exact``, the
+    options a policy may set (``POLICY_OPTIONS``) and the oracle flag are as
+    in v0.
+
+Sensors
+    Current-sensor noise 0.01 A per sample, encoder 4000 counts/rev (a custom
+    motor file may set its own ``current_noise_a`` / ``encoder_cpr``).
+
+Suites and speeds
+    ``open-loop`` (eqs. 7-8): as v0, the three predicted resonant speeds f4,
+    f2, f1 and the off-resonance speeds 0.6*f4, sqrt(2)*f4, sqrt(2)*f2, 1.3*f1.
+    ``servo`` (eqs. 14-15): the low-speed grid ``servo_factors`` x f4 =
+    (0.1, 0.18, 0.3, 0.5) x f4, f4 the motor's lowest predicted open-loop
+    resonance. How it is derived: the undamped servo has no peak at the
+    open-loop resonances; its RMS ripple relative to the command speed falls
+    monotonically with speed on every preset (measured, noise seed 0: patent
+    93 %, 65 %, 52 %, 34 % at 0.1, 0.2, 0.3, 0.5 x f4; 12 % at f4, 3.4 % at
+    2 x f4; qsh5718: 49 %, 27 %, 22 %, 16 %, then 8.7 % and 2.6 %). The grid
+    spans the speeds below the first resonance where it exceeds 10 % on
+    every preset (0.1 to 0.5 x f4; at f4 two of the four are under it). It
+    stops at 0.1 x f4, where the measuring window (rounded up to a whole
+    first-harmonic period 1/(Nr*v)) stays under 0.6 s on the presets. Every
+    servo speed is a headline speed.
+
+Runs
+    As v0 (ramp 50 rev/s^2, ``StepperDampEnv`` with the policy's options,
+    reset with the evaluation seed, stepped to the end of the window), but
+    the window opens after each motor's own settling, with no upper clip:
+    open loop four decay times of its undamped resonance, 4/(zeta*wn) =
+    8*J/D; servo ten time constants of the servo loop's triple pole, 10/ws
+    (``ServoParams``); both at least 0.1 s. Measuring window 0.3 s rounded
+    up to whole periods of the first detent harmonic.
+
+Seeds
+    One evaluation seed per motor, 1_000_000 (motors carry the variance:
+    motor-to-motor SD 0.0116 against 0.0009 between sensor-noise seeds on v0;
+    more motors, fewer seeds). Learned entries run every training seed they
+    pool (at least 5 for the reference agents).
+
+Scores (per cell: motor x evaluation seed x training seed)
+    ``headline``: mean RMS velocity ripple over the suite's headline speeds
+    (open loop: the three resonances; servo: the whole grid) over the mean of
+    the undamped one (policy ``none``, same motor and seed). A run that loses
+    steps or terminates counts with ``FAILURE_RATIO`` = 10 times the undamped
+    ripple (its own if larger). The undamped reference is taken as measured,
+    step losses included; a speed where it ended before the window opened is
+    left out of every entry's score for that motor. ``sweep_mean_ratio``,
+    ``sweep_worst_ratio``, ``rms_injected_current_a`` as v0.
+
+Statistics (per split and suite)
+    Headline: the IQM over all cells, with a 95 % percentile interval from a
+    two-level stratified bootstrap (:func:`.stats.two_level_bootstrap`):
+    2000 resamples, ``numpy.random.default_rng(2000)``; level 1 draws motors
+    with replacement within their stratum (interpolation: the preset a motor
+    was drawn around; extrapolation: its shift; custom: one stratum), level 2
+    draws each drawn motor's cells with replacement. For every pair of
+    entries: the probability of improvement P(X < Y) (per motor, every pair of
+    their cells, ties half; the mean over motors) with its two-level interval
+    (:func:`.stats.probability_of_improvement`). A performance profile (the
+    fraction of cells at or below each score) per split and suite.
+
+``--quick`` (variant ``quick``, for CI): one interpolation draw per preset and
+one extrapolation motor per preset (the shifts in turn: patent inertia,
+qsh4218 0.9-degree, qsh5718 load-torque, qsh6018 low-bus), the resonant speeds
+and two servo speeds (0.1, 0.3 x f4), a 0.1 s window, 500 resamples. Its
+numbers are not comparable with the full protocol's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system
+from .protocol import FAILURE_RATIO, POLICY_OPTIONS, PROTOCOL_NAME, SUITES, TRAINING_SEED_LIMIT
+
+__all__ = ["PROTOCOL_V1", "SPLITS", "Shift", "SHIFTS", "ProtocolV1", "full_protocol_v1",
+           "quick_protocol_v1", "load_motors_file", "protocol_for"]
+
+PROTOCOL_V1 = "v1"
+SPLITS = ("interpolation", "extrapolation", "custom")
+# v1's own frozen copies (equal to v0's values, never following them).
+_PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
+_TRAINING_RANDOMIZATION: tuple[tuple[str, float, float], ...] = (
+    ("R", 0.8, 1.25), ("L", 0.8, 1.25), ("Km", 0.85, 1.15), ("J", 0.5, 2.0),
+    ("Kd1", 0.5, 1.5), ("Kd2", 0.5, 1.5), ("Kd4", 0.5, 1.5), ("Fs", 0.5, 1.5),
+    ("phi1", -math.pi, math.pi), ("phi2", -math.pi, math.pi),
+)
+PHASE_FIELDS = ("phi1", "phi2")
+_OFF_RESONANCE = ((4, 0.6), (4, math.sqrt(2.0)), (2, math.sqrt(2.0)), (1, 1.3))
+
+
+@dataclass(frozen=True)
+class Shift:
+    """One extrapolation shift: ``changes`` are (field, low, high, how) with how
+    "factor" (the preset's value times U(low, high), replacing the drawn
+    one, so the motor leaves the training box), "value" (set to low) or
+    "holding" (U(low, high) times the holding torque Km*holding_current);
+    ``declared``: the drive knows it (it is in the nominal model)."""
+
+    name: str
+    changes: tuple[tuple[str, float, float, str], ...]
+    declared: bool
+
+
+SHIFTS: tuple[Shift, ...] = (
+    Shift("inertia", (("J", 2.5, 4.0, "factor"),), declared=False),
+    Shift("detent", (("Kd1", 1.6, 2.2, "factor"), ("Kd2", 1.6, 2.2, "factor"),
+                     ("Kd4", 1.6, 2.2, "factor")), declared=False),
+    Shift("0.9-degree", (("Nr", 100, 100, "value"),), declared=True),
+    Shift("low-bus", (("Vdc", 0.5, 0.5, "factor"),), declared=True),
+    Shift("load-torque", (("load_torque", 0.1, 0.25, "holding"),), declared=False),
+)
+
+
+@dataclass(frozen=True)
+class ProtocolV1:
+    """Every setting of ``stepdamp-bench v1`` (see the module docstring).
+
+    Use :func:`full_protocol_v1` or :func:`quick_protocol_v1`; other values are
+    for tests and make results that are not v1's. ``custom_motors`` (with
+    ``splits=("custom",)``) are the systems of ``--motors FILE``.
+    """
+
+    name: str = PROTOCOL_NAME
+    version: str = PROTOCOL_V1
+    variant: str = "full"
+    suites: tuple[str, ...] = SUITES
+    splits: tuple[str, ...] = ("interpolation", "extrapolation")
+    presets: tuple[str, ...] = _PRESETS
+    training_randomization: tuple[tuple[str, float, float], ...] = _TRAINING_RANDOMIZATION
+    interpolation_per_preset: int = 4
+    shifts: tuple[Shift, ...] = SHIFTS
+    # (preset index, shift name) pairs; empty: every shift on every preset.
+    extrapolation_pairs: tuple[tuple[int, str], ...] = ()
+    motor_seed: int = 7_733_052
+    max_draw_attempts: int = 100
+    holding_margin: float = 3.0
+    custom_motors: tuple[SystemParams, ...] = ()
+    eval_seeds: tuple[int, ...] = (TRAINING_SEED_LIMIT,)
+    resonance_harmonics: tuple[int, ...] = (4, 2, 1)
+    off_resonance: tuple[tuple[int, float], ...] = _OFF_RESONANCE
+    servo_factors: tuple[float, ...] = (0.1, 0.18, 0.3, 0.5)
+    accel_rps2: float = 50.0
+    window_s: float = 0.3
+    settle_open_loop_decays: float = 4.0
+    settle_servo_time_constants: float = 10.0
+    settle_min_s: float = 0.1
+    current_noise_a: float = 0.01
+    encoder_cpr: int = 4000
+    identification_method: str = "iterative"
+    failure_ratio: float = FAILURE_RATIO
+    bootstrap_resamples: int = 2000
+    bootstrap_seed: int = 2000
+    confidence: float = 0.95
+
+    def __post_init__(self) -> None:
+        bad = [s for s in self.suites if s not in SUITES]
+        if bad or not self.suites:
+            raise ParameterError(f"suites={self.suites!r}: each must be one of {list(SUITES)}")
+        bad = [s for s in self.splits if s not in SPLITS]
+        if bad or not self.splits:
+            raise ParameterError(f"splits={self.splits!r}: each must be one of {list(SPLITS)}")
+        if ("custom" in self.splits) != bool(self.custom_motors):
+            raise ParameterError("custom_motors: give motors exactly when the 'custom' "
+                                 "split is run (--motors FILE)")
+        if any(s < TRAINING_SEED_LIMIT for s in self.eval_seeds) or not self.eval_seeds:
+            raise ParameterError(f"eval_seeds={self.eval_seeds!r}: each must be >= "
+                                 f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
+        if self.motor_seed < TRAINING_SEED_LIMIT:
+            raise ParameterError(f"motor_seed={self.motor_seed!r} must be >= "
+                                 f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
+        if not (math.isfinite(self.window_s) and self.window_s > 0):
+            raise ParameterError(f"window_s={self.window_s!r} is outside (0, inf) s")
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+               if f.name not in ("custom_motors", "shifts", "training_randomization",
+                                 "off_resonance", "extrapolation_pairs")}
+        out["training_distribution"] = {
+            "presets": list(self.presets),
+            "factors": {n: [lo, hi] for n, lo, hi in self.training_randomization
+                        if n not in PHASE_FIELDS},
+            "phases_rad": {n: [lo, hi] for n, lo, hi in self.training_randomization
+                           if n in PHASE_FIELDS},
+            "fixed": "Nr = 50, load_torque = 0, the preset's Vdc and drive; protocol sensors"}
+        out["shifts"] = [{"name": s.name, "declared": s.declared,
+                          "changes": [{"field": f, "low": lo, "high": hi, "how": how}
+                                      for f, lo, hi, how in s.changes]} for s in self.shifts]
+        out["extrapolation_pairs"] = [[self.presets[i], s] for i, s in
+                                      self.extrapolation_pairs]
+        out["off_resonance"] = [{"harmonic": h, "factor": f} for h, f in self.off_resonance]
+        out["training_seed_limit"] = TRAINING_SEED_LIMIT
+        out["policy_options"] = list(POLICY_OPTIONS)
+        out["headline"] = ("mean RMS velocity ripple at the suite's headline speeds (open "
+                           "loop: the resonances; servo: the grid) / the same for policy "
+                           "'none' (same motor, seed); IQM over motor x seed x training-seed "
+                           "cells, two-level stratified bootstrap interval")
+        return out
+
+    def with_suites(self, suites: Sequence[str]) -> "ProtocolV1":
+        return dataclasses.replace(self, suites=tuple(suites))
+
+    def with_custom_motors(self, systems: Sequence[SystemParams]) -> "ProtocolV1":
+        """The ``custom`` split alone, on these motors."""
+        return dataclasses.replace(self, splits=("custom",), custom_motors=tuple(systems))
+
+
+def full_protocol_v1() -> ProtocolV1:
+    """``stepdamp-bench v1``, the full protocol."""
+    return ProtocolV1()
+
+
+def quick_protocol_v1() -> ProtocolV1:
+    """The reduced CI variant (see the module docstring)."""
+    return ProtocolV1(variant="quick", interpolation_per_preset=1,
+                      extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"),
+                                           (2, "load-torque"), (3, "low-bus")),
+                      off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1,
+                      bootstrap_resamples=500)
+
+
+def protocol_for(version: str, quick: bool = False) -> Any:
+    """The protocol of ``--protocol VERSION`` (``--quick``: its CI variant)."""
+    from .protocol import full_protocol, quick_protocol
+
+    table = {"v0": (full_protocol, quick_protocol), "v1": (full_protocol_v1, quick_protocol_v1)}
+    if version not in table:
+        raise ParameterError(f"--protocol {version!r}: allowed {sorted(table)}")
+    return table[version][1 if quick else 0]()
+
+
+_SENSOR_FIELDS = ("current_noise_a", "encoder_cpr")
+
+
+def load_motors_file(path: str, protocol: ProtocolV1) -> tuple[SystemParams, ...]:
+    """The motors of ``--motors FILE.json``: a JSON list (or ``{"motors": [...]}``)
+    of preset names or motor objects as ``--motor FILE`` reads them (flat field
+    names, optional ``"base"`` preset and ``"name"``). Sensors the file does not
+    set are the protocol's. Names must be unique."""
+    if not os.path.isfile(path):
+        raise ParameterError(f"--motors {path!r}: no such file")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"--motors {path!r} is not valid JSON: {exc}") from None
+    if isinstance(data, dict):
+        data = data.get("motors")
+    if not isinstance(data, list) or not data:
+        raise ParameterError(f"--motors {path!r} must hold a non-empty JSON list of motors "
+                             "(or an object with one under \"motors\")")
+    systems = []
+    for k, item in enumerate(data):
+        if not isinstance(item, (str, dict)):
+            raise ParameterError(f"--motors {path!r}: motor {k} must be a preset name or an "
+                                 f"object of parameters {list(ALL_FIELDS)}")
+        try:
+            system = load_system(item)
+        except ParameterError as exc:
+            raise ParameterError(f"--motors {path!r}, motor {k}: {exc}") from None
+        if isinstance(item, str) or "name" not in item:
+            system = system.replace(name=f"custom{k}" if isinstance(item, dict) else item)
+        given = item if isinstance(item, dict) else {}
+        system = system.replace(**{f: getattr(protocol, f) for f in _SENSOR_FIELDS
+                                   if f not in given})
+        systems.append(system)
+    names = [s.name for s in systems]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ParameterError(f"--motors {path!r}: motor names must be unique, repeated: {dupes}")
+    return tuple(systems)
