@@ -1,15 +1,19 @@
-"""Wall time of ``stepdamp leaderboard``: the full stepdamp-bench v0 protocol and --quick.
+"""Wall time of ``stepdamp leaderboard``: a protocol's full variant and --quick.
 
-Run: ``PYTHONPATH=. python benchmarks/bench_leaderboard.py [--workers 2] [--skip-full]``.
+Run: ``PYTHONPATH=. python benchmarks/bench_leaderboard.py [--protocol v1] [--workers 2]
+[--skip-full]``.
 Each variant runs as its own ``stepdamp leaderboard`` process (imports, numba
-cache load, identification, every model-based baseline in ``BASELINE_NAMES``,
-both suites, result files and figures), so the times are what a user waits.
-Targets on 2 cores: full < 5 min, quick < 1 min.
+cache load, identification, every default entry (the baselines and the
+reference agents; v1: every training seed), both suites, result files and
+figures), so the times are what a user waits; the board's own ``wall_seconds``
+(the runs, without imports and figures) and ``simulated_seconds`` are printed
+beside. Targets on 2 cores: full < 5 min, quick < 1 min.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -19,17 +23,21 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def time_variant(quick: bool, workers: int, out: str) -> float:
+def time_variant(protocol: str, quick: bool, workers: int, out: str) -> tuple[float, dict]:
     cmd = [sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--out", out,
-           "--no-progress", "--workers", str(workers)] + (["--quick"] if quick else [])
+           "--protocol", protocol, "--no-progress",
+           "--workers", str(workers)] + (["--quick"] if quick else [])
     env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    with open(os.path.join(out, "leaderboard.json"), encoding="utf-8") as fh:
+        return wall, json.load(fh)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--protocol", choices=["v0", "v1"], default="v1")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-full", action="store_true")
     args = parser.parse_args()
@@ -39,9 +47,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         variants = [("quick", True, 60.0)] + ([] if args.skip_full else [("full", False, 300.0)])
         for label, quick, target in variants:
-            wall = time_variant(quick, args.workers, os.path.join(tmp, label))
+            wall, board = time_variant(args.protocol, quick, args.workers,
+                                       os.path.join(tmp, label))
             status = "ok" if wall < target else "OVER TARGET"
-            print(f"{label:5s}: {wall:7.1f} s wall (target < {target:.0f} s) {status}")
+            sim = board["simulated_seconds"]
+            print(f"{args.protocol} {label:5s}: {wall:7.1f} s wall (target < {target:.0f} s) "
+                  f"{status}; runs {board['wall_seconds']:.1f} s, simulated {sim:.0f} s "
+                  f"({sim / board['wall_seconds']:.0f} simulated s per wall s)")
 
 
 if __name__ == "__main__":

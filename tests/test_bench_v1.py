@@ -274,3 +274,28 @@ def test_motors_option_errors_are_one_line(tmp_path):
     r = _cli("leaderboard", "--protocol", "v0", "--motors", str(tmp_path / "m.json"),
              "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "--protocol v1" in r.stderr
+
+
+def test_default_leaderboard_is_v1_with_its_figures_and_report(tmp_path, capsys):
+    from stepdamp_env.cli import main
+
+    out = tmp_path / "lb"
+    assert main(["leaderboard", "--quick", "--entries", "ff-delay-comp", "--out", str(out),
+                 "--no-progress", "--workers", "2"]) == 0
+    board = json.loads((out / "leaderboard.json").read_text())
+    assert board["protocol"]["version"] == "v1"
+    keys = {(e["name"], e["suite"], e["split"]) for e in board["entries"]}
+    assert keys == {(n, s, sp) for n in ("none", "ff-delay-comp")
+                    for s in ("open-loop", "servo") for sp in ("interpolation",
+                                                               "extrapolation")}
+    for name in ("performance_profile.png", "overview.png", "ripple_vs_speed_servo.png",
+                 "velocity_error_resonances_open-loop.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    md = (out / "LEADERBOARD.md").read_text()
+    assert "## servo, extrapolation" in md and "P(better than none)" in md
+    capsys.readouterr()
+    assert main(["report", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "| open-loop, interpolation | open-loop, extrapolation |" in table
+    assert main(["report", str(out), "--suite", "servo"]) == 0
+    assert "servo, extrapolation" in capsys.readouterr().out

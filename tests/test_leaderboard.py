@@ -161,9 +161,9 @@ def test_identified_baseline_runs():
 
 def test_cli_writes_leaderboard(tmp_path, capsys):
     out = tmp_path / "lb"
-    rc = main(["leaderboard", "--quick", "--suite", "open-loop", "--baselines", "none",
-               "patent-ff-oracle", "--policy", TEST_POLICY, "--out", str(out),
-               "--no-progress"])
+    rc = main(["leaderboard", "--protocol", "v0", "--quick", "--suite", "open-loop",
+               "--baselines", "none", "patent-ff-oracle", "--policy", TEST_POLICY,
+               "--out", str(out), "--no-progress"])
     assert rc == 0
     board = json.loads((out / "leaderboard.json").read_text())
     assert set(board) >= {"protocol", "versions", "entries"}

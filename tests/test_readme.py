@@ -34,7 +34,10 @@ def test_action_table_lists_every_mode():
 def test_results_table_is_generated_from_the_committed_leaderboard():
     board = load_leaderboard(RESULTS)
     assert render_ladder(board).strip() in README
-    assert board["protocol"]["variant"] == "full"
+    assert board["protocol"]["variant"] == "full" and board["protocol"]["version"] == "v1"
+    v0 = load_leaderboard(os.path.join(RESULTS, "v0"))
+    assert render_ladder(v0).strip() in README
+    assert v0["protocol"]["variant"] == "full" and v0["protocol"]["version"] == "v0"
 
 
 def test_overview_figure_is_the_committed_one():

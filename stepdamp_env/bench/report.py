@@ -413,11 +413,19 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
     return rows[:, K.T_T] - start, rows[:, K.T_OMEGA_CMD] - rows[:, K.T_OMEGA]
 
 
+def _speed_title(label: str) -> str:
+    """A v1 speed label as a panel title: "h4" -> "h = 4 resonance", "s0.1" -> "0.1 x f4"."""
+    if label.startswith("h"):
+        return f"h = {label[1:]} resonance"
+    return f"{label[1:]} x f4"
+
+
 def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
                           protocol: Protocol | ProtocolV1) -> None:
     """Velocity error against time over the whole measuring window at the three
-    resonant speeds, sampled every PWM period: ``none`` against the best entry
-    (patent Figs. 4-7 style), representative motor and seed."""
+    resonant speeds (v1 servo: at its grid speeds), sampled every PWM period:
+    ``none`` against the best entry (patent Figs. 4-7 style), representative
+    motor and seed."""
     rows = _suite_rows(board, suite)
     # The best entry a drive can use: an oracle is a floor, not a method.
     best = next((e for e in rows if e["spec"] != REFERENCE_POLICY and not e.get("oracle")), None)
@@ -426,22 +434,29 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     motor = protocol_motors(protocol)[0]
     seed = protocol.eval_seeds[0]
     knowledge = _knowledge(board, motor, seed, protocol)
-    res = motor.system.predicted_resonances_rps()
+    if motor.split is None:                 # v0: the three resonances, in both suites
+        points = [(f"h = {h} resonance", v)
+                  for h, v in motor.system.predicted_resonances_rps().items()]
+    else:                                   # v1: the suite's headline speeds
+        speeds, labels = motor.speeds(suite)
+        points = [(_speed_title(lb), v) for v, lb in zip(speeds, labels) if lb != "off"]
     plt = pyplot()
-    fig, axes = plt.subplots(len(res), 1, figsize=(9, 7), sharex=True, squeeze=False)
-    for ax, (h, v) in zip(axes[:, 0], res.items()):
+    fig, axes = plt.subplots(len(points), 1, figsize=(9, 2.3 * len(points) + 0.4),
+                             sharex=False, squeeze=False)
+    for ax, (title, v) in zip(axes[:, 0], points):
         for e in shown:
             t, err = trace_run(e["spec"], motor, knowledge, suite, v, seed, protocol)
             rms = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
             ax.plot(t * 1e3, err, lw=0.7, color=styles[e["name"]][0],
                     label=f"{e['name']} (RMS {rms:.3g} rad/s)")
         ax.set_ylabel("w_cmd - w (rad/s)", fontsize=8)
-        ax.set_title(f"h = {h} resonance: {v:.3g} rev/s", fontsize=9, loc="left")
+        ax.set_title(f"{title}: {v:.3g} rev/s", fontsize=9, loc="left")
         ax.grid(True, alpha=0.3)
         legend_outside(ax, fontsize=7)
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
-    fig.suptitle(f"Velocity error at the resonances: {motor.name}, {suite}, seed {seed}",
-                 fontsize=10)
+    what = "the resonances" if suite == "open-loop" or motor.split is None else \
+        "the low-speed grid"
+    fig.suptitle(f"Velocity error at {what}: {motor.name}, {suite}, seed {seed}", fontsize=10)
     save_figure(fig, path)
 
 
