@@ -107,6 +107,7 @@ __all__ = [
     "Protocol",
     "full_protocol",
     "quick_protocol",
+    "check_suites_and_seeds",
 ]
 
 PROTOCOL_NAME = "stepdamp-bench"
@@ -136,6 +137,16 @@ PHASE_FIELDS = ("phi1", "phi2")
 _V0_PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
 # Off-resonance speeds: (harmonic whose resonance anchors it, factor).
 _V0_OFF_RESONANCE = ((4, 0.6), (4, math.sqrt(2.0)), (2, math.sqrt(2.0)), (1, 1.3))
+
+
+def check_suites_and_seeds(suites: Sequence[str], eval_seeds: Sequence[int]) -> None:
+    """A protocol's suites are known ones and its evaluation seeds are never training seeds."""
+    bad = [s for s in suites if s not in SUITES]
+    if bad or not suites:
+        raise ParameterError(f"suites={suites!r}: each must be one of {list(SUITES)}")
+    if any(s < TRAINING_SEED_LIMIT for s in eval_seeds) or not eval_seeds:
+        raise ParameterError(f"eval_seeds={eval_seeds!r}: each must be >= "
+                             f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
 
 
 @dataclass(frozen=True)
@@ -172,12 +183,7 @@ class Protocol:
     confidence: float = 0.95
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.suites if s not in SUITES]
-        if bad or not self.suites:
-            raise ParameterError(f"suites={self.suites!r}: each must be one of {list(SUITES)}")
-        if any(s < TRAINING_SEED_LIMIT for s in self.eval_seeds) or not self.eval_seeds:
-            raise ParameterError(f"eval_seeds={self.eval_seeds!r}: each must be >= "
-                                 f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
+        check_suites_and_seeds(self.suites, self.eval_seeds)
         if not (isinstance(self.randomized_per_preset, int) and self.randomized_per_preset >= 0):
             raise ParameterError(f"randomized_per_preset={self.randomized_per_preset!r} is "
                                  "outside its allowed range [0, inf) (integer)")

@@ -140,7 +140,8 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system
-from .protocol import FAILURE_RATIO, POLICY_OPTIONS, PROTOCOL_NAME, SUITES, TRAINING_SEED_LIMIT
+from .protocol import (FAILURE_RATIO, POLICY_OPTIONS, PROTOCOL_NAME, SUITES, TRAINING_SEED_LIMIT,
+                       check_suites_and_seeds)
 
 __all__ = ["PROTOCOL_V1", "SPLITS", "Shift", "SHIFTS", "ProtocolV1", "full_protocol_v1",
            "quick_protocol_v1", "load_motors_file", "protocol_for"]
@@ -223,18 +224,13 @@ class ProtocolV1:
     confidence: float = 0.95
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.suites if s not in SUITES]
-        if bad or not self.suites:
-            raise ParameterError(f"suites={self.suites!r}: each must be one of {list(SUITES)}")
+        check_suites_and_seeds(self.suites, self.eval_seeds)
         bad = [s for s in self.splits if s not in SPLITS]
         if bad or not self.splits:
             raise ParameterError(f"splits={self.splits!r}: each must be one of {list(SPLITS)}")
         if ("custom" in self.splits) != bool(self.custom_motors):
             raise ParameterError("custom_motors: give motors exactly when the 'custom' "
                                  "split is run (--motors FILE)")
-        if any(s < TRAINING_SEED_LIMIT for s in self.eval_seeds) or not self.eval_seeds:
-            raise ParameterError(f"eval_seeds={self.eval_seeds!r}: each must be >= "
-                                 f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
         if self.motor_seed < TRAINING_SEED_LIMIT:
             raise ParameterError(f"motor_seed={self.motor_seed!r} must be >= "
                                  f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
@@ -307,7 +303,7 @@ def load_motors_file(path: str, protocol: ProtocolV1) -> tuple[SystemParams, ...
     names, optional ``"base"`` preset and ``"name"``). Sensors the file does not
     set are the protocol's. Names must be unique."""
     if not os.path.isfile(path):
-        raise ParameterError(f"--motors {path!r}: no such file")
+        raise ParameterError(f"--motors {path!r} is not a file")
     try:
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)

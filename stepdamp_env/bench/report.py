@@ -96,12 +96,23 @@ def render_markdown(board: Mapping[str, Any]) -> str:
                          f"{sw['iqm']:.4g} / {sw['max']:.4g} | {sl['runs_lost']}/{sl['runs']} | "
                          f"{e['rms_injected_current_a']['iqm']:.4g} | {entry_knowledge(e)} |")
         lines.append("")
-        for x in board.get("not_run", []):
-            if x["suite"] == suite:
-                lines += [f"Not run in {suite}: `{x['name']}` ({x['reason']}).", ""]
+        lines += _not_run(board, suite)
+    return _with_versions(board, lines)
+
+
+def _not_run(board: Mapping[str, Any], suite: str) -> list[str]:
+    """LEADERBOARD.md's lines on the entries that do not run in ``suite``."""
+    out: list[str] = []
+    for x in board.get("not_run", []):
+        if x["suite"] == suite:
+            out += [f"Not run in {suite}: `{x['name']}` ({x['reason']}).", ""]
+    return out
+
+
+def _with_versions(board: Mapping[str, Any], lines: list[str]) -> str:
     v = board["versions"]
-    lines.append("Versions: " + ", ".join(f"{k} {val}" for k, val in v.items()))
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + ["Versions: " + ", ".join(f"{k} {val}" for k, val in v.items())]
+                     ) + "\n"
 
 
 def _render_markdown_v1(board: Mapping[str, Any]) -> str:
@@ -109,7 +120,8 @@ def _render_markdown_v1(board: Mapping[str, Any]) -> str:
     counts = {sp: sum(m.get("split") == sp for m in p["motors"]) for sp in p["splits"]}
     lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
              "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
-             + f"; evaluation seeds {p['eval_seeds']}; learned entries pool their training "
+             + f"; evaluation seeds {', '.join(str(k) for k in p['eval_seeds'])}; learned "
+             "entries pool their training "
              f"seeds. Wall time {board.get('wall_seconds', math.nan):.0f} s, simulated "
              f"{board.get('simulated_seconds', math.nan):.0f} s.",
              "Headline: mean RMS velocity ripple at the suite's headline speeds (open loop: "
@@ -154,12 +166,8 @@ def _render_markdown_v1(board: Mapping[str, Any]) -> str:
             lines.append("")
             if split == "custom":
                 lines += [render_per_motor(board, suite, split)]
-            for x in board.get("not_run", []):
-                if x["suite"] == suite:
-                    lines += [f"Not run in {suite}: `{x['name']}` ({x['reason']}).", ""]
-    v = board["versions"]
-    lines.append("Versions: " + ", ".join(f"{k} {val}" for k, val in v.items()))
-    return "\n".join(lines) + "\n"
+        lines += _not_run(board, suite)
+    return _with_versions(board, lines)
 
 
 def render_per_motor(board: Mapping[str, Any], suite: str, split: str) -> str:

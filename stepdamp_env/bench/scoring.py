@@ -81,10 +81,17 @@ def make_entry(name: str, spec: str, suite: str, runs: list[dict[str, Any]],
     scores = score_runs(runs, reference, protocol.failure_ratio)
     strata = [s["motor"] for s in scores]
     entry: dict[str, Any] = {"name": name, "spec": spec, "suite": suite, **meta}
+    return _summarise(entry, scores, runs, lambda values: summary(
+        values, strata, resamples=protocol.bootstrap_resamples, seed=protocol.bootstrap_seed,
+        confidence=protocol.confidence))
+
+
+def _summarise(entry: dict[str, Any], scores: list[dict[str, Any]], runs: list[dict[str, Any]],
+               summarise: Any) -> dict[str, Any]:
+    """Fill an entry: ``summarise(values)`` of every score key, the worst ratio's
+    maximum, step losses, per-motor headline means and the raw data."""
     for key in SCORE_KEYS:
-        entry[key] = summary([s[key] for s in scores], strata,
-                             resamples=protocol.bootstrap_resamples,
-                             seed=protocol.bootstrap_seed, confidence=protocol.confidence)
+        entry[key] = summarise([s[key] for s in scores])
     entry["sweep_worst_ratio"]["max"] = float(np.nanmax([s["sweep_worst_ratio"]
                                                          for s in scores]))
     entry["step_losses"] = {"runs_lost": int(sum(r["failed"] for r in runs)),
@@ -109,21 +116,9 @@ def make_entry_v1(name: str, spec: str, suite: str, split: str, runs: list[dict[
     seeds = sorted({s["training_seed"] for s in scores if "training_seed" in s})
     entry: dict[str, Any] = {"name": name, "spec": spec, "suite": suite, "split": split,
                              **meta, "training_seeds": seeds}
-    for key in SCORE_KEYS:
-        entry[key] = cell_summary([s[key] for s in scores], motors, strata,
-                                  resamples=protocol.bootstrap_resamples,
-                                  seed=protocol.bootstrap_seed, confidence=protocol.confidence)
-    entry["sweep_worst_ratio"]["max"] = float(np.nanmax([s["sweep_worst_ratio"]
-                                                         for s in scores]))
-    entry["step_losses"] = {"runs_lost": int(sum(r["failed"] for r in runs)),
-                            "runs": len(runs)}
-    per_motor: dict[str, list[float]] = {}
-    for s in scores:
-        per_motor.setdefault(s["motor"], []).append(s["headline"])
-    entry["per_motor_headline_mean"] = {k: float(np.mean(v)) for k, v in per_motor.items()}
-    entry["scores"] = scores
-    entry["runs"] = runs
-    return entry
+    return _summarise(entry, scores, runs, lambda values: cell_summary(
+        values, motors, strata, resamples=protocol.bootstrap_resamples,
+        seed=protocol.bootstrap_seed, confidence=protocol.confidence))
 
 
 def add_probability_of_improvement(entries: Sequence[dict[str, Any]], protocol: Any,
