@@ -104,7 +104,11 @@ def _load_trained_model(path: str) -> PolicySource:
     config = load_agent_config(path)
     stem = os.path.splitext(os.path.basename(path))[0]
     name = f"{config.get('name', 'agent')}@{stem}"
-    return PolicySource(path, name, lambda: ResidualAgent(path, name=name))
+
+    def make():
+        return ResidualAgent(path, name=name)
+    seed = config.get("training", {}).get("seed")
+    return PolicySource(path, name, make, {int(seed): make} if seed is not None else None)
 
 
 def register_policies() -> None:

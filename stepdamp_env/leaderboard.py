@@ -1,7 +1,7 @@
 """Compatibility module: the leaderboard lives in :mod:`stepdamp_env.bench`.
 
 The ``stepdamp-bench v0`` specification is the docstring of
-:mod:`stepdamp_env.bench.protocol`.
+:mod:`stepdamp_env.bench.protocol`, v1's that of :mod:`stepdamp_env.bench.protocol_v1`.
 """
 
 from .bench import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, SUITES,

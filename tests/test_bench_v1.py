@@ -55,11 +55,20 @@ def test_training_distribution_contains_interpolation_and_excludes_extrapolation
         inside = in_training_distribution(m.system, preset, p)
         assert inside == (m.split == "interpolation"), m.name
         assert holds_its_load(m.system, p.holding_margin), m.name
-    # Every shift moves a draw outside: each shift's motors fail the test by its field.
-    fields = {s.name: {f for f, *_ in s.changes} for s in SHIFTS}
+    # Each shift alone puts a motor outside: its own field leaves the training box.
+    box = {n: (lo, hi) for n, lo, hi in p.training_randomization}
+    shifts = {s.name: s for s in SHIFTS}
     for m in protocol_v1_motors(p):
-        if m.split == "extrapolation":
-            assert fields[m.family], m.name
+        if m.split != "extrapolation":
+            continue
+        preset = get_preset(m.nominal.name)
+        for field_name, *_ in shifts[m.family].changes:
+            value, base = m.system.to_dict()[field_name], preset.to_dict()[field_name]
+            if field_name in box:
+                lo, hi = box[field_name]
+                assert not lo <= value / base <= hi, (m.name, field_name)
+            else:
+                assert value != base, (m.name, field_name)
 
 
 def test_declared_shifts_reach_the_nominal_model_and_hidden_ones_do_not():
@@ -162,9 +171,9 @@ def test_two_level_bootstrap_widens_with_motor_variance():
 def test_statistics_agree_with_rliable():
     """rliable (test-only dependency) on fixed data: the IQM equals it, the
     probability of improvement equals it (scores negated: rliable's higher is
-    better), v0's stratified interval and v1's two-level one (one cell per
-    motor: the plain bootstrap) match its percentile intervals to Monte Carlo
-    accuracy."""
+    better); v0's stratified interval, v1's two-level one (rliable's task
+    bootstrap) and the probability of improvement's interval (motors fixed)
+    match its percentile intervals to Monte Carlo accuracy."""
     rly = pytest.importorskip("rliable.library")
     metrics = pytest.importorskip("rliable.metrics")
     rng = np.random.default_rng(5)
@@ -179,15 +188,24 @@ def test_statistics_agree_with_rliable():
         return np.array([metrics.aggregate_iqm(s)])
 
     np.random.seed(0)
-    _, ci = rly.get_interval_estimates({"a": runs}, agg, reps=20000)
+    _, ci = rly.get_interval_estimates({"a": runs}, agg, reps=5000)
     lo, hi = stratified_bootstrap_ci(runs.ravel(), tasks, resamples=20000)
     width = ci["a"][1, 0] - ci["a"][0, 0]
-    assert abs(lo - ci["a"][0, 0]) < 0.03 * width and abs(hi - ci["a"][1, 0]) < 0.03 * width
-    single = runs[0]
-    _, ci = rly.get_interval_estimates({"a": single[:, None]}, agg, reps=20000)
-    lo, hi = two_level_bootstrap(single, np.arange(12), resamples=20000)
+    assert abs(lo - ci["a"][0, 0]) < 0.06 * width and abs(hi - ci["a"][1, 0]) < 0.06 * width
+    # Two levels (tasks, then runs within them): rliable's task bootstrap.
+    _, ci = rly.get_interval_estimates({"a": runs}, agg, reps=5000, task_bootstrap=True)
+    lo, hi = two_level_bootstrap(runs.ravel(), tasks, resamples=20000)
     width = ci["a"][1, 0] - ci["a"][0, 0]
-    assert abs(lo - ci["a"][0, 0]) < 0.03 * width and abs(hi - ci["a"][1, 0]) < 0.03 * width
+    assert abs(lo - ci["a"][0, 0]) < 0.06 * width and abs(hi - ci["a"][1, 0]) < 0.06 * width
+    # The probability of improvement's interval with motors fixed (rliable has no
+    # task bootstrap for it).
+    _, ci = rly.get_interval_estimates({"xy": (-runs, -other)},
+                                       metrics.probability_of_improvement, reps=3000)
+    res = probability_of_improvement(runs.ravel(), tasks, other.ravel(), tasks,
+                                     resamples=10000, resample_motors=False)
+    width = ci["xy"][1, 0] - ci["xy"][0, 0]
+    assert abs(res["ci95"][0] - ci["xy"][0, 0]) < 0.08 * width
+    assert abs(res["ci95"][1] - ci["xy"][1, 0]) < 0.08 * width
 
 
 # ---------------------------------------------------------------------------
@@ -253,7 +271,8 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
         assert "runs" not in e
     ppo = entries["ppo-residual"]
     assert ppo["learned"] and ppo["training_seeds"] == [1, 2, 3, 4, 5]
-    assert not entries["ff-delay-comp"]["learned"] and entries["ff-delay-comp"]["training_seeds"] == []
+    ff = entries["ff-delay-comp"]
+    assert not ff["learned"] and ff["training_seeds"] == []
     a, b = (entries["ppo-residual"]["probability_of_improvement"]["ff-delay-comp"],
             entries["ff-delay-comp"]["probability_of_improvement"]["ppo-residual"])
     assert a + b == pytest.approx(1.0)
@@ -299,3 +318,50 @@ def test_default_leaderboard_is_v1_with_its_figures_and_report(tmp_path, capsys)
     assert "| open-loop, interpolation | open-loop, extrapolation |" in table
     assert main(["report", str(out), "--suite", "servo"]) == 0
     assert "servo, extrapolation" in capsys.readouterr().out
+
+
+def test_a_reference_that_ends_before_its_window_still_scores_every_run():
+    from stepdamp_env.bench.scoring import reference_index, score_runs
+
+    def run(speed, label, rms, failed=False, metrics=True):
+        return {"motor": "m", "seed": 1, "speed_rps": speed, "speed_label": label,
+                "failed": failed,
+                "metrics": {"rms_velocity_error_rad_s": rms, "rms_injected_current_a": 0.0}
+                if metrics else None}
+
+    ref = reference_index([run(1.0, "h4", 2.0), run(2.0, "h2", 4.0),
+                           run(3.0, "h1", math.nan, failed=True, metrics=False)])
+    mine = [run(1.0, "h4", 1.0), run(2.0, "h2", 1.0), run(3.0, "h1", 1.0)]
+    (cell,) = score_runs(mine, ref, failed_reference_counts=True)
+    assert cell["headline"] == pytest.approx(3.0 / (2.0 + 4.0 + 3.0))   # 3.0 stands in
+    lost = [run(1.0, "h4", 1.0), run(2.0, "h2", 1.0), run(3.0, "h1", 0, True, False)]
+    (cell,) = score_runs(lost, ref, failed_reference_counts=True)
+    assert cell["headline"] == pytest.approx((1.0 + 1.0 + 30.0) / 9.0)
+    (v0,) = score_runs(lost, ref)                     # v0 leaves the speed out
+    assert v0["headline"] == pytest.approx(2.0 / 6.0)
+
+
+def test_probabilities_of_a_pair_are_complements():
+    from stepdamp_env.bench.scoring import add_probability_of_improvement
+
+    rng = np.random.default_rng(0)
+    entries = [{"name": n, "scores": [{"motor": f"m{k}", "headline": float(v)}
+                                      for k in range(6) for v in rng.lognormal(0, 1, size=c)]}
+               for n, c in (("a", 5), ("b", 1), ("c", 3))]
+    add_probability_of_improvement(entries, quick_protocol_v1(), {f"m{k}": 0 for k in range(6)})
+    by = {e["name"]: e for e in entries}
+    for x in "abc":
+        for y in "abc":
+            if x != y:
+                p, q = by[x]["probability_of_improvement"][y], by[y]["probability_of_improvement"][x]
+                assert p + q == pytest.approx(1.0)
+                lo, hi = by[x]["probability_of_improvement_ci95"][y]
+                assert by[y]["probability_of_improvement_ci95"][x] == pytest.approx([1 - hi, 1 - lo])
+
+
+def test_protocol_settings_are_checked():
+    for bad in ({"servo_factors": ()}, {"extrapolation_pairs": ((9, "inertia"),)},
+                {"extrapolation_pairs": ((0, "heavy"),)}, {"interpolation_per_preset": -1},
+                {"confidence": 1.0}, {"holding_margin": 0.0}, {"motor_seed": 5}):
+        with pytest.raises(ParameterError):
+            dataclasses.replace(full_protocol_v1(), **bad)

@@ -142,8 +142,19 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
+    """Knowledge whose nominal model differs from the exact one, so that an entry's
+    estimate can be told apart (on a preset or a custom motor they are equal)."""
+    if FeedforwardModel.from_motor(knowledge.nominal.motor) != knowledge.exact:
+        return knowledge
+    m = knowledge.nominal.motor
+    return dataclasses.replace(knowledge, nominal=knowledge.nominal.replace(
+        Kd4=m.Kd4 * 1.5 + 1e-6, phi1=-m.phi1 if m.phi1 else 0.5))
+
+
 def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, Any]:
     """Oracle flag and the env options of a policy, JSON-ready."""
+    knowledge = _probe(knowledge)
     policy = source.make()
     raw = dict(policy.env_options(knowledge))
     options = policy_env_options(policy, knowledge)

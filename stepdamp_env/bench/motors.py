@@ -148,15 +148,20 @@ def servo_grid(system: SystemParams, protocol: ProtocolV1) -> tuple[tuple[float,
 def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]:
     """v1's settling per suite (s): open loop ``settle_open_loop_decays`` decay
     times 1/(zeta*wn) = 2J/D of the undamped resonance; servo
-    ``settle_servo_time_constants`` x 1/ws of the servo loop; no upper clip."""
+    ``settle_servo_time_constants`` time constants of the servo loop's slowest
+    pole; at least ``settle_min_s``, no upper clip."""
     m = system.motor
     decay_rate = m.D / (2.0 * m.J)
     ol = protocol.settle_open_loop_decays / decay_rate if decay_rate > 0 else math.inf
-    ws = 2.0 * math.pi * system.servo.velocity_cutoff_hz / 5.0
-    servo = protocol.settle_servo_time_constants / ws
+    kv, kp, ki = system.servo_gains()
+    slowest = float(np.min(-np.roots([m.J, kv, kp, ki]).real))   # the servo loop's decay rate
+    servo = protocol.settle_servo_time_constants / slowest if slowest > 0 else math.inf
     if not math.isfinite(ol):
         raise ParameterError(f"motor {system.name!r}: D = 0 leaves its resonance undamped; "
                              "v1 settles four decay times 2J/D, so D must be > 0")
+    if not math.isfinite(servo):
+        raise ParameterError(f"motor {system.name!r}: its servo gains (Kp_vel, Kp_pos, "
+                             "Ki_pos) leave the servo loop unstable")
     return {"open-loop": max(ol, protocol.settle_min_s),
             "servo": max(servo, protocol.settle_min_s)}
 
@@ -273,11 +278,12 @@ def protocol_v1_motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
         for system in protocol.custom_motors:
             if not holds_its_load(system, protocol.holding_margin):
                 m = system.motor
+                need = m.Kd1 + m.Kd2 + m.Kd4 + m.Fs + abs(m.load_torque)
                 raise ParameterError(
                     f"--motors: motor {system.name!r} fails the physics rule: holding torque "
                     f"{m.Km * system.drive.holding_current:.4g} N*m must be >= "
                     f"{protocol.holding_margin:g} x (Kd1 + Kd2 + Kd4 + Fs + |load_torque|) = "
-                    f"{protocol.holding_margin * (m.Kd1 + m.Kd2 + m.Kd4 + m.Fs + abs(m.load_torque)):.4g} N*m")
+                    f"{protocol.holding_margin * need:.4g} N*m")
             motors.append(_v1_motor(system.name, system, system, protocol, "custom", "custom",
                                     0))
     _MOTOR_CACHE[protocol] = tuple(motors)

@@ -2,7 +2,8 @@
 LEADERBOARD.md and the figures, written atomically into one directory.
 
 ``leaderboard.json`` holds the protocol, versions, identification and every
-entry's summaries; each entry's per-cell ``scores`` and raw ``runs`` are in ``leaderboard_runs.json.gz`` (:data:`RUNS_FILE`);
+entry's summaries; each entry's per-cell ``scores`` and raw ``runs`` are in
+``leaderboard_runs.json.gz`` (:data:`RUNS_FILE`);
 :func:`load_leaderboard` joins them again. Every figure draws each policy with
 the same colour and marker (:func:`policy_styles`).
 """
@@ -26,7 +27,7 @@ from .motors import ProtocolMotor, protocol_motors
 from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, Protocol
-from .protocol_v1 import ProtocolV1
+from .protocol_v1 import MIN_TRAINING_SEEDS, ProtocolV1
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
@@ -152,6 +153,8 @@ def _render_markdown_v1(board: Mapping[str, Any]) -> str:
                     if r != e["name"] else "- | " for r in refs)
                 sl = e["step_losses"]
                 seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
+                if e.get("learned") and len(e.get("training_seeds", [])) < MIN_TRAINING_SEEDS:
+                    seeds += f" (fewer than {MIN_TRAINING_SEEDS}: no claim)"
                 lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
                              f"{poi}{sl['runs_lost']}/{sl['runs']} | {seeds} | "
                              f"{entry_knowledge(e)} |")
@@ -251,8 +254,9 @@ def _results_table(board: Mapping[str, Any], suite: str, split: str | None) -> s
     rows = entry_rows(board, suite, split)
     p = board["protocol"]
     where = suite if split is None else f"{suite}, {split}"
+    speeds = "resonances" if split is None else "headline speeds"
     lines = [f"{p['name']} {p['version']} ({p['variant']}), {where}: mean RMS ripple at the "
-             "headline speeds over undamped (IQM [95 % CI], lower is better)", "",
+             f"{speeds} over undamped (IQM [95 % CI], lower is better)", "",
              "| rank | policy | headline | step losses |", "|---|---|---|---|"]
     for e in rows:
         name = e["name"] + (" (oracle)" if e.get("oracle") else "")
@@ -449,8 +453,8 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
         speeds, labels = motor.speeds(suite)
         points = [(_speed_title(lb), v) for v, lb in zip(speeds, labels) if lb != "off"]
     plt = pyplot()
-    fig, axes = plt.subplots(len(points), 1, figsize=(9, 2.3 * len(points) + 0.4),
-                             sharex=False, squeeze=False)
+    fig, axes = plt.subplots(len(points), 1, squeeze=False, sharex=motor.split is None,
+                             figsize=(9, 7 if motor.split is None else 2.3 * len(points) + 0.4))
     for ax, (title, v) in zip(axes[:, 0], points):
         for e in shown:
             t, err = trace_run(e["spec"], motor, knowledge, suite, v, seed, protocol)

@@ -82,7 +82,8 @@ def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
 def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams, *,
                 mode: str, speed_rps: float, seed: int,
                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
-                settle_s: float | None = None, measure_from_s: float | None = None, until_s: float | None = None,
+                settle_s: float | None = None, measure_from_s: float | None = None,
+                until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
                 pwm_trace: bool = False) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` on the true plant ``system``.

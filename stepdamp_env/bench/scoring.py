@@ -31,9 +31,11 @@ def score_runs(runs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapp
     ``headline``: mean ripple at the headline speeds (labels other than "off")
     over the reference's; ``sweep_mean_ratio`` / ``sweep_worst_ratio``: mean and
     maximum of the per-speed ratios; a failed run counts with
-    ``failure_ratio`` times the reference's ripple (its own if larger). A
-    reference run that lost steps is left out (v0) or taken as measured
-    (``failed_reference_counts``, v1); one that ended before its window always is.
+    ``failure_ratio`` times the reference's ripple (its own if larger). v0: a
+    reference run that lost steps or ended before its window leaves the speed
+    out. v1 (``failed_reference_counts``): a reference that lost steps is taken
+    as measured; where it ended before its window, the mean of its measured
+    headline speeds stands in, so every run is scored.
     """
     groups: dict[tuple[str, int, Any], list[Mapping[str, Any]]] = {}
     for r in runs:
@@ -41,11 +43,12 @@ def score_runs(runs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapp
     out = []
     for (motor, seed, training_seed), rs in groups.items():
         ratios, res_p, res_n, currents = [], [], [], []
+        stand_in = _stand_in(rs, reference, motor, seed) if failed_reference_counts else math.nan
         for r in rs:
             ref = reference.get((motor, seed, r["speed_rps"]))
             ok_ref = ref is not None and ref["metrics"] is not None and \
                 (failed_reference_counts or not ref["failed"])
-            ref_rms = ref["metrics"]["rms_velocity_error_rad_s"] if ok_ref else math.nan
+            ref_rms = ref["metrics"]["rms_velocity_error_rad_s"] if ok_ref else stand_in
             own = r["metrics"]["rms_velocity_error_rad_s"] if r["metrics"] else math.nan
             if r["failed"]:
                 own = max(own, failure_ratio * ref_rms) if math.isfinite(own) \
@@ -72,6 +75,17 @@ def score_runs(runs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapp
             "step_losses": int(sum(r["failed"] for r in rs)),
             "runs": len(rs)})
     return out
+
+
+def _stand_in(rs: Sequence[Mapping[str, Any]], reference: Mapping[tuple, Mapping[str, Any]],
+              motor: str, seed: int) -> float:
+    """v1: the undamped ripple that stands in where the reference run ended before
+    its window: the mean of the reference's measured headline speeds (NaN if none)."""
+    measured = [ref["metrics"]["rms_velocity_error_rad_s"] for r in rs
+                if r["speed_label"] != "off"
+                for ref in [reference.get((motor, seed, r["speed_rps"]))]
+                if ref is not None and ref["metrics"] is not None]
+    return float(np.mean(measured)) if measured else math.nan
 
 
 def make_entry(name: str, spec: str, suite: str, runs: list[dict[str, Any]],
@@ -131,9 +145,9 @@ def add_probability_of_improvement(entries: Sequence[dict[str, Any]], protocol: 
     for e in entries:
         e["probability_of_improvement"] = {}
         e["probability_of_improvement_ci95"] = {}
-        for other in entries:
-            if other is e:
-                continue
+    # P(Y < X) = 1 - P(X < Y) in every resample (ties count half): computed once a pair.
+    for i, e in enumerate(entries):
+        for other in entries[i + 1:]:
             x, y = cells[e["name"]], cells[other["name"]]
             keep_x = [i for i, v in enumerate(x[0]) if math.isfinite(v)]
             keep_y = [i for i, v in enumerate(y[0]) if math.isfinite(v)]
@@ -144,3 +158,6 @@ def add_probability_of_improvement(entries: Sequence[dict[str, Any]], protocol: 
                 confidence=protocol.confidence)
             e["probability_of_improvement"][other["name"]] = res["p"]
             e["probability_of_improvement_ci95"][other["name"]] = res["ci95"]
+            other["probability_of_improvement"][e["name"]] = 1.0 - res["p"]
+            other["probability_of_improvement_ci95"][e["name"]] = [1.0 - res["ci95"][1],
+                                                                   1.0 - res["ci95"][0]]

@@ -162,15 +162,17 @@ def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
                                y: Sequence[float], y_motors: Sequence[Any], *,
                                strata: Mapping[Any, Any] | None = None,
                                resamples: int = 2000, seed: int = 2000,
-                               confidence: float = 0.95) -> dict[str, Any]:
+                               confidence: float = 0.95,
+                               resample_motors: bool = True) -> dict[str, Any]:
     """P(X improves on Y) with lower scores better, and its two-level interval.
 
     Per motor, the probability that a cell of X scores lower than a cell of Y
     (every pair of their cells, ties half: the Mann-Whitney statistic); the
     mean over the motors both have. rliable's probability of improvement with
     motors as tasks and cells as runs (for scores where lower is better). The
-    interval draws the same motors for X and Y and their cells independently.
-    An entry against itself gives exactly 0.5.
+    interval draws the same motors for X and Y and their cells independently
+    (``resample_motors=False``: cells only, motors fixed, as rliable's
+    stratified bootstrap does). An entry against itself gives exactly 0.5.
     """
     ox, tx, cx = _cell_table(x, x_motors)
     oy, ty, cy = _cell_table(y, y_motors)
@@ -182,7 +184,8 @@ def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
     tx, cx, ty, cy = tx[ix], cx[ix], ty[iy], cy[iy]
     p = float(_mann_whitney(tx, ty, cx, cy).mean())
     rng = np.random.default_rng(seed)
-    m_idx = _motor_draws(common, strata, rng, resamples)
+    m_idx = _motor_draws(common, strata, rng, resamples) if resample_motors else \
+        np.tile(np.arange(len(common)), (resamples, 1))
     dx = np.take_along_axis(tx[m_idx], _cell_draws(cx, m_idx, rng), axis=-1)
     dy = np.take_along_axis(ty[m_idx], _cell_draws(cy, m_idx, rng), axis=-1)
     stats = _mann_whitney(dx, dy, cx[m_idx], cy[m_idx]).mean(axis=1)
