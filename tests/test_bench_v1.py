@@ -252,7 +252,8 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
                                   {"base": "qsh4218-51-10-049", "name": "my-nema17"}]))
     out = tmp_path / "board"
     r = _cli("leaderboard", "--quick", "--motors", str(motors), "--entries", "ff-delay-comp",
-             "ppo-residual", "--suite", "open-loop", "--no-plots", "--no-progress",
+             "patent-ff-oracle", "ppo-residual", "--suite", "open-loop", "--no-plots",
+             "--no-progress",
              "--workers", "2", "--out", str(out))
     assert r.returncode == 0, r.stderr
     with open(out / "leaderboard.json", encoding="utf-8") as fh:
@@ -261,7 +262,12 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
     assert p["name"] == "stepdamp-bench" and p["version"] == "v1" and p["splits"] == ["custom"]
     assert board["wall_seconds"] > 0 and board["simulated_seconds"] > 0
     entries = {e["name"]: e for e in board["entries"]}
-    assert set(entries) == {"none", "ff-delay-comp", "ppo-residual"}
+    assert set(entries) == {"none", "ff-delay-comp", "patent-ff-oracle", "ppo-residual"}
+    # Nominal equals exact on a custom motor: the labels still tell them apart.
+    assert entries["patent-ff-oracle"]["oracle"]
+    assert entries["patent-ff-oracle"]["env_options"]["estimate"] == "exact"
+    assert entries["ff-delay-comp"]["env_options"]["estimate"] == "identified"
+    assert not entries["ff-delay-comp"]["oracle"]
     for e in entries.values():
         for key in ("name", "suite", "split", "learned", "oracle", "training_seeds",
                     "headline", "probability_of_improvement"):

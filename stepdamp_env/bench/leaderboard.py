@@ -154,16 +154,14 @@ def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
 
 def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, Any]:
     """Oracle flag and the env options of a policy, JSON-ready."""
-    knowledge = _probe(knowledge)
     policy = source.make()
-    raw = dict(policy.env_options(knowledge))
     options = policy_env_options(policy, knowledge)
-    est = raw.get("estimate", "exact")
+    probe = _probe(knowledge)            # the estimate is named on the probe's models
+    est = dict(source.make().env_options(probe)).get("estimate", "exact")
     if isinstance(est, FeedforwardModel):
-        # Nominal is checked before exact: for a preset the two are equal.
-        est = ("identified" if est == knowledge.identified else
-               "nominal" if est == FeedforwardModel.from_motor(knowledge.nominal.motor) else
-               "exact" if est == knowledge.exact else "model")
+        est = ("identified" if est == probe.identified else
+               "nominal" if est == FeedforwardModel.from_motor(probe.nominal.motor) else
+               "exact" if est == probe.exact else "model")
     options["estimate"] = est
     card = policy_card(policy)
     if card is not None:
