@@ -113,11 +113,8 @@ def protocol_motors(protocol: Protocol | ProtocolV1) -> tuple[ProtocolMotor, ...
     for name, nom in nominals.items():
         for k in range(protocol.randomized_per_preset):
             for attempt in range(1, protocol.max_draw_attempts + 1):
-                changes: dict[str, Any] = {"name": f"{name}~r{k}"}
-                for field_name, lo, hi in protocol.randomization:
-                    x = float(rng.uniform(lo, hi))
-                    changes[field_name] = x if field_name in PHASE_FIELDS else \
-                        getattr(nom.motor, field_name) * x
+                changes = {"name": f"{name}~r{k}",
+                           **_draw(nom, rng, protocol.randomization)}
                 try:
                     system = nom.replace(**changes)
                 except ParameterError:
@@ -191,10 +188,12 @@ def in_training_distribution(system: SystemParams, preset: SystemParams,
     return all(mine[k] == theirs[k] for k in mine if k not in drawn and k != "name")
 
 
-def _training_draw(nom: SystemParams, rng: np.random.Generator, protocol: ProtocolV1
-                   ) -> dict[str, Any]:
+def _draw(nom: SystemParams, rng: np.random.Generator,
+          ranges: Sequence[tuple[str, float, float]]) -> dict[str, Any]:
+    """One draw around ``nom``, field by field in ``ranges`` order: magnitudes as
+    factors of the preset's, phases as values (rad)."""
     changes: dict[str, Any] = {}
-    for field_name, lo, hi in protocol.training_randomization:
+    for field_name, lo, hi in ranges:
         x = float(rng.uniform(lo, hi))
         changes[field_name] = x if field_name in PHASE_FIELDS else \
             getattr(nom.motor, field_name) * x
@@ -241,7 +240,7 @@ def protocol_v1_motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
     def draw(label: str, nom: SystemParams, shift: Shift | None) -> tuple[SystemParams,
                                                                           SystemParams, int]:
         for attempt in range(1, protocol.max_draw_attempts + 1):
-            changes = _training_draw(nom, rng, protocol)
+            changes = _draw(nom, rng, protocol.training_randomization)
             declared: dict[str, Any] = {}
             if shift is not None:
                 changes, declared = _apply_shift(nom, changes, shift, rng)

@@ -136,8 +136,7 @@ def two_level_bootstrap(values: Sequence[float], motors: Sequence[Any],
     c_idx = _cell_draws(counts, m_idx, rng)
     drawn = table[m_idx[..., None], c_idx]                 # (R, M, W)
     valid = np.arange(table.shape[1])[None, None, :] < counts[m_idx][..., None]
-    n = int(counts.sum()) if np.all(counts == counts[0]) else None
-    if n is not None:                                       # equal cells: one sort
+    if np.all(counts == counts[0]):                         # equal cells: one sort
         sample = np.sort(drawn[valid].reshape(resamples, -1), axis=1)
         stats = sample @ _iqm_weights(sample.shape[1])
     else:
