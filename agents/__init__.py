@@ -1,93 +1,86 @@
 """Residual reinforcement-learning agents for StepperDamp (installed as ``stepdamp_agents``).
 
-SAC, TD3 and PPO from stable-baselines3, as residuals on the model-based baselines.
+ARS (sb3-contrib), PPO, SAC and TD3 (stable-baselines3) as residuals on the
+model-based baselines.
 
+* :mod:`stepdamp_agents.per_step`: the per-step agents on ``StepperDamp-v1``
+  (a decision every 10 ms on top of ff-delay-comp), their training envs and
+  their leaderboard policy :class:`~stepdamp_agents.per_step.StepAgent`;
 * :mod:`stepdamp_agents.residual`: zero-residual policies, zero-residual warm-up,
-  the residual training envs and the action scaling;
-* :mod:`stepdamp_agents.task`: the residual task's id and reference configuration;
+  and the v0 residual envs (the gain selector's);
+* :mod:`stepdamp_agents.task`: the v0 residual task's id and reference configuration;
 * :mod:`stepdamp_agents.train`: the training script (``stepdamp train``);
-* :mod:`stepdamp_agents.policy`: a trained agent as a leaderboard policy;
-* ``hyperparams/{sac,td3,ppo}.yml``: rl-baselines3-zoo hyperparameters;
-* ``reference/``: the reference model ``ppo-residual.zip`` (training seed 1,
-  with its ``.agent.json`` config and ``ppo-residual.train_log.json``), which
-  ``stepdamp leaderboard`` lists by default, and the same configuration
-  trained with seeds 2-5 (``ppo-residual.seed<K>.*``): stepdamp-bench v1
-  pools all five in the ``ppo-residual`` entry, v0 runs seed 1 alone.
+* :mod:`stepdamp_agents.policy`: loading models, the v0 agent as a leaderboard policy;
+* ``hyperparams/{ars,ppo,sac,td3}.yml``: rl-baselines3-zoo hyperparameters, keyed
+  by ``StepperDamp-v1`` (and ``StepperDampResidual-v0`` for the gain selector);
+* ``reference/``: the committed models, ``<entry>.seed<K>.zip`` with their
+  ``.agent.json`` configs and training logs: ``ars-per-step``, ``ppo-per-step``,
+  ``td3-per-step`` and ``ppo-gain-selector`` (v0's agent, named ``ppo-residual``
+  up to 0.5.0: one PPO decision, a damping gain, every 0.1 s).
 
 :func:`register_policies` (the ``stepdamp.policies`` entry point
-``reference-agents``) registers every committed reference model by its name
-(``ppo-residual``) and a loader for models ``stepdamp train`` writes, so
-``stepdamp leaderboard --policy runs/ppo/best.zip`` runs one with its own
-options. Importing :mod:`stepdamp_agents.residual` registers
-``"ResidualMlpPolicy"`` in SB3's policy aliases and the residual task
-``StepperDampResidual-v0`` with Gymnasium (:mod:`stepdamp_agents.task`; the
-zoo: ``--env StepperDampResidual-v0 --gym-packages stepdamp_agents.residual``).
-This package itself imports neither torch nor SB3 (``stepdamp --help`` stays fast), nor does ``import stepdamp_env``.
+``reference-agents``) registers every committed entry by its name, with all its
+training seeds (stepdamp-bench v1 pools them; v0 runs seed 1 alone), and a
+loader for models ``stepdamp train`` writes, so ``stepdamp leaderboard --policy
+runs/ars/seed1/best.zip`` runs one with its own options. This package itself
+imports neither torch nor SB3 (``stepdamp --help`` stays fast), nor does
+``import stepdamp_env``.
 """
 
 from __future__ import annotations
 
 import os
+import re
 
 from stepdamp_env.bench.registry import PolicySource, register_loader, register_policy
 
 REFERENCE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference")
-ALGO_NAMES = ("ppo", "sac", "td3")
+_SEED_FILE = re.compile(r"^(?P<name>[a-z0-9-]+)\.seed(?P<seed>\d+)\.zip$")
 
 __all__ = ["REFERENCE_DIR", "reference_names", "reference_agent", "reference_seeds",
-           "register_policies"]
+           "agent_from_path", "register_policies"]
 
 
 def reference_names() -> tuple[str, ...]:
-    """Names (``<algo>-residual``) of the reference models committed in ``reference/``."""
-    return tuple(f"{a}-residual" for a in ALGO_NAMES
-                 if os.path.isfile(os.path.join(REFERENCE_DIR, f"{a}-residual.zip")))
+    """Names of the entries committed in ``reference/`` (``<name>.seed<K>.zip``)."""
+    names = {m["name"] for m in map(_SEED_FILE.match, os.listdir(REFERENCE_DIR)) if m}
+    return tuple(sorted(names))
 
 
-def reference_agent(algo: str = "ppo"):
-    """The committed reference model of ``algo`` as a leaderboard policy."""
-    from .policy import ResidualAgent
-
-    path = os.path.join(REFERENCE_DIR, f"{algo}-residual.zip")
-    if not os.path.isfile(path):
-        raise FileNotFoundError(
-            f"no reference model {path}: committed ones are {list(reference_names())}; "
-            f"train one with `stepdamp train --algo {algo}`")
-    return ResidualAgent(path)
-
-
-def reference_seeds(algo: str = "ppo") -> dict[int, str]:
-    """Training seed -> model path of the committed reference models of ``algo``:
-    ``<algo>-residual.zip`` (the one v0 runs) and ``<algo>-residual.seed<K>.zip``
-    (the other seeds stepdamp-bench v1 pools), each by the seed in its config."""
-    from .policy import load_agent_config
-
-    out: dict[int, str] = {}
-    stem = f"{algo}-residual"
-    for fname in sorted(os.listdir(REFERENCE_DIR)):
-        if fname == f"{stem}.zip" or (fname.startswith(f"{stem}.seed") and fname.endswith(".zip")):
-            path = os.path.join(REFERENCE_DIR, fname)
-            out[int(load_agent_config(path)["training"]["seed"])] = path
+def reference_seeds(name: str = "ppo-gain-selector") -> dict[int, str]:
+    """Training seed -> model path of the committed entry ``name``."""
+    out = {int(m["seed"]): os.path.join(REFERENCE_DIR, m.string)
+           for m in map(_SEED_FILE.match, os.listdir(REFERENCE_DIR)) if m and m["name"] == name}
     return dict(sorted(out.items()))
 
 
-def _reference_factory(algo: str):
-    def make():
-        return reference_agent(algo)
-    make.__qualname__ = f"reference_agent[{algo}]"
-    return make
+def agent_from_path(path: str, name: str | None = None):
+    """The leaderboard policy of a model ``stepdamp train`` wrote: a per-step agent
+    (``StepperDamp-v1``) or the v0 gain selector, by its ``.agent.json``."""
+    from .policy import ResidualAgent, load_agent_config
+
+    if load_agent_config(path).get("env_id") == "StepperDamp-v1":
+        from .per_step import StepAgent
+
+        return StepAgent(path, name=name)
+    return ResidualAgent(path, name=name)
+
+
+def reference_agent(name: str = "ppo-gain-selector", seed: int | None = None):
+    """A committed entry as a leaderboard policy (its first training seed by default)."""
+    seeds = reference_seeds(name)
+    if not seeds or (seed is not None and seed not in seeds):
+        raise FileNotFoundError(
+            f"no reference model {name!r} seed {seed}: committed entries are "
+            f"{list(reference_names())}; train one with `stepdamp train`")
+    return agent_from_path(seeds[min(seeds) if seed is None else seed])
 
 
 def _seed_factory(path: str):
     def make():
-        from .policy import ResidualAgent
-
-        return ResidualAgent(path)
-    make.__qualname__ = f"ResidualAgent[{os.path.basename(path)}]"
+        return agent_from_path(path)
+    make.__qualname__ = f"agent_from_path[{os.path.basename(path)}]"
     return make
-
-
-_FACTORIES = {algo: _reference_factory(algo) for algo in ALGO_NAMES}
 
 
 def _is_trained_model(path: str) -> bool:
@@ -99,14 +92,14 @@ def _is_trained_model(path: str) -> bool:
 def _load_trained_model(path: str) -> PolicySource:
     """A model ``stepdamp train`` wrote, named ``<config name>@<file stem>`` so that
     it never takes the name of the committed reference it may have been trained as."""
-    from .policy import ResidualAgent, load_agent_config
+    from .policy import load_agent_config
 
     config = load_agent_config(path)
     stem = os.path.splitext(os.path.basename(path))[0]
     name = f"{config.get('name', 'agent')}@{stem}"
 
     def make():
-        return ResidualAgent(path, name=name)
+        return agent_from_path(path, name=name)
     seed = config.get("training", {}).get("seed")
     return PolicySource(path, name, make, {int(seed): make} if seed is not None else None)
 
@@ -114,9 +107,11 @@ def _load_trained_model(path: str) -> PolicySource:
 def register_policies() -> None:
     """Register the committed reference agents and the trained-model loader (idempotent)."""
     for name in reference_names():
-        algo = name.split("-")[0]
-        register_policy(name, _FACTORIES[algo], kind="agent",
-                        description=f"committed reference {algo.upper()} residual agent",
-                        training_seeds={k: _seed_factory(p)
-                                        for k, p in reference_seeds(algo).items()})
+        seeds = reference_seeds(name)
+        algo = name.split("-")[0].upper()
+        what = ("v0 gain selector (a damping gain every 0.1 s)" if "gain-selector" in name
+                else "per-step residual on StepperDamp-v1")
+        register_policy(name, _seed_factory(seeds[min(seeds)]), kind="agent",
+                        description=f"committed {algo} {what}, seeds {sorted(seeds)}",
+                        training_seeds={k: _seed_factory(p) for k, p in seeds.items()})
     register_loader("stepdamp-train", _is_trained_model, _load_trained_model)

@@ -45,14 +45,14 @@ def load_model(path: str) -> Any:
     if path not in _MODELS:
         import torch
 
-        from .residual import ALGOS, POLICIES
+        from .per_step import ALGOS, POLICIES
 
         torch.set_num_threads(1)
         algo = load_agent_config(path)["algo"]
         # The policy class by this package's name (models saved before 0.2 name
         # the module ``agents.residual``).
-        _MODELS[path] = ALGOS[algo].load(path, device="cpu",
-                                         custom_objects={"policy_class": POLICIES[algo]})
+        custom = {"policy_class": POLICIES[algo]} if algo in POLICIES else {}
+        _MODELS[path] = ALGOS[algo].load(path, device="cpu", custom_objects=custom)
     return _MODELS[path]
 
 

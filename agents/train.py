@@ -1,28 +1,35 @@
-"""Train a residual agent (SAC, TD3 or PPO) on StepperDamp-v0 drives: one readable script.
+"""Train residual agents (ARS, PPO, SAC, TD3) on StepperDamp drives: one readable script.
 
 Every setting is a field of :class:`Args`; hyperparameters of the algorithm come
 from ``agents/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, keyed by the
-residual task ``StepperDampResidual-v0``, whose defaults are
-:mod:`stepdamp_agents.task`), so the zoo and this script train the same thing::
+env id: ``StepperDamp-v1`` for the per-step agents, the default, whose task is
+:data:`stepdamp_agents.per_step.REFERENCE_TASK`; ``StepperDampResidual-v0`` for
+the v0 gain selector, :mod:`stepdamp_agents.task`), so the zoo and this script
+train the same thing::
 
-    stepdamp train --algo sac --seed 1 --out runs/sac
-    python -m stepdamp_agents.train --algo sac --total-timesteps 20000 --out runs/smoke
+    stepdamp train --algo ars --seeds 1-5 --out runs/ars     # runs/ars/seed<K>/
+    stepdamp train --algo ppo --env StepperDampResidual-v0 --seed 1 --out runs/gain
+    python -m stepdamp_agents.train --algo td3 --total-timesteps 20000 --out runs/smoke
 
-What it does, in order:
+What it does, in order, for each seed:
 
 1. builds the training env: ``envs_per_motor`` native vectorised drives around
    each preset (``randomize=True``, the env's generator seeded below
    ``TRAINING_SEED_LIMIT`` = 1_000_000;
    the protocol's drawn motors are never used), the protocol's sensors
-   (0.01 A current noise, 4000 counts/rev), wrapped as residuals on top of the
-   base controller (:class:`stepdamp_agents.residual.ResidualVecEnv`);
+   (0.01 A current noise, 4000 counts/rev); on v1 the residual is the env's own
+   (a zero action is ff-delay-comp), and ARS meets the same episodes with all
+   candidates of an update (:class:`stepdamp_agents.per_step.SameEpisodes`); on
+   v0 it is wrapped as residuals on top of the base controller
+   (:class:`stepdamp_agents.residual.ResidualVecEnv`);
 2. builds the algorithm with a zero-residual policy and zero-residual warm-up
    (:mod:`stepdamp_agents.residual`); torch on one thread;
 3. trains with a progress bar, TensorBoard and CSV logs, checkpoints and a
    periodic evaluation on the leaderboard's metrics (headline: mean RMS ripple
    at the three resonant speeds over that of ``none``, IQM) on validation
    motors drawn around the presets with seed ``val_seed`` and noise seeds
-   below the limit, with the exact feedforward model;
+   below the limit, with the exact feedforward model (v1: the settling of
+   stepdamp-bench v1);
 4. writes ``final.zip`` and ``best.zip`` (best validation headline), each with its
    ``.agent.json`` (the config the leaderboard policy needs), and ``train_log.json``.
 """
@@ -46,18 +53,23 @@ from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
+from .per_step import ENV_ID_V1, task_options
 from .task import RESIDUAL_ENV_ID, task_kwargs
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
 PRESETS = tuple(preset_names())
+ENV_IDS = (ENV_ID_V1, RESIDUAL_ENV_ID)
+ALGO_CHOICES = ("ars", "ppo", "sac", "td3")
 
 
 @dataclass
 class Args:
     """All arguments of a training run (``--name-with-dashes`` on the command line)."""
 
-    algo: str = "sac"                       # sac | td3 | ppo
+    algo: str = "ars"                       # ars | ppo | sac | td3 (ars: v1 only)
     seed: int = 1                           # torch/numpy seed; env seeds start at 1000*seed
+    seeds: tuple[int, ...] = ()             # several seeds, one after the other (out/seed<K>)
+    env: str = ENV_ID_V1                    # StepperDamp-v1 | StepperDampResidual-v0
     out: str = "runs/residual"              # output directory
     total_timesteps: int | None = None      # default: n_timesteps of the YAML
     hyperparams: str | None = None          # YAML file (default agents/hyperparams/<algo>.yml)
@@ -69,7 +81,8 @@ class Args:
     checkpoint_freq: int = 10_000           # agent steps between checkpoints (0: never)
     progress: bool = True
     tensorboard: bool = True
-    name: str | None = None                 # policy name (default "<algo>-residual")
+    name: str | None = None                 # policy name (default "<algo>-per-step" on v1,
+                                            # "<algo>-gain-selector" on v0)
     extra: dict[str, Any] = field(default_factory=dict)   # YAML overrides (algo kwargs)
 
 
@@ -77,7 +90,7 @@ class Args:
 # Configuration: the zoo YAML
 # ---------------------------------------------------------------------------
 def load_hyperparams(args: Args) -> dict[str, Any]:
-    """The ``StepperDampResidual-v0`` entry of the algorithm's zoo YAML (a copy)."""
+    """The ``args.env`` entry of the algorithm's zoo YAML (a copy)."""
     import yaml
 
     path = args.hyperparams or os.path.join(HYPERPARAMS_DIR, f"{args.algo}.yml")
@@ -88,9 +101,9 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
         first = (str(exc).strip().splitlines() or [""])[0]
         raise ParameterError(f"--hyperparams {path!r}: cannot read it as YAML: {first}") \
             from None
-    if not isinstance(data, dict) or not isinstance(data.get(RESIDUAL_ENV_ID), dict):
-        raise ParameterError(f"--hyperparams {path!r}: no {RESIDUAL_ENV_ID!r} mapping in it")
-    hp = dict(data[RESIDUAL_ENV_ID])
+    if not isinstance(data, dict) or not isinstance(data.get(args.env), dict):
+        raise ParameterError(f"--hyperparams {path!r}: no {args.env!r} mapping in it")
+    hp = dict(data[args.env])
     hp.update(args.extra)
     return hp
 
@@ -105,6 +118,14 @@ def check_args(args: Args) -> None:
                                  f"range [{low}, {high:g}] (integer)")
 
     need("seed", args.seed, 0, 999)           # env seeds 1000*seed + k < TRAINING_SEED_LIMIT
+    for k in args.seeds:
+        need("seeds", k, 0, 999)
+    if args.env not in ENV_IDS:
+        raise ParameterError(f"--env {args.env!r} is not one of {list(ENV_IDS)}")
+    if args.algo not in ALGO_CHOICES or (args.algo == "ars" and args.env != ENV_ID_V1):
+        raise ParameterError(f"--algo {args.algo!r} is not one of "
+                             f"{list(ALGO_CHOICES if args.env == ENV_ID_V1 else ALGO_CHOICES[1:])}"
+                             f" (for --env {args.env})")
     need("total_timesteps", args.total_timesteps, 1, 1e12, optional=True)
     need("envs_per_motor", args.envs_per_motor, 1, 4096, optional=True)
     need("eval_freq", args.eval_freq, 0, 1e12)
@@ -181,20 +202,24 @@ def parse_policy_kwargs(text: str) -> dict[str, Any]:
     return out
 
 
-def split_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
+def split_hyperparams(hp: dict[str, Any], env_id: str = RESIDUAL_ENV_ID) -> dict[str, Any]:
     """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs).
 
-    The env and wrapper kwargs are the residual task's reference
-    (:mod:`stepdamp_agents.task`) updated by the YAML's ``env_kwargs``.
+    The env and wrapper kwargs are the task's reference (v1:
+    :data:`stepdamp_agents.per_step.REFERENCE_TASK`, no wrapper; v0:
+    :mod:`stepdamp_agents.task`) updated by the YAML's ``env_kwargs``.
     """
     hp = dict(hp)
     n_envs = int(hp.pop("n_envs", 16))
     n_timesteps = int(float(hp.pop("n_timesteps", 1e5)))
     if "env_wrapper" in hp:
-        raise ParameterError(f"hyperparameter env_wrapper: {RESIDUAL_ENV_ID} is the residual "
+        raise ParameterError(f"hyperparameter env_wrapper: {env_id} is the residual "
                              "task already; set its kwargs under env_kwargs")
-    env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
-    policy = hp.pop("policy", "ResidualMlpPolicy")
+    if env_id == ENV_ID_V1:
+        env_kwargs, wrapper_kwargs = task_options(hp.pop("env_kwargs", None)), {}
+    else:
+        env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
+    policy = hp.pop("policy", "LinearPolicy" if "n_delta" in hp else "ResidualMlpPolicy")
     if isinstance(hp.get("policy_kwargs"), str):
         hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])   # zoo's convention
     for key in ("train_freq",):
@@ -226,6 +251,8 @@ class Validator:
 
     def __init__(self, args: Args, env_kwargs: dict[str, Any]) -> None:
         from stepdamp_env.bench import MotorKnowledge, ProtocolMotor, full_protocol, speed_grid
+        from stepdamp_env.bench.motors import settle_times
+        from stepdamp_env.bench.protocol_v1 import full_protocol_v1
         from stepdamp_env.env import StepperDampEnv
         from stepdamp_env.params import FeedforwardModel
 
@@ -244,6 +271,10 @@ class Validator:
                 motors.append(ProtocolMotor(system.name, system, env.sampler.nominal, speeds,
                                             labels))
         self.motors = tuple(motors)
+        # v1: each motor's own settling, as stepdamp-bench v1 (v0: the core's, clipped).
+        v1 = full_protocol_v1()
+        self.settle = [settle_times(m.system, v1)["open-loop"] if args.env == ENV_ID_V1
+                       else None for m in motors]
         self.seed = args.val_seed
         self.knowledge = []
         for m in motors:
@@ -257,11 +288,11 @@ class Validator:
 
         p = self.protocol
         runs = []
-        for m, knowledge in zip(self.motors, self.knowledge):
+        for m, knowledge, settle in zip(self.motors, self.knowledge, self.settle):
             for speed, label in zip(m.speeds_rps, m.speed_labels):
                 result = run_episode(make_policy(), knowledge, m.system, mode="open-loop",
                                      speed_rps=speed, seed=self.seed, accel_rps2=p.accel_rps2,
-                                     window_s=p.window_s)
+                                     window_s=p.window_s, settle_s=settle)
                 runs.append(result.record(m.name, self.seed, speed, label))
         return runs
 
@@ -280,8 +311,19 @@ class Validator:
 
 
 def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
+    hyperparams = args.hyperparams or f"agents/hyperparams/{args.algo}.yml"
+    if args.env == ENV_ID_V1:
+        from .per_step import INTERFACE_OPTIONS
+
+        return {"name": args.name or f"{args.algo}-per-step", "algo": args.algo,
+                "env_id": ENV_ID_V1, "base": "ff-delay-comp", "estimate": "identified",
+                "env_options": {k: v for k, v in sp["env_kwargs"].items()
+                                if k in INTERFACE_OPTIONS},
+                "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
+                             "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
+                             "hyperparams": hyperparams}}
     wk = sp["wrapper_kwargs"]
-    return {"name": args.name or f"{args.algo}-residual", "algo": args.algo,
+    return {"name": args.name or f"{args.algo}-gain-selector", "algo": args.algo,
             "base": wk.get("base", "patent-ff"),
             "residual_scale": float(wk.get("residual_scale", 0.25)),
             "residual_action": wk.get("residual_action", "harmonic"),
@@ -292,8 +334,7 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
                             if k in sp["env_kwargs"]},
             "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
                          "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
-                         "wrapper_kwargs": wk, "hyperparams": args.hyperparams
-                         or f"agents/hyperparams/{args.algo}.yml"}}
+                         "wrapper_kwargs": wk, "hyperparams": hyperparams}}
 
 
 def save_agent(model: Any, path_zip: str, config: dict[str, Any]) -> None:
@@ -311,25 +352,32 @@ def train(args: Args) -> dict[str, Any]:
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
 
+    from .per_step import ALGOS, SameEpisodes, StepAgent, make_training_env
     from .policy import ResidualAgent, forget_model
-    from .residual import ALGOS, make_residual_vec_env
+    from .residual import make_residual_vec_env
 
     check_args(args)
-    if args.algo not in ALGOS:
-        raise ParameterError(f"algo={args.algo!r} is not one of {list(ALGOS)}")
     torch.set_num_threads(1)
-    sp = split_hyperparams(load_hyperparams(args))
+    v1 = args.env == ENV_ID_V1
+    sp = split_hyperparams(load_hyperparams(args), args.env)
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
     total = int(args.total_timesteps or sp["n_timesteps"])
     wk = sp["wrapper_kwargs"]
     env_kwargs = dict(sp["env_kwargs"])
     env_kwargs.pop("motor", None)
-    max_steps = int(env_kwargs.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
-    env = make_residual_vec_env(args.motors, per_motor, 1000 * args.seed,
-                                max_episode_steps=max_steps, **wk, **env_kwargs)
+    algo_kwargs = dict(sp["algo_kwargs"])
+    if v1:
+        env = make_training_env(args.motors, per_motor, 1000 * args.seed, env_kwargs)
+        if args.algo == "ars":
+            # Every candidate of an update on the same episodes, one per drive.
+            env = SameEpisodes(env, 2 * int(algo_kwargs.get("n_delta", 8)), 1000 * args.seed)
+            algo_kwargs.setdefault("n_eval_episodes", env.num_envs)
+    else:
+        max_steps = int(env_kwargs.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
+        env = make_residual_vec_env(args.motors, per_motor, 1000 * args.seed,
+                                    max_episode_steps=max_steps, **wk, **env_kwargs)
     os.makedirs(args.out, exist_ok=True)
     config = _agent_config(args, sp)
-    algo_kwargs = dict(sp["algo_kwargs"])
     if isinstance(algo_kwargs.get("action_noise"), tuple):
         from stable_baselines3.common.noise import NormalActionNoise
 
@@ -363,7 +411,7 @@ def train(args: Args) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
         forget_model(path)
-        agent = ResidualAgent(path)
+        agent = StepAgent(path) if v1 else ResidualAgent(path)
         res = validator.score(lambda: agent)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
         log["evaluations"].append(res)
@@ -384,8 +432,8 @@ def train(args: Args) -> dict[str, Any]:
             if args.progress:
                 from tqdm.auto import tqdm
 
-                self.bar = tqdm(total=total, unit="step", desc=f"{args.algo} training",
-                                mininterval=2.0)
+                self.bar = tqdm(total=total, unit="step", mininterval=2.0,
+                                desc=f"{args.algo} seed {args.seed}")
             self.last_eval = self.last_ckpt = 0
 
         def _on_step(self) -> bool:
@@ -426,16 +474,55 @@ def train(args: Args) -> dict[str, Any]:
     return log
 
 
+def train_seeds(args: Args) -> list[dict[str, Any]]:
+    """:func:`train` for each of ``args.seeds`` (into ``out/seed<K>``), one after the
+    other, or for ``args.seed`` alone into ``out``; prints one line per seed."""
+    if not args.seeds:
+        return [train(args)]
+    check_args(args)
+    logs = []
+    for k in args.seeds:
+        logs.append(train(dataclasses.replace(args, seed=k, seeds=(),
+                                              out=os.path.join(args.out, f"seed{k}"))))
+    print(f"{'seed':>4} {'train s':>8} {'best validation IQM':>20}")
+    for k, log in zip(args.seeds, logs):
+        best = (log.get("best") or {}).get("headline_iqm", math.nan)
+        print(f"{k:>4} {log['train_wall_s']:8.1f} {best:20.4f}")
+    return logs
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"1-5"``, ``"1,3,7"`` or ``"2"`` to a tuple of seeds."""
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, sep, hi = part.strip().partition("-")
+            out.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    except ValueError:
+        raise ParameterError(f"--seeds {text!r}: expected a range like 1-5 or a list like "
+                             "1,3,7") from None
+    if not out or len(set(out)) != len(out):
+        raise ParameterError(f"--seeds {text!r}: give each seed once, at least one")
+    return tuple(out)
+
+
 # ---------------------------------------------------------------------------
 # Command line
 # ---------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """One option per field of :class:`Args` (``stepdamp train`` uses these too)."""
     d = Args()
-    p.add_argument("--algo", choices=("sac", "td3", "ppo"), default=d.algo,
-                   help="algorithm (hyperparameters from agents/hyperparams/<algo>.yml)")
+    p.add_argument("--algo", choices=ALGO_CHOICES, default=d.algo,
+                   help="algorithm (hyperparameters from agents/hyperparams/<algo>.yml; "
+                        "ars on StepperDamp-v1 only)")
+    p.add_argument("--env", choices=ENV_IDS, default=d.env,
+                   help="StepperDamp-v1: per-step agents (default); StepperDampResidual-v0: "
+                        "the v0 gain selector")
     p.add_argument("--seed", type=int, default=d.seed,
                    help="torch/numpy seed in [0, 1000); env seeds start at 1000*seed")
+    p.add_argument("--seeds", default=None, metavar="K-L",
+                   help="train several seeds one after the other (e.g. 1-5 or 1,3), each "
+                        "into DIR/seed<K>; replaces --seed")
     p.add_argument("--out", default=d.out, metavar="DIR",
                    help="output directory (models, logs)")
     p.add_argument("--total-timesteps", type=int, default=None, metavar="STEPS",
@@ -475,7 +562,9 @@ def args_from_namespace(ns: argparse.Namespace) -> Args:
             extra[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError:
             raise ParameterError(f"--set {item!r}: the value is not valid YAML") from None
-    return Args(algo=ns.algo, seed=ns.seed, out=ns.out, total_timesteps=ns.total_timesteps,
+    seeds = parse_seeds(ns.seeds) if ns.seeds else ()
+    return Args(algo=ns.algo, seed=ns.seed, seeds=seeds, env=ns.env, out=ns.out,
+                total_timesteps=ns.total_timesteps,
                 hyperparams=ns.hyperparams, motors=tuple(ns.motors),
                 envs_per_motor=ns.envs_per_motor, eval_freq=ns.eval_freq,
                 val_seed=ns.val_seed, val_motors_per_preset=ns.val_motors_per_preset,
@@ -487,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m stepdamp_agents.train", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(p)
-    train(args_from_namespace(p.parse_args(argv)))
+    train_seeds(args_from_namespace(p.parse_args(argv)))
     return 0
 
 

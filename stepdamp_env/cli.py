@@ -349,9 +349,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from stepdamp_agents.train import args_from_namespace, train
+    from stepdamp_agents.train import args_from_namespace, train_seeds
 
-    train(args_from_namespace(args))
+    train_seeds(args_from_namespace(args))
     return 0
 
 
@@ -447,7 +447,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
     p.set_defaults(func=_cmd_report)
 
-    p = command("train", "train a residual RL agent (SAC, TD3, PPO) on StepperDamp-v0")
+    p = command("train", "train residual RL agents (ARS, PPO, SAC, TD3) on StepperDamp-v1 "
+                "(or the v0 gain selector)")
     from stepdamp_agents.train import add_arguments
 
     add_arguments(p)

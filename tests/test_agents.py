@@ -14,6 +14,7 @@ from stepdamp_agents.policy import ResidualAgent, forget_model, load_model  # no
 from stepdamp_agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualWrapper,  # noqa: E402
                              context_features, make_residual_vec_env)
 from stepdamp_agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
+from stepdamp_agents.task import RESIDUAL_ENV_ID  # noqa: E402
 from stepdamp_baselines import make_baseline  # noqa: E402
 from stepdamp_env import kernel as K  # noqa: E402
 from stepdamp_env.bench import (MotorKnowledge, PolicyContext, policy_env_options,  # noqa: E402
@@ -139,7 +140,7 @@ def test_current_residual_velocity_feature_is_the_physical_velocity_error():
 
 def test_hyperparams_files_parse():
     for algo in ("sac", "td3", "ppo"):
-        sp = split_hyperparams(load_hyperparams(Args(algo=algo)))
+        sp = split_hyperparams(load_hyperparams(Args(algo=algo, env=RESIDUAL_ENV_ID)))
         assert sp["policy"] == "ResidualMlpPolicy"
         assert sp["wrapper_kwargs"]["base"] in ("patent-ff", "ff-delay-comp")
         assert sp["env_kwargs"]["randomize"] is True
@@ -147,7 +148,8 @@ def test_hyperparams_files_parse():
 
 def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     out = str(tmp_path / "run")
-    log = train(Args(algo="sac", seed=4, out=out, total_timesteps=3000, motors=(MOTOR,),
+    log = train(Args(algo="sac", env=RESIDUAL_ENV_ID, seed=4, out=out, total_timesteps=3000,
+                     motors=(MOTOR,),
                      envs_per_motor=4, eval_freq=2000, val_motors_per_preset=1,
                      checkpoint_freq=2000, progress=False, tensorboard=False,
                      extra={"learning_starts": 1000, "batch_size": 64}))
@@ -184,7 +186,7 @@ def test_residual_task_id_made_without_arguments_is_the_reference_task():
     assert env.observation_space == venv.observation_space
     assert env.action_space == venv.action_space
     for algo in ("sac", "td3", "ppo"):
-        sp = split_hyperparams(load_hyperparams(Args(algo=algo)))
+        sp = split_hyperparams(load_hyperparams(Args(algo=algo, env=RESIDUAL_ENV_ID)))
         assert sp["env_kwargs"] == REFERENCE_DRIVE and sp["wrapper_kwargs"] == REFERENCE_RESIDUAL
     # Steps end with the drive's own time limit: 1600 env steps = 4 held gains.
     env.reset(seed=3)
@@ -238,7 +240,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
     path = str(tmp_path / "fb.zip")
     model.save(path)
     with open(str(tmp_path / "fb.agent.json"), "w") as fh:
-        json.dump({"name": "ppo-residual", "algo": "ppo", **res_kw,
+        json.dump({"name": "ppo-gain-selector", "algo": "ppo", **res_kw,
                    "env_options": {"agent_hz": 4000.0, "velocity_estimator": "kalman"}}, fh)
 
     scalar = ResidualWrapper(gym.make("StepperDamp-v0", action_mode="harmonic+current",
@@ -277,7 +279,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
 
 
 def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
-    """The committed reference model (agents/reference/ppo-residual.*) runs in the
+    """The committed reference model (agents/reference/ppo-gain-selector.seed*) runs in the
     leaderboard by default under its name; on the quick protocol's open-loop suite it
     damps below half of patent-ff-identified and below ff-delay-comp."""
     import dataclasses
@@ -285,17 +287,17 @@ def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
     from stepdamp_agents import reference_names
     from stepdamp_env.bench import default_policy_names, quick_protocol, run_leaderboard
 
-    assert "ppo-residual" in reference_names() and "ppo-residual" in default_policy_names()
+    assert "ppo-gain-selector" in reference_names() and "ppo-gain-selector" in default_policy_names()
     with open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                           "agents", "reference", "ppo-residual.train_log.json")) as fh:
+                           "agents", "reference", "ppo-gain-selector.seed1.train_log.json")) as fh:
         log = json.load(fh)
     assert log["config"]["training"]["seed"] == 1 and log["train_wall_s"] < 20 * 60
     protocol = dataclasses.replace(quick_protocol(), suites=("open-loop",))
-    board = run_leaderboard(protocol, ["patent-ff-identified", "ff-delay-comp", "ppo-residual"],
+    board = run_leaderboard(protocol, ["patent-ff-identified", "ff-delay-comp", "ppo-gain-selector"],
                             workers=1, progress=False)
     iqm = {e["name"]: e["headline"]["iqm"] for e in board["entries"]}
-    assert iqm["ppo-residual"] < 0.5 * iqm["patent-ff-identified"]
-    assert iqm["ppo-residual"] < iqm["ff-delay-comp"]
+    assert iqm["ppo-gain-selector"] < 0.5 * iqm["patent-ff-identified"]
+    assert iqm["ppo-gain-selector"] < iqm["ff-delay-comp"]
 
 
 def test_training_seeds_stay_below_the_protocol_limit():

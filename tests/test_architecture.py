@@ -152,7 +152,7 @@ def test_installed_import_names_do_not_clash():
 
     names = default_policy_names()
     assert names[:5] == ("none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp",
-                         "adaptive-ff") and "ppo-residual" in names
+                         "adaptive-ff") and "ppo-gain-selector" in names
     # The wheel must not ship top-level packages named baselines or agents.
     with open(os.path.join(ROOT, "pyproject.toml"), encoding="utf-8") as fh:
         text = fh.read()

@@ -252,7 +252,7 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
                                   {"base": "qsh4218-51-10-049", "name": "my-nema17"}]))
     out = tmp_path / "board"
     r = _cli("leaderboard", "--quick", "--motors", str(motors), "--entries", "ff-delay-comp",
-             "patent-ff-oracle", "ppo-residual", "--suite", "open-loop", "--no-plots",
+             "patent-ff-oracle", "ppo-gain-selector", "--suite", "open-loop", "--no-plots",
              "--no-progress",
              "--workers", "2", "--out", str(out))
     assert r.returncode == 0, r.stderr
@@ -262,7 +262,7 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
     assert p["name"] == "stepdamp-bench" and p["version"] == "v1" and p["splits"] == ["custom"]
     assert board["wall_seconds"] > 0 and board["simulated_seconds"] > 0
     entries = {e["name"]: e for e in board["entries"]}
-    assert set(entries) == {"none", "ff-delay-comp", "patent-ff-oracle", "ppo-residual"}
+    assert set(entries) == {"none", "ff-delay-comp", "patent-ff-oracle", "ppo-gain-selector"}
     # Nominal equals exact on a custom motor: the labels still tell them apart.
     assert entries["patent-ff-oracle"]["oracle"]
     assert entries["patent-ff-oracle"]["env_options"]["estimate"] == "exact"
@@ -275,16 +275,16 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
         assert e["split"] == "custom" and set(e["headline"]) >= {"iqm", "ci95"}
         assert set(e["probability_of_improvement"]) == set(entries) - {e["name"]}
         assert "runs" not in e
-    ppo = entries["ppo-residual"]
+    ppo = entries["ppo-gain-selector"]
     assert ppo["learned"] and ppo["training_seeds"] == [1, 2, 3, 4, 5]
     ff = entries["ff-delay-comp"]
     assert not ff["learned"] and ff["training_seeds"] == []
-    a, b = (entries["ppo-residual"]["probability_of_improvement"]["ff-delay-comp"],
-            entries["ff-delay-comp"]["probability_of_improvement"]["ppo-residual"])
+    a, b = (entries["ppo-gain-selector"]["probability_of_improvement"]["ff-delay-comp"],
+            entries["ff-delay-comp"]["probability_of_improvement"]["ppo-gain-selector"])
     assert a + b == pytest.approx(1.0)
     with gzip.open(out / board["runs_file"], "rt", encoding="utf-8") as fh:
         raw = json.load(fh)
-    ppo_runs = next(x for x in raw["entries"] if x["name"] == "ppo-residual")["runs"]
+    ppo_runs = next(x for x in raw["entries"] if x["name"] == "ppo-gain-selector")["runs"]
     assert len(ppo_runs) == 2 * 3 * 5                       # motors x resonances x seeds
     assert {r["motor"] for r in ppo_runs} == {"my-nema23", "my-nema17"}
     assert "my-nema23" in r.stdout and "custom" in r.stdout

@@ -46,7 +46,9 @@ ROLLOUT_CONFIGS: dict[str, dict[str, Any]] = {
 FULL_SPOT_MOTORS = ("qsh5718-56-28-126~r1", "patent")
 FULL_SPOT_SEED = 1_000_002
 V0_POLICIES = ("patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
-               "ppo-residual")
+               "ppo-gain-selector")
+# Entries renamed since the fingerprints were stored (new name -> stored name).
+RENAMED = {"ppo-gain-selector": "ppo-residual"}
 
 
 class _Hash:
@@ -191,7 +193,7 @@ def board_fingerprint(board: dict[str, Any], spot_motors: Iterable[str] = (),
                                                                            s["seed"])))
         if spot:
             item["spot_runs"] = [r for r in runs if r["motor"] in spot and r["seed"] == spot_seed]
-        entries[f"{e['name']}|{e['suite']}"] = item
+        entries[f"{RENAMED.get(e['name'], e['name'])}|{e['suite']}"] = item
     ident = sorted(board["identification"], key=lambda x: (x["motor"], x["seed"]))
     out = {"entries": entries, "identification_sha256": digest(ident),
            "motors_sha256": digest([m for m in board["protocol"]["motors"]])}

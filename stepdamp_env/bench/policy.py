@@ -20,12 +20,16 @@ import numpy as np
 from ..env.options import BASE_CONTROLLERS, ESTIMATES, EnvOptions, default_action_scales
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
-from .protocol import POLICY_OPTIONS, REFERENCE_POLICY, SUITES
+from ..env.registration import ENV_ID, ENV_ID_V1
+from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, SUITES
 
 __all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
            "ZeroAction", "reference_policy", "KNOWLEDGE_ESTIMATES", "ORACLE_OPTIONS",
            "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
-           "check_policy"]
+           "check_policy", "policy_env_id", "POLICY_ENV_IDS"]
+
+# The envs a policy may run in (its optional ``env_id`` attribute; v0 by default).
+POLICY_ENV_IDS = (ENV_ID, ENV_ID_V1)
 
 # What a policy may name as its base controller's model.
 KNOWLEDGE_ESTIMATES = ("exact", "identified", "nominal")
@@ -217,16 +221,27 @@ def estimate_model(which: str, knowledge: MotorKnowledge) -> FeedforwardModel:
     return est if isinstance(est, FeedforwardModel) else knowledge.exact
 
 
+def policy_env_id(policy: Any) -> str:
+    """The env the policy runs in: its ``env_id`` attribute, "StepperDamp-v0" without one."""
+    env_id = getattr(policy, "env_id", ENV_ID)
+    if env_id not in POLICY_ENV_IDS:
+        raise ParameterError(f"policy {getattr(policy, 'name', policy)!r}: env_id={env_id!r} "
+                             f"is not one of {list(POLICY_ENV_IDS)}")
+    return env_id
+
+
 def policy_env_options(policy: Policy, knowledge: MotorKnowledge) -> dict[str, Any]:
-    """The policy's env options, checked against ``POLICY_OPTIONS`` and made fair:
-    "nominal" is the nominal preset and unset action scales come from it."""
+    """The policy's env options, checked against ``POLICY_OPTIONS`` (``POLICY_OPTIONS_V1``
+    for a policy whose ``env_id`` is StepperDamp-v1) and made fair: "nominal" is
+    the nominal preset and unset action scales come from it."""
     options = dict(policy.env_options(knowledge))
     card = policy_card(policy)
-    allowed = POLICY_OPTIONS + (ORACLE_OPTIONS if card is not None and card.oracle else ())
+    base = POLICY_OPTIONS_V1 if policy_env_id(policy) == ENV_ID_V1 else POLICY_OPTIONS
+    allowed = base + (ORACLE_OPTIONS if card is not None and card.oracle else ())
     bad = sorted(set(options) - set(allowed))
     if bad:
         raise ParameterError(f"policy {policy.name!r} sets env option(s) {bad} that the "
-                             f"protocol fixes; a policy may set only {list(POLICY_OPTIONS)} "
+                             f"protocol fixes; a policy may set only {list(base)} "
                              f"(an oracle also {list(ORACLE_OPTIONS)})")
     if options.get("estimate") == "nominal":
         options["estimate"] = FeedforwardModel.from_motor(knowledge.nominal.motor)

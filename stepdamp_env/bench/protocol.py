@@ -100,6 +100,7 @@ __all__ = [
     "PROTOCOL_VERSION",
     "TRAINING_SEED_LIMIT",
     "POLICY_OPTIONS",
+    "POLICY_OPTIONS_V1",
     "SUITES",
     "FAILURE_RATIO",
     "REFERENCE_POLICY",
@@ -121,6 +122,13 @@ FAILURE_RATIO = 10.0
 POLICY_OPTIONS = ("base_controller", "estimate", "action_mode", "agent_hz",
                   "harmonic_scale_nm", "current_scale_a", "velocity_estimator",
                   "current_penalty", "termination_penalty")
+# The same for a policy that runs in StepperDamp-v1 (its ``env_id``): the agent's
+# interface (action mode, rate, history, context, the damping law's scales), never
+# the plant, its nominal model, the sensors, the speed or the window.
+POLICY_OPTIONS_V1 = ("base_controller", "estimate", "action_mode", "agent_hz",
+                     "harmonic_scale_nm", "current_scale_a", "velocity_estimator",
+                     "current_penalty", "history", "context", "damping_ratio_scale",
+                     "resonant_rate_scale", "law_limit_factor")
 
 # The reference of every ratio: the base controller alone, without feedforward
 # (a zero action with ``base_controller="none"``); its entry has this name.

@@ -14,10 +14,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..env.registration import ENV_ID_V1
 from ..env.scalar import StepperDampEnv
+from ..env.v1 import StepperDampV1Env
 from ..params import SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
-from .policy import MotorKnowledge, Policy, policy_context, policy_env_options
+from .policy import MotorKnowledge, Policy, policy_context, policy_env_id, policy_env_options
 
 __all__ = ["EpisodeResult", "run_episode", "episode_window"]
 
@@ -86,7 +88,9 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
                 pwm_trace: bool = False) -> EpisodeResult:
-    """Run ``policy`` in ``StepperDamp-v0`` on the true plant ``system``.
+    """Run ``policy`` in ``StepperDamp-v0`` (or in ``StepperDamp-v1`` if its
+    ``env_id`` says so: the drive's ``nominal`` model is then the knowledge's) on
+    the true plant ``system``.
 
     The env gets the policy's options (checked, :func:`policy_env_options`),
     is reset with ``seed`` (which also seeds the sensor noise), the policy is
@@ -104,13 +108,22 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     if measure_from_s is not None:
         start, length = float(measure_from_s), float(window_s)
     options = policy_env_options(policy, knowledge)
-    env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps, accel_rps2=accel_rps2,
-                         measure_from_s=start, render_mode="rgb_array" if pwm_trace else None,
-                         **options)
-    obs, _ = env.reset(seed=seed)
-    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
     # Half a PWM period of slack: time_s is a float multiple of the period.
     end = start + length - 0.5 / system.drive.pwm_hz if until_s is None else until_s
+    render = "rgb_array" if pwm_trace else None
+    env: Any
+    if policy_env_id(policy) == ENV_ID_V1:
+        if pwm_trace:
+            raise ValueError("pwm_trace is available for StepperDamp-v0 policies only")
+        env = _V1Run(motor=system, nominal=knowledge.nominal, mode=mode, speed_rps=speed_rps,
+                     accel_rps2=accel_rps2, measure_from_s=start, episode_s=end + 1.0,
+                     **options)
+    else:
+        env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps,
+                             accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
+                             **options)
+    obs, _ = env.reset(seed=seed)
+    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
     steps, terminated, reason = 0, False, ""
     trace: list[Any] = []
     while env.time_s < end:
@@ -136,3 +149,11 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                          trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
                          simulated_s=float(time_s))
 
+
+
+class _V1Run(StepperDampV1Env):
+    """``StepperDamp-v1`` with v0's ``time_s`` (simulated s of the episode), for the loop above."""
+
+    @property
+    def time_s(self) -> float:
+        return float(self._drives.t[0] * self.task.seconds_per_step)

@@ -18,13 +18,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .. import kernel as K
-from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..response import phasors, torque_paths
 from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, initial_state,
                           merge_accumulators, metrics_from_accumulators, new_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
 from .actions import action_error, as_action
+from .options import default_action_scales
 from .arguments import check_render_mode, check_vector_args, reseed
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
@@ -49,7 +50,9 @@ class TaskV1:
         self.options = o = options
         self.draws = EpisodeSampler(o.shared())
         self._nominal_episode_estimate: FeedforwardModel | None = None
-        self.nominal: SystemParams = self.draws.nominal
+        # The drive's datasheet model: given apart from the plant on the leaderboard.
+        self.nominal: SystemParams = (self.draws.nominal if o.nominal is None
+                                      else load_system(o.nominal))
         self.units = u = MotorUnits.of(self.nominal)
         self.n_periods = self.draws.n_periods
         self.seconds_per_step = self.draws.seconds_per_step
@@ -61,6 +64,10 @@ class TaskV1:
         kv = 2.0 * o.damping_ratio_scale * m.J * u.wn_rad_s / m.Km
         kr = o.resonant_rate_scale * m.J * u.wn_rad_s ** 2 / m.Km
         harmonic, current = self.draws.harmonic_scale_nm, self.draws.current_scale_a
+        if o.nominal is not None:
+            default_harmonic, default_current = default_action_scales(self.nominal)
+            harmonic = default_harmonic if o.harmonic_scale_nm is None else harmonic
+            current = default_current if o.current_scale_a is None else current
         if o.action_mode == "damping-gains":
             # (kv, kp) = (cos phi, -sin phi): velocity feedback with a lead of about phi at wn.
             scales = (kv, kv * u.wn_rad_s) + (kr,) * 6
@@ -91,6 +98,8 @@ class TaskV1:
 
     def episode_estimate(self, system: SystemParams) -> FeedforwardModel:
         """The detent model the base controller uses in an episode of ``system``."""
+        if self.options.nominal is not None and self.options.estimate == "nominal":
+            return FeedforwardModel.from_motor(self.nominal.motor)
         if system is self.nominal:                  # not randomised: the same every episode
             if self._nominal_episode_estimate is None:
                 self._nominal_episode_estimate = self.draws.episode_estimate(system)
@@ -341,6 +350,7 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """ + OPTIONS_DOC_V1 + """
     ## Version History
 
+    * v1 (package 0.6): option ``nominal`` (default None: as before).
     * v1 (package 0.3): units the motor sets, history, visible context, a
       dimensionless reward, the damping-gains law in the kernel, ff-delay-comp
       as a base controller, the env's own time limit.

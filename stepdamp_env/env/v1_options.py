@@ -101,6 +101,7 @@ class EnvOptionsV1:
 
     motor: Any = "patent"
     overrides: Mapping[str, Any] | None = None
+    nominal: Any = None
     randomize: bool | Mapping[str, tuple[float, float]] = False
     mode: str = "open-loop"
     base_controller: str = "ff-delay-comp"
@@ -152,6 +153,9 @@ class EnvOptionsV1:
             raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
                                  "'nominal'] or a FeedforwardModel")
         check_pair("speed_range_rps", self.speed_range_rps)
+        if self.nominal is not None and not isinstance(self.nominal, (str, SystemParams)):
+            raise ParameterError(f"nominal={self.nominal!r} must be None, a preset name, a motor "
+                                 "file or a SystemParams")
         # Every option v0 shares is checked by v0's own rules.
         self.shared()
         if int(round(self.episode_s * self.agent_hz)) < 1:
@@ -209,4 +213,9 @@ OPTIONS_DOC_V1 = """
       resonance); ``law_limit_factor`` (0.5): the law's current bound, as a
       fraction of the holding current.
     * ``current_penalty`` (0.0): weight of the injected-current term of the reward.
+    * ``nominal`` (None): the drive's datasheet model (a preset name, a motor
+      file or a ``SystemParams``) when it is not the motor itself, as on the
+      leaderboard, where ``motor`` is the true plant: units, action scales,
+      ff-delay-comp's compensation, ``estimate="nominal"`` and the context's
+      resonance speeds come from it. None: from ``motor`` (before randomisation).
 """

@@ -1,0 +1,237 @@
+"""Per-step residual agents on ``StepperDamp-v1``: ARS, PPO, SAC and TD3.
+
+The residual is the env's own: ``StepperDamp-v1`` runs the base controller
+(``ff-delay-comp``) inside the drive, and an action of zero is that controller
+bit for bit; every algorithm here starts at exactly zero (ARS from zero weights,
+sb3-contrib's ``zero_policy``; PPO, SAC and TD3 with the zero last layer of
+:mod:`stepdamp_agents.residual`), so a fresh agent *is* the base controller.
+
+The reference task (:data:`REFERENCE_TASK`): ``damping-gains`` actions (the
+gains of a damping law that the kernel runs every PWM period at 20 kHz), a
+decision every 10 ms (100 Hz), the last 4 decisions' position and velocity
+errors (``history=4``), the visible context (the held speed over the drive
+model's three resonance speeds and its detent model), training motors drawn
+around the four presets (``randomize=True``, seeds below
+``TRAINING_SEED_LIMIT``), open loop, the protocol's sensors and the exact
+detent model (the identified one is within about 1 % of it).
+
+Pieces:
+
+* :class:`PresetsVecEnv`: an SB3 ``VecEnv`` of native v1 vector envs, one per
+  preset, side by side (drive k seeded ``seed + k``);
+* :class:`SameEpisodes`: a ``VecEnvWrapper`` that replays the same drives'
+  episodes for ``repeat`` consecutive resets (ARS's candidates are then
+  compared on common motors, speeds and noise: the motor-to-motor spread of
+  the return is ten times the effect of a gain);
+* :class:`ResidualARS` and :data:`ALGOS` (``ars``, ``ppo``, ``sac``, ``td3``);
+* :class:`StepAgent`: a trained model as a leaderboard policy (``env_id`` =
+  ``StepperDamp-v1``), its options from its ``.agent.json``.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any, Sequence
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvStepReturn,
+                                                           VecEnvWrapper)
+
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
+from stepdamp_env.bench.protocol import POLICY_OPTIONS_V1, TRAINING_SEED_LIMIT
+from stepdamp_env.env import ENV_ID_V1
+from stepdamp_env.params import ParameterError
+from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
+
+__all__ = ["ENV_ID_V1", "REFERENCE_TASK", "task_options", "PresetsVecEnv", "SameEpisodes",
+           "make_training_env", "ResidualARS", "ALGOS", "POLICIES", "StepAgent"]
+
+#: ``StepperDamp-v1`` options of the reference training task.
+REFERENCE_TASK: dict[str, Any] = {
+    "randomize": True, "mode": "open-loop", "base_controller": "ff-delay-comp",
+    "estimate": "exact", "action_mode": "damping-gains", "agent_hz": 100.0, "history": 4,
+    "context": "visible", "resonance_prob": 0.75, "episode_s": 0.4,
+    "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
+}
+
+# What the agent's interface is: these options go with the model to the leaderboard.
+INTERFACE_OPTIONS = tuple(k for k in POLICY_OPTIONS_V1
+                          if k not in ("base_controller", "estimate", "current_penalty"))
+
+
+def task_options(env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The reference task updated by ``env_kwargs`` (StepperDamp-v1 options)."""
+    if env_kwargs is not None and not isinstance(env_kwargs, dict):
+        raise ParameterError(f"env_kwargs={env_kwargs!r} must be a mapping of StepperDamp-v1 "
+                             "options")
+    out = {**copy.deepcopy(REFERENCE_TASK), **copy.deepcopy(env_kwargs or {})}
+    if out.get("base_controller") != "ff-delay-comp":
+        raise ParameterError(f"env_kwargs base_controller={out.get('base_controller')!r}: the "
+                             "agents are residuals on 'ff-delay-comp'")
+    return out
+
+
+class PresetsVecEnv(VecEnv):
+    """Native ``StepperDamp-v1`` vector envs side by side as one SB3 ``VecEnv``."""
+
+    def __init__(self, parts: Sequence[StepperDampSB3VecEnv]) -> None:
+        self.parts = list(parts)
+        first = self.parts[0]
+        self.render_mode = None
+        super().__init__(sum(p.num_envs for p in self.parts), first.observation_space,
+                         first.action_space)
+        self._cuts = np.cumsum([0] + [p.num_envs for p in self.parts])
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        for p, lo in zip(self.parts, self._cuts[:-1]):
+            if self._seeds[lo] is not None:     # seed() gave consecutive seeds
+                p.seed(self._seeds[lo])
+        self._reset_seeds()
+        return np.concatenate([p.reset() for p in self.parts])
+
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        """Seeds drive k with ``seed + k`` at the next reset."""
+        if seed is not None and not 0 <= seed <= TRAINING_SEED_LIMIT - self.num_envs:
+            raise ParameterError(f"training seeds must lie in [0, {TRAINING_SEED_LIMIT}); got "
+                                 f"{seed}..{seed + self.num_envs - 1}")
+        return super().seed(seed)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        obs, rew, done, infos = [], [], [], []
+        for p, lo, hi in zip(self.parts, self._cuts[:-1], self._cuts[1:]):
+            o, r, d, i = p.step(self._actions[lo:hi])
+            obs.append(o)
+            rew.append(r)
+            done.append(d)
+            infos.extend(i)
+        self._actions = None
+        return np.concatenate(obs), np.concatenate(rew), np.concatenate(done), infos
+
+    def close(self) -> None:
+        for p in self.parts:
+            p.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
+        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        return [None for _ in range(self.num_envs)]
+
+
+class SameEpisodes(VecEnvWrapper):
+    """Every ``repeat`` consecutive resets start the same episodes (drive k seeded
+    ``seed + block * num_envs + k``, ``block`` counting the groups of resets).
+
+    ARS evaluates its ``2 * n_delta`` candidates one after the other, each from
+    a reset: with ``repeat = 2 * n_delta`` the + and - perturbations of one
+    update meet the same motors, speeds and sensor noise.
+    """
+
+    def __init__(self, venv: VecEnv, repeat: int, seed: int) -> None:
+        super().__init__(venv)
+        if repeat < 1:
+            raise ParameterError(f"repeat={repeat!r} is outside its allowed range [1, inf)")
+        self.repeat, self.first_seed, self.resets = int(repeat), int(seed), 0
+
+    def reset(self) -> np.ndarray:
+        block = self.resets // self.repeat
+        seed = self.first_seed + block * self.num_envs
+        if seed + self.num_envs > TRAINING_SEED_LIMIT:     # wrap within the training seeds
+            seed = self.first_seed + seed % (TRAINING_SEED_LIMIT - self.first_seed
+                                             - self.num_envs)
+        self.venv.seed(seed)
+        self.resets += 1
+        return self.venv.reset()
+
+    def step_wait(self) -> VecEnvStepReturn:
+        return self.venv.step_wait()
+
+
+def make_training_env(motors: Sequence[str], envs_per_motor: int, seed: int,
+                      options: dict[str, Any]) -> PresetsVecEnv:
+    """``envs_per_motor`` drives around each preset of ``motors`` (v1 ``options``
+    without ``motor``), drive k seeded ``seed + k``."""
+    opts = {k: v for k, v in options.items() if k != "motor"}
+    env = PresetsVecEnv([make_sb3_vec_env_v1(envs_per_motor, motor=m, **opts) for m in motors])
+    env.seed(seed)
+    return env
+
+
+def _residual_ars():
+    from sb3_contrib import ARS
+
+    class ResidualARS(ARS):
+        """sb3-contrib's ARS, its policy from zero (``zero_policy``: the base controller)."""
+
+        def __init__(self, policy: Any = "LinearPolicy", env: Any = None, **kwargs: Any) -> None:
+            kwargs.setdefault("zero_policy", True)
+            if not kwargs["zero_policy"]:
+                raise ParameterError("zero_policy=False: a residual agent starts at zero")
+            super().__init__(policy, env, **kwargs)
+
+        def _trigger_callback(self, _locals: dict, _globals: dict, callback: Any,
+                              n_envs: int) -> None:
+            # evaluate_policy calls this once per drive and step: one timestep each
+            # (sb3-contrib adds n_envs per call, counting every step n_envs times).
+            self.num_timesteps += 1
+            callback.on_step()
+
+    return ResidualARS
+
+
+def __getattr__(name: str) -> Any:
+    # sb3-contrib and the SB3 algorithms load on first use.
+    if name == "ResidualARS":
+        return _residual_ars()
+    if name in ("ALGOS", "POLICIES"):
+        from .residual import ALGOS as V0_ALGOS, POLICIES as V0_POLICIES
+
+        # ARS's models name their own policy class (linear or MLP).
+        return {"ars": _residual_ars(), **V0_ALGOS} if name == "ALGOS" else dict(V0_POLICIES)
+    raise AttributeError(name)
+
+
+class StepAgent:
+    """A per-step agent as a leaderboard policy: it runs in ``StepperDamp-v1`` with
+    the base controller ff-delay-comp on the drive's ``estimate`` model and acts
+    every ``1/agent_hz`` s with the model's deterministic action."""
+
+    env_id = ENV_ID_V1
+
+    def __init__(self, path: str, name: str | None = None) -> None:
+        from .policy import load_agent_config, load_model
+
+        self.path = path
+        self.config = load_agent_config(path)
+        self.name = name or self.config["name"]
+        self.model = load_model(path)
+        self.options = {k: v for k, v in self.config["env_options"].items()
+                        if k in INTERFACE_OPTIONS}
+        self.estimate = self.config.get("estimate", "identified")
+        self.card = PolicyCard(sensors="encoder, currents (observation)", model=self.estimate,
+                               learned=True, oracle=self.estimate == "exact")
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "ff-delay-comp", **self.options,
+                "estimate": resolve_estimate(self.estimate, knowledge)}
+
+    def reset(self, context: PolicyContext) -> None:
+        pass
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        a, _ = self.model.predict(np.asarray(observation, dtype=np.float32)[None],
+                                  deterministic=True)
+        return np.clip(np.asarray(a, dtype=np.float32)[0], -1.0, 1.0)

@@ -1,0 +1,155 @@
+"""Per-step agents on StepperDamp-v1: the zero residual, the runner's v1 path,
+multi-seed training end to end, reloading and deterministic evaluation."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from stepdamp_env.bench import MotorKnowledge, run_episode
+from stepdamp_env.env import StepperDampV1Env
+from stepdamp_env.params import FeedforwardModel, ParameterError, load_system
+
+pytest.importorskip("sb3_contrib")
+
+from stepdamp_agents import agent_from_path  # noqa: E402
+from stepdamp_agents.per_step import (ALGOS, REFERENCE_TASK, SameEpisodes, StepAgent,  # noqa: E402
+                                      make_training_env, task_options)
+from stepdamp_agents.train import Args, parse_seeds, train_seeds  # noqa: E402
+
+MOTORS = ("patent", "qsh4218-51-10-049")
+SHORT = {"episode_s": 0.1}
+
+
+class ZeroV1:
+    """ff-delay-comp inside StepperDamp-v1 with a zero action (the base alone)."""
+
+    name = "zero-v1"
+    env_id = "StepperDamp-v1"
+
+    def env_options(self, knowledge):
+        return {"base_controller": "ff-delay-comp", "estimate": knowledge.identified,
+                "action_mode": "damping-gains", "agent_hz": 100.0, "history": 4,
+                "context": "visible"}
+
+    def reset(self, context):
+        pass
+
+    def act(self, observation):
+        return np.zeros(8, dtype=np.float32)
+
+
+def _knowledge(system, nominal):
+    exact = FeedforwardModel.from_motor(system.motor)
+    return MotorKnowledge(nominal=nominal, identified=exact, exact=exact)
+
+
+def _plant():
+    nominal = load_system("patent", {"current_noise_a": 0.01, "encoder_cpr": 4000})
+    m = nominal.motor
+    return nominal.replace(J=1.3 * m.J, Kd2=1.2 * m.Kd2, name="patent~test"), nominal
+
+
+def _run(policy, system, nominal, speed=0.5):
+    return run_episode(policy, _knowledge(system, nominal), system, mode="open-loop",
+                       speed_rps=speed, seed=1_000_000, window_s=0.1, settle_s=0.1)
+
+
+def test_nominal_option_sets_units_and_scales_not_the_plant():
+    plant, nominal = _plant()
+    env = StepperDampV1Env(motor=plant, nominal=nominal)
+    own = StepperDampV1Env(motor=plant)
+    ref = StepperDampV1Env(motor=nominal)
+    assert env.task.units == ref.task.units != own.task.units
+    assert env.task.action_scales == ref.task.action_scales
+    env.reset(seed=3)
+    assert env.system is plant
+    with pytest.raises(ParameterError, match="nominal"):
+        StepperDampV1Env(nominal=3.0)
+
+
+def test_v1_runner_zero_action_is_ff_delay_comp():
+    """The runner's v1 path on the true plant with the drive's nominal model: a
+    zero action is the ff-delay-comp baseline (v0 env, its harmonic actions as
+    float32) to 1e-4 relative, and the scalar v1 run is deterministic."""
+    from stepdamp_baselines import make_baseline
+
+    plant, nominal = _plant()
+    a = _run(ZeroV1(), plant, nominal)
+    b = _run(ZeroV1(), plant, nominal)
+    assert a.to_dict() == b.to_dict()
+    ff = _run(make_baseline("ff-delay-comp"), plant, nominal)
+    x, y = (r.metrics["rms_velocity_error_rad_s"] for r in (a, ff))
+    assert abs(x - y) <= 2e-3 * y
+    assert a.simulated_s >= a.window_start_s + a.window_s - 1e-3
+
+
+@pytest.mark.parametrize("algo", ["ars", "ppo", "sac", "td3"])
+def test_zero_residual_reproduces_the_base_bit_for_bit(tmp_path, algo):
+    """A fresh model of every algorithm acts exactly 0 and its leaderboard policy
+    gives the base controller's run bit for bit."""
+    env = make_training_env(MOTORS, 2, 0, task_options(SHORT))
+    kwargs = {"ars": {"n_delta": 2}, "ppo": {"n_steps": 8, "batch_size": 16},
+              "sac": {"learning_starts": 0}, "td3": {"learning_starts": 0}}[algo]
+    policy = "LinearPolicy" if algo == "ars" else "ResidualMlpPolicy"
+    model = ALGOS[algo](policy, env, seed=1, device="cpu", **kwargs)
+    obs = env.reset()
+    act, _ = model.predict(obs, deterministic=True)
+    assert np.all(act == 0.0)
+    path = str(tmp_path / f"{algo}.zip")
+    model.save(path)
+    options = {k: v for k, v in task_options().items()
+               if k in ("action_mode", "agent_hz", "history", "context")}
+    with open(tmp_path / f"{algo}.agent.json", "w") as fh:
+        json.dump({"name": f"{algo}-per-step", "algo": algo, "env_id": "StepperDamp-v1",
+                   "estimate": "identified", "env_options": options,
+                   "training": {"seed": 1}}, fh)
+    agent = agent_from_path(path)
+    assert isinstance(agent, StepAgent) and agent.card.learned
+    plant, nominal = _plant()
+    assert _run(agent, plant, nominal).to_dict() == _run(ZeroV1(), plant, nominal).to_dict()
+
+
+def test_same_episodes_replays_a_block_of_resets():
+    env = SameEpisodes(make_training_env(MOTORS, 2, 100, task_options(SHORT)), 2, 100)
+    a, b, c = env.reset(), env.reset(), env.reset()
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    with pytest.raises(ParameterError, match="training seeds"):
+        make_training_env(MOTORS, 2, 999_999, task_options(SHORT))
+
+
+def test_task_options_and_seeds_are_checked():
+    assert task_options()["action_mode"] == REFERENCE_TASK["action_mode"]
+    with pytest.raises(ParameterError, match="ff-delay-comp"):
+        task_options({"base_controller": "none"})
+    assert parse_seeds("1-3") == (1, 2, 3) and parse_seeds("2,5") == (2, 5)
+    for bad in ("a-b", "1,1", ""):
+        with pytest.raises(ParameterError, match="--seeds"):
+            parse_seeds(bad)
+    with pytest.raises(ParameterError, match="--algo"):
+        train_seeds(Args(algo="ars", env="StepperDampResidual-v0"))
+
+
+def test_multi_seed_training_end_to_end_reloads_deterministically(tmp_path):
+    """`--seeds 1-2` trains two ARS seeds into seed1/ and seed2/; each saved model
+    reloads and evaluates the same twice; the two seeds differ."""
+    out = str(tmp_path / "ars")
+    logs = train_seeds(Args(algo="ars", seeds=(1, 2), out=out, total_timesteps=2_000,
+                            motors=MOTORS, envs_per_motor=2, eval_freq=1_000,
+                            val_motors_per_preset=1, checkpoint_freq=0, progress=False,
+                            tensorboard=False,
+                            extra={"n_delta": 2, "n_top": 2, "env_kwargs": SHORT}))
+    assert [log["config"]["training"]["seed"] for log in logs] == [1, 2]
+    plant, nominal = _plant()
+    results = []
+    for k in (1, 2):
+        path = os.path.join(out, f"seed{k}", "final.zip")
+        assert os.path.isfile(path) and os.path.isfile(os.path.join(out, f"seed{k}", "best.zip"))
+        runs = [_run(agent_from_path(path), plant, nominal).to_dict() for _ in range(2)]
+        assert runs[0] == runs[1]
+        results.append(runs[0])
+        assert logs[k - 1]["evaluations"][0]["step"] == 0
+    assert results[0] != results[1]
