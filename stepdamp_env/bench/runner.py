@@ -115,9 +115,9 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     if policy_env_id(policy) == ENV_ID_V1:
         if pwm_trace:
             raise ValueError("pwm_trace is available for StepperDamp-v0 policies only")
-        env = _V1Run(motor=system, nominal=knowledge.nominal, mode=mode, speed_rps=speed_rps,
-                     accel_rps2=accel_rps2, measure_from_s=start, episode_s=end + 1.0,
-                     **options)
+        env = StepperDampV1Env(motor=system, nominal=knowledge.nominal, mode=mode,
+                               speed_rps=speed_rps, accel_rps2=accel_rps2,
+                               measure_from_s=start, episode_s=end + 1.0, **options)
     else:
         env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps,
                              accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
@@ -148,12 +148,3 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
                          trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
                          simulated_s=float(time_s))
-
-
-
-class _V1Run(StepperDampV1Env):
-    """``StepperDamp-v1`` with v0's ``time_s`` (simulated s of the episode), for the loop above."""
-
-    @property
-    def time_s(self) -> float:
-        return float(self._drives.t[0] * self.task.seconds_per_step)

@@ -387,6 +387,11 @@ class StepperDampV1Env(gym.Env):
         """The held command speed of the current episode (rev/s; 0 before reset)."""
         return float(self._drives.speeds_rps[0])
 
+    @property
+    def time_s(self) -> float:
+        """Simulated time of the current episode (s), as v0's ``time_s``."""
+        return float(self._drives.t[0] * self.task.seconds_per_step)
+
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far (needs ``measure_from_s``)."""
         if self.options.measure_from_s is None:
