@@ -6,14 +6,15 @@ bit for bit; every algorithm here starts at exactly zero (ARS from zero weights,
 sb3-contrib's ``zero_policy``; PPO, SAC and TD3 with the zero last layer of
 :mod:`stepdamp_agents.residual`), so a fresh agent *is* the base controller.
 
-The reference task (:data:`REFERENCE_TASK`): ``damping-gains`` actions (the
-gains of a damping law that the kernel runs every PWM period at 20 kHz), a
-decision every 10 ms (100 Hz), the last 4 decisions' position and velocity
-errors (``history=4``), the visible context (the held speed over the drive
-model's three resonance speeds and its detent model), training motors drawn
-around the four presets (``randomize=True``, seeds below
-``TRAINING_SEED_LIMIT``), open loop, the protocol's sensors and the exact
-detent model (the identified one is within about 1 % of it).
+The reference task (:data:`stepdamp_agents.task.REFERENCE_TASK`):
+``damping-gains`` actions (the gains of a damping law that the kernel runs
+every PWM period at 20 kHz), a decision every 10 ms (100 Hz), the last 4
+decisions' position and velocity errors (``history=4``), the visible context
+(the held speed over the drive model's three resonance speeds and its detent
+model), 1 s episodes, training motors drawn around the four presets
+(``randomize=True``, seeds below ``TRAINING_SEED_LIMIT``), open loop, the
+protocol's sensors and the exact detent model (the identified one is within
+about 1 % of it).
 
 Pieces:
 
@@ -30,7 +31,7 @@ Pieces:
 
 from __future__ import annotations
 
-import copy
+import functools
 from typing import Any, Sequence
 
 import numpy as np
@@ -38,38 +39,15 @@ from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvStepRet
                                                            VecEnvWrapper)
 
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
-from stepdamp_env.bench.protocol import POLICY_OPTIONS_V1, TRAINING_SEED_LIMIT
-from stepdamp_env.env import ENV_ID_V1
+from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.params import ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
 
-__all__ = ["ENV_ID_V1", "REFERENCE_TASK", "task_options", "PresetsVecEnv", "SameEpisodes",
+from .task import ENV_ID_V1, INTERFACE_OPTIONS, REFERENCE_TASK, task_options
+
+__all__ = ["ENV_ID_V1", "REFERENCE_TASK", "INTERFACE_OPTIONS", "task_options", "PresetsVecEnv",
+           "SameEpisodes",
            "make_training_env", "ResidualARS", "ALGOS", "POLICIES", "StepAgent"]
-
-#: ``StepperDamp-v1`` options of the reference training task.
-REFERENCE_TASK: dict[str, Any] = {
-    "randomize": True, "mode": "open-loop", "base_controller": "ff-delay-comp",
-    "estimate": "exact", "action_mode": "damping-gains", "agent_hz": 100.0, "history": 4,
-    "context": "visible", "resonance_prob": 0.75, "episode_s": 0.4,
-    "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
-}
-
-# What the agent's interface is: these options go with the model to the leaderboard.
-INTERFACE_OPTIONS = tuple(k for k in POLICY_OPTIONS_V1
-                          if k not in ("base_controller", "estimate", "current_penalty"))
-
-
-def task_options(env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The reference task updated by ``env_kwargs`` (StepperDamp-v1 options)."""
-    if env_kwargs is not None and not isinstance(env_kwargs, dict):
-        raise ParameterError(f"env_kwargs={env_kwargs!r} must be a mapping of StepperDamp-v1 "
-                             "options")
-    out = {**copy.deepcopy(REFERENCE_TASK), **copy.deepcopy(env_kwargs or {})}
-    if out.get("base_controller") != "ff-delay-comp":
-        raise ParameterError(f"env_kwargs base_controller={out.get('base_controller')!r}: the "
-                             "agents are residuals on 'ff-delay-comp'")
-    return out
-
 
 class PresetsVecEnv(VecEnv):
     """Native ``StepperDamp-v1`` vector envs side by side as one SB3 ``VecEnv``."""
@@ -132,28 +110,34 @@ class PresetsVecEnv(VecEnv):
 
 
 class SameEpisodes(VecEnvWrapper):
-    """Every ``repeat`` consecutive resets start the same episodes (drive k seeded
-    ``seed + block * num_envs + k``, ``block`` counting the groups of resets).
+    """Every reset of one block starts the same episodes: drive k seeded
+    ``seed + (block * num_envs) % window + k``, ``window`` the largest multiple of
+    ``num_envs`` within ``span`` seeds (the blocks cycle through the run's own
+    training seeds).
 
     ARS evaluates its ``2 * n_delta`` candidates one after the other, each from
-    a reset: with ``repeat = 2 * n_delta`` the + and - perturbations of one
-    update meet the same motors, speeds and sensor noise.
+    a reset; :class:`ResidualARS` starts a block per update
+    (:meth:`start_block`), so the + and - perturbations of one update meet the
+    same motors, speeds and sensor noise.
     """
 
-    def __init__(self, venv: VecEnv, repeat: int, seed: int) -> None:
+    def __init__(self, venv: VecEnv, seed: int, span: int = 1000) -> None:
         super().__init__(venv)
-        if repeat < 1:
-            raise ParameterError(f"repeat={repeat!r} is outside its allowed range [1, inf)")
-        self.repeat, self.first_seed, self.resets = int(repeat), int(seed), 0
+        n = self.num_envs
+        if span < n:
+            raise ParameterError(f"span={span!r} is outside its allowed range [num_envs = {n}, "
+                                 "inf)")
+        if not 0 <= seed <= TRAINING_SEED_LIMIT - span:
+            raise ParameterError(f"training seeds must lie in [0, {TRAINING_SEED_LIMIT}); got "
+                                 f"{seed}..{seed + span - 1}")
+        self.first_seed, self.window, self.block = int(seed), (span // n) * n, 0
+
+    def start_block(self, block: int) -> None:
+        """The episodes of the following resets: those of ``block``."""
+        self.block = int(block)
 
     def reset(self) -> np.ndarray:
-        block = self.resets // self.repeat
-        seed = self.first_seed + block * self.num_envs
-        if seed + self.num_envs > TRAINING_SEED_LIMIT:     # wrap within the training seeds
-            seed = self.first_seed + seed % (TRAINING_SEED_LIMIT - self.first_seed
-                                             - self.num_envs)
-        self.venv.seed(seed)
-        self.resets += 1
+        self.venv.seed(self.first_seed + (self.block * self.num_envs) % self.window)
         return self.venv.reset()
 
     def step_wait(self) -> VecEnvStepReturn:
@@ -170,6 +154,7 @@ def make_training_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     return env
 
 
+@functools.cache
 def _residual_ars():
     from sb3_contrib import ARS
 
@@ -181,6 +166,16 @@ def _residual_ars():
             if not kwargs["zero_policy"]:
                 raise ParameterError("zero_policy=False: a residual agent starts at zero")
             super().__init__(policy, env, **kwargs)
+
+        def evaluate_candidates(self, candidate_weights: Any, callback: Any,
+                                async_eval: Any) -> Any:
+            # One block of episodes per update, whatever reset came before.
+            env = self.env
+            while env is not None and not isinstance(env, SameEpisodes):
+                env = getattr(env, "venv", None)
+            if env is not None:
+                env.start_block(self._n_updates)
+            return super().evaluate_candidates(candidate_weights, callback, async_eval)
 
         def _trigger_callback(self, _locals: dict, _globals: dict, callback: Any,
                               n_envs: int) -> None:
@@ -216,9 +211,9 @@ class StepAgent:
 
         self.path = path
         self.config = load_agent_config(path)
-        self.name = name or self.config["name"]
+        self.name = name or self.config.get("name", "per-step-agent")
         self.model = load_model(path)
-        self.options = {k: v for k, v in self.config["env_options"].items()
+        self.options = {k: v for k, v in self.config.get("env_options", {}).items()
                         if k in INTERFACE_OPTIONS}
         self.estimate = self.config.get("estimate", "identified")
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=self.estimate,

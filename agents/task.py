@@ -1,4 +1,8 @@
-"""The residual task: its Gymnasium id and the reference configuration.
+"""The residual tasks: their Gymnasium ids and reference configurations.
+
+``StepperDamp-v1`` with :data:`REFERENCE_TASK` is the per-step agents' task
+(:mod:`stepdamp_agents.per_step`). The rest of this module is the v0 gain
+selector's:
 
 ``gym.make("StepperDampResidual-v0")`` (registered on importing
 :mod:`stepdamp_agents.residual`) is a ``StepperDamp-v0`` drive wrapped as the
@@ -17,9 +21,12 @@ from __future__ import annotations
 import copy
 from typing import Any
 
+from stepdamp_env.bench.protocol import POLICY_OPTIONS_V1
+from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
 
-__all__ = ["RESIDUAL_ENV_ID", "REFERENCE_DRIVE", "REFERENCE_RESIDUAL", "task_kwargs"]
+__all__ = ["RESIDUAL_ENV_ID", "REFERENCE_DRIVE", "REFERENCE_RESIDUAL", "task_kwargs",
+           "ENV_ID_V1", "REFERENCE_TASK", "INTERFACE_OPTIONS", "task_options"]
 
 RESIDUAL_ENV_ID = "StepperDampResidual-v0"
 
@@ -61,3 +68,32 @@ def task_kwargs(env_kwargs: dict[str, Any] | None = None
                              f"StepperDamp-v0 options) and {sorted(REFERENCE_RESIDUAL)}")
     return ({**copy.deepcopy(REFERENCE_DRIVE), **copy.deepcopy(drive)},
             {**REFERENCE_RESIDUAL, **given})
+
+
+#: ``StepperDamp-v1`` options of the per-step agents' reference training task:
+#: damping-gains at 100 Hz on ff-delay-comp, history 4, the visible context,
+#: randomised motors around the presets, 1 s episodes (the ramp's transient
+#: dominates a 0.4 s return), the protocol's sensors, the exact detent model.
+REFERENCE_TASK: dict[str, Any] = {
+    "randomize": True, "mode": "open-loop", "base_controller": "ff-delay-comp",
+    "estimate": "exact", "action_mode": "damping-gains", "agent_hz": 100.0, "history": 4,
+    "context": "visible", "resonance_prob": 0.75, "episode_s": 1.0,
+    "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
+}
+
+# What the agent's interface is: these options go with the model to the leaderboard.
+INTERFACE_OPTIONS = tuple(k for k in POLICY_OPTIONS_V1
+                          if k not in ("base_controller", "estimate", "current_penalty"))
+
+
+def task_options(env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The per-step task :data:`REFERENCE_TASK` updated by ``env_kwargs``
+    (StepperDamp-v1 options); the base controller stays ff-delay-comp."""
+    if env_kwargs is not None and not isinstance(env_kwargs, dict):
+        raise ParameterError(f"env_kwargs={env_kwargs!r} must be a mapping of StepperDamp-v1 "
+                             "options")
+    out = {**copy.deepcopy(REFERENCE_TASK), **copy.deepcopy(env_kwargs or {})}
+    if out.get("base_controller") != "ff-delay-comp":
+        raise ParameterError(f"env_kwargs base_controller={out.get('base_controller')!r}: the "
+                             "agents are residuals on 'ff-delay-comp'")
+    return out

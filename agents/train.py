@@ -53,8 +53,7 @@ from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
-from .per_step import ENV_ID_V1, task_options
-from .task import RESIDUAL_ENV_ID, task_kwargs
+from .task import ENV_ID_V1, RESIDUAL_ENV_ID, task_kwargs, task_options
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
 PRESETS = tuple(preset_names())
@@ -139,7 +138,8 @@ def check_args(args: Args) -> None:
 
 #: Algorithm settings that must be positive integers (SB3 fails late, or not at all, otherwise).
 POSITIVE_INT_KWARGS = ("n_steps", "batch_size", "n_epochs", "buffer_size", "learning_starts",
-                       "train_freq", "gradient_steps", "policy_delay")
+                       "train_freq", "gradient_steps", "policy_delay", "n_delta", "n_top",
+                       "n_eval_episodes")
 
 
 def _check_algo_kwargs(kwargs: dict[str, Any]) -> None:
@@ -313,7 +313,7 @@ class Validator:
 def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
     hyperparams = args.hyperparams or f"agents/hyperparams/{args.algo}.yml"
     if args.env == ENV_ID_V1:
-        from .per_step import INTERFACE_OPTIONS
+        from .task import INTERFACE_OPTIONS
 
         return {"name": args.name or f"{args.algo}-per-step", "algo": args.algo,
                 "env_id": ENV_ID_V1, "base": "ff-delay-comp", "estimate": "identified",
@@ -366,11 +366,13 @@ def train(args: Args) -> dict[str, Any]:
     env_kwargs = dict(sp["env_kwargs"])
     env_kwargs.pop("motor", None)
     algo_kwargs = dict(sp["algo_kwargs"])
+    _check_algo_kwargs(algo_kwargs)
     if v1:
         env = make_training_env(args.motors, per_motor, 1000 * args.seed, env_kwargs)
         if args.algo == "ars":
-            # Every candidate of an update on the same episodes, one per drive.
-            env = SameEpisodes(env, 2 * int(algo_kwargs.get("n_delta", 8)), 1000 * args.seed)
+            # Every candidate of an update on the same episodes, one per drive,
+            # the blocks cycling through this seed's 1000 training seeds.
+            env = SameEpisodes(env, 1000 * args.seed, span=1000)
             algo_kwargs.setdefault("n_eval_episodes", env.num_envs)
     else:
         max_steps = int(env_kwargs.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
@@ -384,7 +386,6 @@ def train(args: Args) -> dict[str, Any]:
         k = env.action_space.shape[0]
         algo_kwargs["action_noise"] = NormalActionNoise(np.zeros(k),
                                                         algo_kwargs["action_noise"][1] * np.ones(k))
-    _check_algo_kwargs(algo_kwargs)
     try:
         model = ALGOS[args.algo](sp["policy"], env, seed=args.seed, device="cpu", verbose=0,
                                  **algo_kwargs)
@@ -392,6 +393,8 @@ def train(args: Args) -> dict[str, Any]:
         first = (str(exc).strip().splitlines() or [""])[0]
         raise ParameterError(f"hyperparameters (YAML or --set) refused by {args.algo}: "
                              f"{first}") from None
+    if v1:
+        env.seed(1000 * args.seed)      # SB3 seeded the env with args.seed: the run's own seeds
     formats = ["csv"]
     if args.tensorboard:
         try:
@@ -544,8 +547,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard log")
     p.add_argument("--name", default=None,
-                   help='policy name in the agent config (default: "<algo>-residual"); on the '
-                        "leaderboard the model shows as NAME@<file stem>, e.g. sac-residual@best")
+                   help='policy name in the agent config (default: "<algo>-per-step" on v1, '
+                        '"<algo>-gain-selector" on v0); on the leaderboard the model shows as '
+                        "NAME@<file stem>, e.g. ars-per-step@best")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="override one YAML hyperparameter (value parsed as YAML); repeatable")
 

@@ -69,6 +69,8 @@ def test_nominal_option_sets_units_and_scales_not_the_plant():
     assert env.system is plant
     with pytest.raises(ParameterError, match="nominal"):
         StepperDampV1Env(nominal=3.0)
+    with pytest.raises(ParameterError, match="^nominal='nosuch'"):
+        StepperDampV1Env(nominal="nosuch")
 
 
 def test_v1_runner_zero_action_is_ff_delay_comp():
@@ -114,11 +116,36 @@ def test_zero_residual_reproduces_the_base_bit_for_bit(tmp_path, algo):
 
 
 def test_same_episodes_replays_a_block_of_resets():
-    env = SameEpisodes(make_training_env(MOTORS, 2, 100, task_options(SHORT)), 2, 100)
-    a, b, c = env.reset(), env.reset(), env.reset()
-    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    env = SameEpisodes(make_training_env(MOTORS, 2, 100, task_options(SHORT)), 100, span=8)
+    a, b = env.reset(), env.reset()
+    env.start_block(1)
+    c = env.reset()
+    env.start_block(2)                  # span 8 = two blocks of 4 drives: block 2 is block 0
+    d = env.reset()
+    assert np.array_equal(a, b) and not np.array_equal(a, c) and np.array_equal(a, d)
     with pytest.raises(ParameterError, match="training seeds"):
         make_training_env(MOTORS, 2, 999_999, task_options(SHORT))
+
+
+def test_ars_candidates_of_one_update_meet_the_same_episodes():
+    """Every reset within an ARS update starts the same episodes (also the first
+    update, after the reset learn() does before it); updates differ."""
+    seen: list[tuple[int, bytes]] = []
+
+    class Spy(SameEpisodes):
+        def reset(self):
+            obs = super().reset()
+            seen.append((self.block, obs.tobytes()))
+            return obs
+
+    env = Spy(make_training_env(MOTORS, 2, 0, task_options(SHORT)), 0, span=64)
+    model = ALGOS["ars"]("LinearPolicy", env, n_delta=2, n_eval_episodes=4, seed=1)
+    model.learn(total_timesteps=2 * 4 * 4 * 10)
+    by_update = {}
+    for block, obs in seen[1:]:             # seen[0]: learn()'s own reset
+        by_update.setdefault(block, set()).add(obs)
+    assert len(by_update) >= 2 and all(len(v) == 1 for v in by_update.values())
+    assert len(set().union(*by_update.values())) == len(by_update)
 
 
 def test_task_options_and_seeds_are_checked():

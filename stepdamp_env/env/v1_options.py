@@ -8,7 +8,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from . import v1_compiled as V
 from .layout import ACTION_NAMES, OBSERVATION_NAMES, PRIVILEGED_NAMES
@@ -153,9 +153,14 @@ class EnvOptionsV1:
             raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
                                  "'nominal'] or a FeedforwardModel")
         check_pair("speed_range_rps", self.speed_range_rps)
-        if self.nominal is not None and not isinstance(self.nominal, (str, SystemParams)):
-            raise ParameterError(f"nominal={self.nominal!r} must be None, a preset name, a motor "
-                                 "file or a SystemParams")
+        if self.nominal is not None:
+            if not isinstance(self.nominal, (str, SystemParams)):
+                raise ParameterError(f"nominal={self.nominal!r} must be None, a preset name, a "
+                                     "motor file or a SystemParams")
+            try:
+                load_system(self.nominal)
+            except ParameterError as exc:
+                raise ParameterError(f"nominal={self.nominal!r}: {exc}") from None
         # Every option v0 shares is checked by v0's own rules.
         self.shared()
         if int(round(self.episode_s * self.agent_hz)) < 1:
