@@ -36,3 +36,19 @@ def test_zoo_trains_and_evaluates_the_documented_command(tmp_path, algo):
     assert evals["results"].shape == (4, 2)               # 4 evaluations of 2 episodes
     assert np.all(np.isfinite(evals["results"]))
     assert np.all(evals["ep_lengths"] == 4)               # 1600 env steps / 400 per gain
+
+
+@pytest.mark.parametrize("algo,package,n_envs", [("ars", "stepdamp_env", 1),
+                                                 ("ppo", "stepdamp_agents.residual", 2)])
+def test_zoo_trains_the_per_step_task(tmp_path, algo, package, n_envs):
+    """The YAMLs' StepperDamp-v1 entries under the zoo (commands in their comments)."""
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "StepperDamp-v1",
+           "--gym-packages", package,
+           "--conf-file", os.path.join(ROOT, "agents", "hyperparams", f"{algo}.yml"),
+           "-n", "400", "--eval-freq", "-1", "--seed", "1", "--log-folder", str(tmp_path / "logs"),
+           "-params", f"n_envs:{n_envs}"] + (["n_steps:100", "batch_size:100"] if algo == "ppo"
+                                             else [])
+    out = subprocess.run(cmd, cwd=tmp_path, env=dict(os.environ, MPLBACKEND="Agg"),
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (tmp_path / "logs" / algo / "StepperDamp-v1_1" / "StepperDamp-v1.zip").is_file()
