@@ -29,6 +29,7 @@ imports neither torch nor SB3 (``stepdamp --help`` stays fast), nor does
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 
@@ -76,6 +77,7 @@ def reference_agent(name: str = "ppo-gain-selector", seed: int | None = None):
     return agent_from_path(seeds[min(seeds) if seed is None else seed])
 
 
+@functools.cache           # the same factory on every registration: registering is idempotent
 def _seed_factory(path: str):
     def make():
         return agent_from_path(path)
