@@ -43,13 +43,14 @@ from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.params import ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
 
+from .residual import WholeVecEnv
 from .task import ENV_ID_V1, INTERFACE_OPTIONS, REFERENCE_TASK, task_options
 
 __all__ = ["ENV_ID_V1", "REFERENCE_TASK", "INTERFACE_OPTIONS", "task_options", "PresetsVecEnv",
            "SameEpisodes",
            "make_training_env", "ResidualARS", "ALGOS", "POLICIES", "StepAgent"]
 
-class PresetsVecEnv(VecEnv):
+class PresetsVecEnv(WholeVecEnv):
     """Native ``StepperDamp-v1`` vector envs side by side as one SB3 ``VecEnv``."""
 
     def __init__(self, parts: Sequence[StepperDampSB3VecEnv]) -> None:
@@ -92,21 +93,6 @@ class PresetsVecEnv(VecEnv):
     def close(self) -> None:
         for p in self.parts:
             p.close()
-
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *args: Any, indices=None, **kwargs: Any) -> list[Any]:
-        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self):
-        return [None for _ in range(self.num_envs)]
 
 
 class SameEpisodes(VecEnvWrapper):

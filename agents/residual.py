@@ -99,7 +99,7 @@ __all__ = ["BASES", "RESIDUAL_ACTIONS", "N_FEATURES", "context_features", "veloc
            "EpisodeConstants", "ResidualSACPolicy", "ResidualTD3Policy",
            "ResidualPPOPolicy", "ResidualSAC", "ResidualTD3", "ResidualPPO", "ALGOS", "POLICIES",
            "register_policy_aliases", "ResidualVecEnv", "HeldFeedbackVecEnv", "feedback_current",
-           "ResidualWrapper", "make_residual_vec_env", "make_residual_env",
+           "ResidualWrapper", "make_residual_vec_env", "make_residual_env", "WholeVecEnv",
            "register_residual_env", "RESIDUAL_ENV_ID"]
 
 BASES = ("patent-ff", "ff-delay-comp")
@@ -306,7 +306,7 @@ def _augmented_space(space: spaces.Box) -> spaces.Box:
                       dtype=np.float32)
 
 
-class _WholeVecEnv(VecEnv):
+class WholeVecEnv(VecEnv):
     """A VecEnv whose attributes and methods are its own, not per drive's."""
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
@@ -325,7 +325,7 @@ class _WholeVecEnv(VecEnv):
         return [None for _ in range(self.num_envs)]
 
 
-class ResidualVecEnv(_WholeVecEnv):
+class ResidualVecEnv(WholeVecEnv):
     """Training env: one or more native StepperDamp vector envs (SB3 adapter)
     side by side, observations with the 13 features, actions residuals on top
     of ``base`` (see the module docstring), rewards times ``reward_scale``.
@@ -447,7 +447,7 @@ def make_residual_vec_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     return env
 
 
-class HeldFeedbackVecEnv(_WholeVecEnv):
+class HeldFeedbackVecEnv(WholeVecEnv):
     """The "feedback" residual: the agent picks a velocity-feedback gain every
     ``hold_steps`` env steps; in between, every env step applies
     :func:`feedback_current` of the latest velocity feature (a damping current).
