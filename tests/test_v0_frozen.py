@@ -51,12 +51,16 @@ def test_v0_quick_leaderboard_is_bit_identical():
 _SPOT: dict = {}
 
 
+# Stored entry name -> the name it is registered under now.
+_CURRENT_NAME = {old: new for new, old in F.RENAMED.items()}
+
+
 def _spot_run(job):
     spec, suite, motor_name, speed_index = job
     motor = _SPOT["motors"][motor_name]
     p = _SPOT["protocol"]
     speed = motor.speeds_rps[speed_index]
-    result = run_episode(resolve_policy(spec).make(), _SPOT["knowledge"][motor_name],
+    result = run_episode(resolve_policy(_CURRENT_NAME.get(spec, spec)).make(), _SPOT["knowledge"][motor_name],
                          motor.system, mode=suite, speed_rps=speed, seed=F.FULL_SPOT_SEED,
                          accel_rps2=p.accel_rps2, window_s=p.window_s)
     return result.record(motor.name, F.FULL_SPOT_SEED, speed, motor.speed_labels[speed_index])
