@@ -50,6 +50,7 @@ __all__ = ["ENV_ID_V1", "REFERENCE_TASK", "INTERFACE_OPTIONS", "task_options", "
            "SameEpisodes",
            "make_training_env", "ResidualARS", "ALGOS", "POLICIES", "StepAgent"]
 
+
 class PresetsVecEnv(WholeVecEnv):
     """Native ``StepperDamp-v1`` vector envs side by side as one SB3 ``VecEnv``."""
 
