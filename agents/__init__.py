@@ -22,7 +22,9 @@ model-based baselines.
 ``reference-agents``) registers every committed entry by its name, with all its
 training seeds (stepdamp-bench v1 pools them; v0 runs seed 1 alone), and a
 loader for models ``stepdamp train`` writes, so ``stepdamp leaderboard --policy
-runs/ars/seed1/best.zip`` runs one with its own options. This package itself
+runs/ars/seed1/best.zip`` runs one with its own options, and ``--policy runs/ars``
+(the output of ``stepdamp train --seeds 1-5 --out runs/ars``) runs its seeds'
+``best.zip`` as one entry that pools them. This package itself
 imports neither torch nor SB3 (``stepdamp --help`` stays fast), nor does
 ``import stepdamp_env``.
 """
@@ -106,6 +108,40 @@ def _load_trained_model(path: str) -> PolicySource:
     return PolicySource(path, name, make, {int(seed): make} if seed is not None else None)
 
 
+_SEED_DIR = re.compile(r"^seed(?P<seed>\d+)$")
+
+
+def _seed_models(path: str) -> dict[int, str]:
+    """Training seed -> ``best.zip`` of the ``seed<K>/`` runs in ``path``
+    (``stepdamp train --seeds K-L --out path``)."""
+    if not os.path.isdir(path):
+        return {}
+    out = {}
+    for sub in os.listdir(path):
+        m = _SEED_DIR.match(sub)
+        model = os.path.join(path, sub, "best.zip")
+        if m and _is_trained_model(model):
+            out[int(m["seed"])] = model
+    return dict(sorted(out.items()))
+
+
+def _load_trained_seeds(path: str) -> PolicySource:
+    """The runs of ``stepdamp train --seeds`` as one learned entry pooling its
+    seeds' ``best.zip``, named ``<config name>@<directory name>``."""
+    from .policy import load_agent_config
+
+    seeds = _seed_models(path)
+    names = {load_agent_config(p).get("name", "agent") for p in seeds.values()}
+    if len(names) != 1:
+        raise ValueError(f"the seeds' models have different names {sorted(names)}")
+    name = f"{names.pop()}@{os.path.basename(os.path.normpath(path))}"
+
+    def factory(model: str):
+        return lambda: agent_from_path(model, name=name)
+    makers = {k: factory(p) for k, p in seeds.items()}
+    return PolicySource(path, name, makers[min(makers)], makers)
+
+
 def register_policies() -> None:
     """Register the committed reference agents and the trained-model loader (idempotent)."""
     for name in reference_names():
@@ -117,3 +153,4 @@ def register_policies() -> None:
                         description=f"committed {algo} {what}, seeds {sorted(seeds)}",
                         training_seeds={k: _seed_factory(p) for k, p in seeds.items()})
     register_loader("stepdamp-train", _is_trained_model, _load_trained_model)
+    register_loader("stepdamp-train-seeds", lambda p: bool(_seed_models(p)), _load_trained_seeds)

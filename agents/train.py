@@ -563,9 +563,15 @@ def args_from_namespace(ns: argparse.Namespace) -> Args:
         if not sep or not key.strip():
             raise ParameterError(f"--set {item!r}: expected KEY=VALUE")
         try:
-            extra[key.strip()] = yaml.safe_load(value)
+            parsed = yaml.safe_load(value)
         except yaml.YAMLError:
             raise ParameterError(f"--set {item!r}: the value is not valid YAML") from None
+        if isinstance(parsed, str):
+            try:        # YAML 1.1 reads 1e-4 (no dot) as a string
+                parsed = float(parsed)
+            except ValueError:
+                pass
+        extra[key.strip()] = parsed
     seeds = parse_seeds(ns.seeds) if ns.seeds else ()
     return Args(algo=ns.algo, seed=ns.seed, seeds=seeds, env=ns.env, out=ns.out,
                 total_timesteps=ns.total_timesteps,

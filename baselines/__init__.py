@@ -17,6 +17,9 @@
                           a calibration rig (US 5,659,234, Prusa's phase stepping)
 ``repetitive-control``    the feedforward learned online per electrical period from
                           the encoder (repetitive / iterative learning control)
+``tuned-constant-gain``   ``ff-delay-comp`` plus StepperDamp-v1's damping law at one
+                          constant gain tuned on training motors (what the per-step
+                          agents act on)
 ``oracle-floor``          exact cancellation and state feedback on the true state
                           (oracle): how far the ripple can fall on this drive
 ========================  ==========================================================
@@ -31,17 +34,19 @@ from stepdamp_env.bench.policy import Policy, ZeroAction, reference_policy
 from stepdamp_env.bench.protocol import REFERENCE_POLICY
 from stepdamp_env.bench.registry import register_policy
 
-from .feedback import OracleFloor, SensorlessDamping, VelocityFeedback
+from .feedback import OracleFloor, SensorlessDamping, TunedConstantGain, VelocityFeedback
 from .harmonic import AdaptiveFF, DelayCompensatedFF
 from .learning import CalibratedTable, RepetitiveControl
 
 __all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
-           "CalibratedTable", "RepetitiveControl", "OracleFloor", "BASELINE_NAMES",
+           "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "OracleFloor",
+           "BASELINE_NAMES",
            "make_baseline", "register_policies"]
 
 BASELINE_NAMES = (REFERENCE_POLICY, "patent-ff-oracle", "patent-ff-identified",
                   "ff-delay-comp", "adaptive-ff", "velocity-feedback", "sensorless-damping",
-                  "calibrated-table", "repetitive-control", "oracle-floor")
+                  "calibrated-table", "repetitive-control", "tuned-constant-gain",
+                  "oracle-floor")
 
 _DESCRIPTIONS = {
     "patent-ff-oracle": "patent feedforward, exact model (oracle)",
@@ -52,12 +57,14 @@ _DESCRIPTIONS = {
     "sensorless-damping": "ff-delay-comp plus back-EMF damping (no encoder)",
     "calibrated-table": "feedforward table calibrated on a rig (golden-section search)",
     "repetitive-control": "feedforward learned online per electrical period (encoder)",
+    "tuned-constant-gain": "ff-delay-comp plus v1's damping law at a constant gain tuned on "
+                           "training motors",
     "oracle-floor": "exact cancellation and true-state feedback (oracle floor)",
 }
 
 _CLASSES = {"velocity-feedback": VelocityFeedback, "sensorless-damping": SensorlessDamping,
             "calibrated-table": CalibratedTable, "repetitive-control": RepetitiveControl,
-            "oracle-floor": OracleFloor}
+            "tuned-constant-gain": TunedConstantGain, "oracle-floor": OracleFloor}
 
 
 def make_baseline(name: str) -> Policy:

@@ -24,17 +24,22 @@ import numpy as np
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        estimate_model)
 from stepdamp_env.env.layout import OBS, observation_names
+from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import SystemParams
 from stepdamp_env.response import current_path, phasors, torque_paths, velocity_filter
 
 from .harmonic import DelayCompensatedFF, harmonic_actions
 
-__all__ = ["VelocityFeedback", "SensorlessDamping", "OracleFloor", "design_gains",
+__all__ = ["VelocityFeedback", "SensorlessDamping", "OracleFloor", "TunedConstantGain",
+           "design_gains",
            "hold_response", "DEFAULT_ZETA_ADD", "DEFAULT_SENSORLESS_ZETA_ADD"]
 
 # Added damping ratios, chosen on training motors (scripts/ladder_tuning.py);
 # the rule then sets each motor's gains from its nominal model.
 DEFAULT_ZETA_ADD = 0.03
+# v1's damping-gains law at one constant kv: the best mean held reward over a
+# grid on 64 training motors at their resonances (scripts/v1_spread.py).
+DEFAULT_CONSTANT_KV = 0.5
 DEFAULT_FILTER_HZ = 30.0
 DEFAULT_SENSORLESS_ZETA_ADD = 0.05
 DEFAULT_SENSORLESS_FILTER_HZ = 30.0
@@ -286,4 +291,43 @@ class OracleFloor(_FeedbackOnFF):
         a, b = self.gains
         self._action[6] = np.clip((a * e_w + b * (e_theta - self._lp)) * self._to_action,
                                   -1.0, 1.0)
+        return self._action
+
+
+class TunedConstantGain:
+    """``tuned-constant-gain``: StepperDamp-v1's damping law on ``ff-delay-comp``
+    at one constant gain, what the per-step agents must beat to have learned
+    more than a number.
+
+    The law (``action_mode="damping-gains"``, run by the kernel every PWM
+    period from the drive's own samples) adds ``kv*Kv*e_w``, ``e_w`` the drive's
+    velocity-error estimate, ``Kv = 2*J*wn/Km`` of the nominal model (so kv = 1
+    adds a damping ratio of 0.5 to the datasheet rotor); every other gain is 0.
+    Setting: ``kv`` = 0.5, the best mean held reward over the grid 0.05-1.0 on
+    64 training motors at their resonances (``scripts/v1_spread.py``); the
+    per-step agents act on the same law with the same options. Senses the
+    encoder (velocity estimate) and currents; model: nominal (law units),
+    identified (feedforward).
+    """
+
+    env_id = ENV_ID_V1
+    card = PolicyCard(sensors="encoder (velocity estimate), currents",
+                      model="nominal (law), identified (feedforward)")
+
+    def __init__(self, kv: float = DEFAULT_CONSTANT_KV) -> None:
+        if not (math.isfinite(kv) and -1.0 <= kv <= 1.0):
+            raise ValueError(f"kv={kv!r} is outside its allowed range [-1, 1]")
+        self.name = "tuned-constant-gain"
+        self.kv = float(kv)
+        self._action = np.zeros(8, dtype=np.float32)
+        self._action[0] = self.kv
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "ff-delay-comp", "estimate": knowledge.identified,
+                "action_mode": "damping-gains", "agent_hz": 100.0}
+
+    def reset(self, context: PolicyContext) -> None:
+        pass
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action

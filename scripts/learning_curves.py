@@ -40,11 +40,12 @@ def main() -> None:
     ap.add_argument("--out", default="docs/figures/learning_curves.png")
     a = ap.parse_args()
     data = curves()
+    # Log axis: a run that blows up (TD3: 200x its start) and one that halves share a panel row.
     fig, axes = plt.subplots(1, len(data), figsize=(4.2 * len(data), 3.4), squeeze=False)
     for ax, (name, seeds) in zip(axes[0], sorted(data.items())):
         for seed, pts in sorted(seeds.items()):
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
-                    label=f"seed {seed}")
+            ax.semilogy([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
+                        label=f"seed {seed}")
             best = min(p[1] for p in pts)
             print(f"{name:20s} seed {seed}: " + " ".join(f"{p[1]:.4f}" for p in pts)
                   + f"  (best {best:.4f})")
@@ -53,6 +54,7 @@ def main() -> None:
         ax.set_title(name)
         ax.set_xlabel("agent steps")
         ax.set_ylabel("validation headline IQM (ripple / undamped)")
+        ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
     os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)

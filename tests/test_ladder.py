@@ -22,7 +22,7 @@ from stepdamp_env.response import phasors
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 
 LADDER = ("velocity-feedback", "sensorless-damping", "calibrated-table",
-          "repetitive-control", "oracle-floor")
+          "repetitive-control", "tuned-constant-gain", "oracle-floor")
 
 
 def test_every_ladder_entry_is_registered_with_a_card():
@@ -84,6 +84,21 @@ def test_design_gains_solve_the_two_real_equations():
     assert abs(a * complex(0.9, -0.2) + b * complex(0.1, -1.1) - complex(0.3, -0.7)) < 1e-12
     # A hold of one PWM period is the period's delay.
     assert abs(hold_response(100.0, 20000.0, 20000.0) - cmath.exp(-1j * 100.0 / 20000.0)) < 1e-12
+
+
+def test_tuned_constant_gain_is_v1_law_at_kv_and_checks_it():
+    from stepdamp_baselines import TunedConstantGain
+    from stepdamp_env.env import StepperDampV1Env
+
+    policy = make_baseline("tuned-constant-gain")
+    assert policy.env_id == "StepperDamp-v1"
+    env = StepperDampV1Env(**{k: v for k, v in policy.env_options(
+        MotorKnowledge(get_preset("patent"), None, None)).items() if k != "estimate"})
+    assert env.action_space.contains(policy.act(None))
+    assert policy.act(None)[0] == 0.5 and not policy.act(None)[1:].any()
+    for bad in (1.5, float("nan")):
+        with pytest.raises(ValueError, match="^kv="):
+            TunedConstantGain(bad)
 
 
 def test_golden_section_finds_a_minimum_and_never_ends_worse_than_its_start():
@@ -167,6 +182,7 @@ def test_ladder_orderings_on_the_quick_protocol(quick_board):
     best = min(v for k, v in h.items() if k not in ("oracle-floor", "none"))
     assert h["oracle-floor"] <= 0.8 * best
     assert h["velocity-feedback"] < h["ff-delay-comp"]
+    assert h["tuned-constant-gain"] < h["ff-delay-comp"]
     assert h["sensorless-damping"] < h["ff-delay-comp"]
     assert h["calibrated-table"] < h["patent-ff-identified"]
     assert h["repetitive-control"] < h["patent-ff-identified"]

@@ -235,3 +235,15 @@ def test_summaries_show_four_digits_and_no_interval_they_do_not_have():
         "0.01781 [0.01750, 0.01804]"
     # --quick: one run per motor, the stratified interval has no width.
     assert format_summary({"iqm": 0.25, "ci95": [0.25, 0.25]}) == "0.2500 (no interval)"
+
+
+def test_policy_styles_are_distinct_on_a_full_board():
+    # Every registered entry (and a few more learned ones) gets its own colour,
+    # so no two lines of a performance profile look alike.
+    from stepdamp_env.bench.registry import default_policy_names
+    from stepdamp_env.bench.report import policy_styles
+
+    names = list(default_policy_names()) + ["td3-per-step", "sac-per-step"]
+    styles = policy_styles(names)
+    colours = [styles[n][0] for n in names]
+    assert len(set(colours)) == len(names)

@@ -89,6 +89,31 @@ def test_v1_runner_zero_action_is_ff_delay_comp():
     assert a.simulated_s >= a.window_start_s + a.window_s - 1e-3
 
 
+def test_v1_runner_pwm_trace_records_every_period_and_changes_nothing():
+    """With ``pwm_trace`` the v1 path hands ``on_step`` every PWM period of each
+    step (contiguous in time, one period apart) and scores the run the same."""
+    from stepdamp_env import kernel as K
+
+    plant, nominal = _plant()
+    knowledge = _knowledge(plant, nominal)
+
+    def grab(env, obs, start):
+        return env.step_trace
+
+    def run(trace):
+        return run_episode(ZeroV1(), knowledge, plant, mode="open-loop", speed_rps=0.5,
+                           seed=1_000_000, window_s=0.1, settle_s=0.1, on_step=grab,
+                           pwm_trace=trace)
+
+    plain, traced = run(False), run(True)
+    assert plain.to_dict() == traced.to_dict()
+    assert all(t.shape[0] == 0 for t in plain.trace)
+    rows = np.concatenate(traced.trace)
+    period = 1.0 / plant.drive.pwm_hz
+    assert rows.shape[0] == traced.steps * round(0.01 / period)
+    assert np.allclose(np.diff(rows[:, K.T_T]), period, rtol=1e-6)
+
+
 @pytest.mark.parametrize("algo", ["ars", "ppo", "sac", "td3"])
 def test_zero_residual_reproduces_the_base_bit_for_bit(tmp_path, algo):
     """A fresh model of every algorithm acts exactly 0 and its leaderboard policy
@@ -180,3 +205,10 @@ def test_multi_seed_training_end_to_end_reloads_deterministically(tmp_path):
         results.append(runs[0])
         assert logs[k - 1]["evaluations"][0]["step"] == 0
     assert results[0] != results[1]
+    # The run directory is one leaderboard entry pooling the seeds' best.zip.
+    from stepdamp_env.bench.registry import resolve_policy
+
+    source = resolve_policy(out)
+    assert source.name == "ars-per-step@ars"
+    assert sorted(source.training_seeds) == [1, 2]
+    assert source.training_seeds[2]().path == os.path.join(out, "seed2", "best.zip")

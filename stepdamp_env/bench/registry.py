@@ -252,11 +252,11 @@ def _resolve(spec: str) -> PolicySource:
     registry = registered_policies()
     if spec in registry:
         return PolicySource(spec, spec, registry[spec].make, registry[spec].training_seeds)
-    if os.path.isfile(spec):
+    if os.path.exists(spec):
         for _, accepts, load in _LOADERS:
             if accepts(spec):
                 return load(spec)
-        if spec.endswith(".zip"):
+        if spec.endswith(".zip") and os.path.isfile(spec):
             return _load_sb3_zip(spec)
     elif spec.endswith(".zip"):
         raise ParameterError(f"policy file {spec!r} does not exist")

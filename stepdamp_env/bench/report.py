@@ -492,6 +492,7 @@ def plot_performance_profile(board: Mapping[str, Any], path: str) -> None:
             colour, marker = styles[e["name"]]
             frac = np.searchsorted(v, taus, side="right") / max(v.size, 1)
             ax.semilogx(taus, frac, color=colour, lw=1.3, ls="--" if e.get("oracle") else "-",
+                        marker=marker, ms=3, markevery=(names.index(e["name"]) * 7 % 30, 30),
                         label=f"{e['name']} ({e['headline']['iqm']:.3g})")
         ax.set_title(f"{suite}, {split}", fontsize=9, loc="left")
         ax.set_xlabel("headline tau (ripple over undamped)")

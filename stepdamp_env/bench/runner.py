@@ -113,11 +113,10 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     render = "rgb_array" if pwm_trace else None
     env: Any
     if policy_env_id(policy) == ENV_ID_V1:
-        if pwm_trace:
-            raise ValueError("pwm_trace is available for StepperDamp-v0 policies only")
         env = StepperDampV1Env(motor=system, nominal=knowledge.nominal, mode=mode,
                                speed_rps=speed_rps, accel_rps2=accel_rps2,
-                               measure_from_s=start, episode_s=end + 1.0, **options)
+                               measure_from_s=start, episode_s=end + 1.0, render_mode=render,
+                               **options)
     else:
         env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps,
                              accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,

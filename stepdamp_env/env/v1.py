@@ -392,6 +392,13 @@ class StepperDampV1Env(gym.Env):
         """Simulated time of the current episode (s), as v0's ``time_s``."""
         return float(self._drives.t[0] * self.task.seconds_per_step)
 
+    @property
+    def step_trace(self) -> np.ndarray:
+        """The PWM periods of the last step, one row each (columns ``kernel.T_*``,
+        as v0's ``step_trace``). Recorded only with a ``render_mode``; otherwise
+        an empty (0, N_TRACE) array."""
+        return self._trace.copy()
+
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far (needs ``measure_from_s``)."""
         if self.options.measure_from_s is None:
