@@ -337,6 +337,27 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
                          "wrapper_kwargs": wk, "hyperparams": hyperparams}}
 
 
+def set_start_action(model: Any, action: Any, algo: str) -> None:
+    """ARS with a linear policy with bias: start from the constant action
+    ``action`` (its bias; weights stay zero) instead of zero, e.g. a constant
+    law tuned on training motors. Hyperparameter ``start_action``."""
+    import torch
+
+    policy = getattr(model, "policy", None)
+    layers = [m for m in getattr(policy, "action_net", []) if isinstance(m, torch.nn.Linear)]
+    k = int(np.prod(model.action_space.shape))
+    if algo != "ars" or len(layers) != 1 or layers[0].bias is None:
+        raise ParameterError("hyperparameter start_action needs --algo ars with a LinearPolicy "
+                             "with_bias=True")
+    a = np.asarray(action, dtype=float) if isinstance(action, (list, tuple)) else None
+    if a is None or a.shape != (k,) or not np.all(np.isfinite(a)) or np.abs(a).max() > 1.0:
+        raise ParameterError(f"hyperparameter start_action={action!r} must be a list of {k} "
+                             "numbers in [-1, 1]")
+    with torch.no_grad():
+        layers[0].bias.copy_(torch.as_tensor(a, dtype=layers[0].bias.dtype))
+    model.weights = torch.nn.utils.parameters_to_vector(policy.parameters()).detach()
+
+
 def save_agent(model: Any, path_zip: str, config: dict[str, Any]) -> None:
     model.save(path_zip)
     with open(os.path.splitext(path_zip)[0] + ".agent.json", "w", encoding="utf-8") as fh:
@@ -380,6 +401,7 @@ def train(args: Args) -> dict[str, Any]:
                                     max_episode_steps=max_steps, **wk, **env_kwargs)
     os.makedirs(args.out, exist_ok=True)
     config = _agent_config(args, sp)
+    start_action = algo_kwargs.pop("start_action", None)
     if isinstance(algo_kwargs.get("action_noise"), tuple):
         from stable_baselines3.common.noise import NormalActionNoise
 
@@ -393,6 +415,8 @@ def train(args: Args) -> dict[str, Any]:
         first = (str(exc).strip().splitlines() or [""])[0]
         raise ParameterError(f"hyperparameters (YAML or --set) refused by {args.algo}: "
                              f"{first}") from None
+    if start_action is not None:
+        set_start_action(model, start_action, args.algo)
     if v1:
         env.seed(1000 * args.seed)      # SB3 seeded the env with args.seed: the run's own seeds
     formats = ["csv"]

@@ -212,3 +212,25 @@ def test_multi_seed_training_end_to_end_reloads_deterministically(tmp_path):
     assert source.name == "ars-per-step@ars"
     assert sorted(source.training_seeds) == [1, 2]
     assert source.training_seeds[2]().path == os.path.join(out, "seed2", "best.zip")
+
+
+def test_ars_start_action_is_the_policy_at_step_zero():
+    """``start_action`` puts a constant law into ARS's bias: the fresh policy acts
+    it on any observation; anything but ARS with a bias, or a wrong action, is a
+    one-line error naming it."""
+    from stepdamp_agents.train import set_start_action
+
+    env = make_training_env(MOTORS, 1, 0, task_options(SHORT))
+    model = ALGOS["ars"]("LinearPolicy", env, policy_kwargs={"with_bias": True}, n_delta=2,
+                         n_top=2, seed=1, device="cpu")
+    start = [0.5, 0, 0, 0, 0, 0, 0, 0]
+    set_start_action(model, start, "ars")
+    obs = env.reset()
+    a, _ = model.predict(obs, deterministic=True)
+    assert np.allclose(a, np.tile(start, (len(obs), 1)))
+    assert model.weights.count_nonzero() == 1
+    for bad in ([0.5], [2.0] + [0] * 7, "x"):
+        with pytest.raises(ParameterError, match="^hyperparameter start_action"):
+            set_start_action(model, bad, "ars")
+    with pytest.raises(ParameterError, match="^hyperparameter start_action"):
+        set_start_action(model, start, "ppo")
