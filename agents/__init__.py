@@ -14,8 +14,9 @@ model-based baselines.
 * ``hyperparams/{ars,ppo,sac,td3}.yml``: rl-baselines3-zoo hyperparameters, keyed
   by ``StepperDamp-v1`` (and ``StepperDampResidual-v0`` for the gain selector);
 * ``reference/``: the committed models, ``<entry>.seed<K>.zip`` with their
-  ``.agent.json`` configs and training logs: ``ars-per-step``, ``ppo-per-step``
-  and ``ppo-gain-selector`` (v0's agent, named ``ppo-residual``
+  ``.agent.json`` configs and training logs: ``ars-per-step``,
+  ``ars-per-step-25hz``, ``ppo-per-step``, ``td3-per-step`` and
+  ``ppo-gain-selector`` (v0's agent, named ``ppo-residual``
   up to 0.5.0: one PPO decision, a damping gain, every 0.1 s).
 
 :func:`register_policies` (the ``stepdamp.policies`` entry point

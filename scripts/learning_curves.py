@@ -41,8 +41,12 @@ def main() -> None:
     a = ap.parse_args()
     data = curves()
     # Log axis: a run that blows up (TD3: 200x its start) and one that halves share a panel row.
-    fig, axes = plt.subplots(1, len(data), figsize=(4.2 * len(data), 3.4), squeeze=False)
-    for ax, (name, seeds) in zip(axes[0], sorted(data.items())):
+    cols = min(3, len(data))
+    rows = -(-len(data) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
+    for ax in axes.ravel()[len(data):]:
+        ax.set_visible(False)
+    for ax, (name, seeds) in zip(axes.ravel(), sorted(data.items())):
         for seed, pts in sorted(seeds.items()):
             ax.semilogy([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
                         label=f"seed {seed}")
