@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 BASE = "ff-delay-comp"
-DEFAULT = ("ars-per-step", "ppo-per-step", "td3-per-step", "ppo-gain-selector",
+DEFAULT = ("ars-per-step-25hz", "ars-per-step", "ppo-per-step", "td3-per-step", "ppo-gain-selector",
            "tuned-constant-gain", "velocity-feedback")
 
 

@@ -18,10 +18,11 @@ __all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "DAMPING_STYLES", "finish_ripple_
 
 #: Colours and markers of policies in every figure (Tableau 10 without grey, which
 #: is kept for annotations; black is the undamped reference).
-# tab10, then six more that stay apart from it: a full board has more than ten entries.
+# tab10, then ten more that stay apart from it: a full board has more than ten entries.
 POLICY_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
                   "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray",
-                  "navy", "gold", "teal", "magenta", "lime", "maroon")
+                  "navy", "gold", "teal", "magenta", "lime", "maroon", "indigo",
+                  "coral", "yellowgreen", "slategray")
 POLICY_MARKERS = ("s", "^", "D", "v", "P", "X", "<", ">", "*")
 #: The simulation core's damping settings, styled like the policies of the same name.
 DAMPING_STYLES = {"none": ("black", "o"), "patent-ff": (POLICY_COLOURS[0], POLICY_MARKERS[0])}

@@ -243,7 +243,7 @@ def test_policy_styles_are_distinct_on_a_full_board():
     from stepdamp_env.bench.registry import default_policy_names
     from stepdamp_env.bench.report import policy_styles
 
-    names = list(default_policy_names()) + ["td3-per-step", "sac-per-step"]
+    names = list(dict.fromkeys([*default_policy_names(), "sac-per-step", "my-agent@best"]))
     styles = policy_styles(names)
     colours = [styles[n][0] for n in names]
     assert len(set(colours)) == len(names)
