@@ -6,8 +6,8 @@ the leaderboard runs each directory as one entry pooling its seeds::
 
     stepdamp train --algo ars --seeds 1-3 --out runs/abl/history0 --set "env_kwargs={history: 0}"
     ...
-    stepdamp leaderboard --suite open-loop --entries ff-delay-comp velocity-feedback \\
-        --policy runs/abl/* --out results/ablations
+    stepdamp leaderboard --suite open-loop --entries ff-delay-comp --policy runs/abl/* \\
+        --out results/ablations
     python scripts/ablations.py results/ablations runs/abl/*
 
 Prints a Markdown table: per variant its task change, training seconds per
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         board = json.load(fh)
     entries = {(e["name"], e["split"]): e for e in board["entries"]
                if e["suite"] == "open-loop"}
-    splits = [s for s in board["protocol"]["splits"]]
+    splits = list(board["protocol"]["splits"])
     head = ["variant", "task change", "train s / seed", "best validation IQM per seed"]
     for s in splits:
         head += [f"{s} IQM", f"{s} P over ff-delay-comp", f"{s} lost runs"]

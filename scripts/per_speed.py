@@ -19,8 +19,8 @@ import os
 import numpy as np
 
 BASE = "ff-delay-comp"
-DEFAULT = ("ars-per-step-25hz", "ars-per-step", "ppo-per-step", "td3-per-step", "ppo-gain-selector",
-           "tuned-constant-gain", "velocity-feedback")
+DEFAULT = ("ars-per-step-25hz", "ars-per-step", "ppo-per-step", "td3-per-step",
+           "ppo-gain-selector", "tuned-constant-gain", "velocity-feedback")
 
 
 def main() -> None:

@@ -44,3 +44,15 @@ def test_overview_figure_is_the_committed_one():
     assert "](docs/figures/overview.png)" in README
     with open(os.path.join(ROOT, "docs", "figures", "overview.png"), "rb") as fh:
         assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_per_speed_figures_in_the_readme_come_from_the_committed_board():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "per_speed.py"), RESULTS],
+                         capture_output=True, text=True, check=True).stdout
+    # ars-per-step's medians as the README quotes them (h1, h2, h4, off), both splits.
+    assert "| ars-per-step | 0.77; 0.74 | 0.34; 0.95 | 0.64; 0.90 | 0.88; 0.60 |" in out
+    assert "| ars-per-step | 0.95; 0.56 | 0.45; 0.82 | 0.56; 0.68 | 1.57; 0.24 |" in out
+    assert "(ARS 0.34\nand 0.64 inside the training range, 0.45 and 0.56 outside)" in README
