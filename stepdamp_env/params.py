@@ -54,6 +54,7 @@ __all__ = [
     "preset_names",
     "get_preset",
     "load_system",
+    "read_json_file",
     "parse_set_overrides",
     "predicted_resonances",
     "DETENT_HARMONICS",
@@ -517,6 +518,19 @@ class FeedforwardModel:
                 self.Kd4, 0.0)
 
 
+def read_json_file(path: str, label: str) -> Any:
+    """The JSON in ``path``; invalid JSON or an unreadable file is a one-line
+    ``ParameterError`` naming it as ``label`` (e.g. "motor file", "--motors")."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{label} {path!r} is not valid JSON: {exc}") from None
+    except OSError as exc:
+        raise ParameterError(f"{label} {path!r} cannot be read: {exc.strerror or exc}") \
+            from None
+
+
 def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
                 overrides: Mapping[str, Any] | None = None) -> SystemParams:
     """Resolve a preset name, a motor JSON file or a mapping to a SystemParams.
@@ -539,15 +553,7 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
                 raise ParameterError(f"motor file {text!r} is a directory")
             if not os.path.isfile(text):
                 raise ParameterError(f"motor file {text!r} does not exist")
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    values = json.load(fh)
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise ParameterError(f"motor file {text!r} is not valid JSON: {exc}"
-                                     ) from None
-            except OSError as exc:
-                raise ParameterError(f"motor file {text!r} cannot be read: "
-                                     f"{exc.strerror or exc}") from None
+            values = read_json_file(text, "motor file")
             if not isinstance(values, dict):
                 raise ParameterError(f"motor file {text!r} must hold a JSON object")
             values.setdefault("name", os.path.splitext(os.path.basename(text))[0])

@@ -144,13 +144,12 @@ numbers are not comparable with the full protocol's.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system
+from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system, read_json_file
 from .protocol import (FAILURE_RATIO, PHASE_FIELDS, POLICY_OPTIONS, PROTOCOL_NAME, SUITES,
                        TRAINING_SEED_LIMIT, check_suites_and_seeds)
 
@@ -337,11 +336,7 @@ def load_motors_file(path: str, protocol: ProtocolV1) -> tuple[SystemParams, ...
     set are the protocol's. Names must be unique."""
     if not os.path.isfile(path):
         raise ParameterError(f"--motors {path!r} is not a file")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"--motors {path!r} is not valid JSON: {exc}") from None
+    data = read_json_file(path, "--motors")
     if isinstance(data, dict):
         data = data.get("motors")
     if not isinstance(data, list) or not data:
