@@ -18,13 +18,14 @@ from __future__ import annotations
 import json
 import math
 import os
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
-__all__ = ["ResidualAgent", "load_agent_config", "load_model", "forget_model", "agent_config_path"]
+__all__ = ["ResidualAgent", "load_agent_config", "load_model", "forget_model", "agent_config_path",
+           "predict_rows"]
 
 _MODELS: dict[str, Any] = {}
 
@@ -54,6 +55,20 @@ def load_model(path: str) -> Any:
         custom = {"policy_class": POLICIES[algo]} if algo in POLICIES else {}
         _MODELS[path] = ALGOS[algo].load(path, device="cpu", custom_objects=custom)
     return _MODELS[path]
+
+
+def predict_rows(model: Any, observations: np.ndarray) -> np.ndarray:
+    """``model.predict(x[None], deterministic=True)[0][0]`` of each row x, stacked.
+
+    Each row goes through the network as a batch of its own: a batch of many
+    rows would change the matrix kernels' summation order and with it the
+    last bits of the actions, and the leaderboard's batched runs must equal
+    the scalar ones bit for bit.
+    """
+    policy = model.policy
+    x = np.asarray(observations, dtype=np.float32)
+    return np.stack([policy.predict(x[k:k + 1], deterministic=True)[0][0]
+                     for k in range(len(x))])
 
 
 def forget_model(path: str) -> None:
@@ -100,6 +115,44 @@ class ResidualAgent:
         self._constants.set(0, context.knowledge.nominal, est, context.mode, context.speed_rps,
                             context.action_scale, self.base)
         self._step, self._gain, self._sq = 0, np.zeros(1), 0.0
+
+    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): the
+    # same arithmetic as reset/act, row by row (all rows step together, so they
+    # share the step count).
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        from .residual import EpisodeConstants
+
+        n = len(contexts)
+        self._rows = EpisodeConstants(n)
+        for i, context in enumerate(contexts):
+            est = context.estimate if context.estimate is not None else context.knowledge.exact
+            self._rows.set(i, context.knowledge.nominal, est, context.mode, context.speed_rps,
+                           context.action_scale, self.base)
+        self._rows_step, self._rows_gain, self._rows_sq = 0, np.zeros(n), np.zeros(n)
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        obs = np.asarray(observations, dtype=np.float32)
+        x = self._rows.augment(obs, rows)
+        if self.residual_action != "feedback":
+            r = np.asarray(predict_rows(self.model, x), dtype=np.float64)
+            return self._rows.env_action(r, self.residual_scale, self.residual_action,
+                                         rows).astype(np.float32)
+        from .residual import feedback_current
+
+        vel = x[:, obs.shape[1]].astype(np.float64)
+        if self._rows_step > 0:
+            self._rows_sq[rows] += vel * vel
+        if self._rows_step % self.hold_steps == 0:
+            rms = (np.sqrt(self._rows_sq[rows] / self.hold_steps) if self._rows_step > 0
+                   else np.zeros(len(rows)))
+            x_in = np.concatenate([x, rms.astype(np.float32)[:, None]], axis=1)
+            self._rows_gain[rows] = np.asarray(predict_rows(self.model, x_in),
+                                               dtype=np.float64).reshape(-1)
+            self._rows_sq[rows] = 0.0
+        self._rows_step += 1
+        current = feedback_current(self._rows_gain[rows], vel, self.feedback_gain)
+        return self._rows.env_action(current[:, None], self.residual_scale, "current",
+                                     rows).astype(np.float32)
 
     def residual(self, observation: np.ndarray) -> np.ndarray:
         x = self._constants.augment(np.asarray(observation, dtype=np.float32)[None])

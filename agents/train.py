@@ -83,6 +83,8 @@ class Args:
     name: str | None = None                 # policy name (default "<algo>-per-step" on v1,
                                             # "<algo>-gain-selector" on v0)
     extra: dict[str, Any] = field(default_factory=dict)   # YAML overrides (algo kwargs)
+    backend: str = "local"                  # --seeds: one after the other, or "ray" (tasks)
+    ray_address: str | None = None          # Ray cluster (default: a local Ray)
 
 
 # ---------------------------------------------------------------------------
@@ -121,6 +123,10 @@ def check_args(args: Args) -> None:
         need("seeds", k, 0, 999)
     if args.env not in ENV_IDS:
         raise ParameterError(f"--env {args.env!r} is not one of {list(ENV_IDS)}")
+    if args.backend not in ("local", "ray"):
+        raise ParameterError(f"--backend {args.backend!r} is not one of ['local', 'ray']")
+    if args.ray_address is not None and args.backend != "ray":
+        raise ParameterError("--ray-address needs --backend ray")
     if args.algo not in ALGO_CHOICES or (args.algo == "ars" and args.env != ENV_ID_V1):
         raise ParameterError(f"--algo {args.algo!r} is not one of "
                              f"{list(ALGO_CHOICES if args.env == ENV_ID_V1 else ALGO_CHOICES[1:])}"
@@ -507,10 +513,15 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
     if not args.seeds:
         return [train(args)]
     check_args(args)
-    logs = []
-    for k in args.seeds:
-        logs.append(train(dataclasses.replace(args, seed=k, seeds=(),
-                                              out=os.path.join(args.out, f"seed{k}"))))
+    runs = [dataclasses.replace(args, seed=k, seeds=(), out=os.path.join(args.out, f"seed{k}"),
+                                progress=args.progress and args.backend == "local")
+            for k in args.seeds]
+    if args.backend == "local":
+        logs = [train(run) for run in runs]
+    else:           # each seed a Ray task (one CPU each); the models are those of local runs
+        from stepdamp_env.ray_backend import backend_map
+
+        logs = backend_map(args.backend, args.ray_address)(train, runs, len(runs), max_chunk=1)
     print(f"{'seed':>4} {'train s':>8} {'best validation IQM':>20}")
     for k, log in zip(args.seeds, logs):
         best = (log.get("best") or {}).get("headline_iqm", math.nan)
@@ -576,6 +587,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "NAME@<file stem>, e.g. ars-per-step@best")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="override one YAML hyperparameter (value parsed as YAML); repeatable")
+    p.add_argument("--backend", choices=("local", "ray"), default=d.backend,
+                   help="--seeds one after the other here, or as Ray tasks (extra [ray])")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="with --backend ray: a running cluster ('auto' or HOST:PORT); "
+                        "default: a local Ray on this machine's cores")
 
 
 def args_from_namespace(ns: argparse.Namespace) -> Args:
@@ -603,7 +619,8 @@ def args_from_namespace(ns: argparse.Namespace) -> Args:
                 envs_per_motor=ns.envs_per_motor, eval_freq=ns.eval_freq,
                 val_seed=ns.val_seed, val_motors_per_preset=ns.val_motors_per_preset,
                 checkpoint_freq=ns.checkpoint_freq, progress=not ns.no_progress,
-                tensorboard=not ns.no_tensorboard, name=ns.name, extra=extra)
+                tensorboard=not ns.no_tensorboard, name=ns.name, extra=extra,
+                backend=ns.backend, ray_address=ns.ray_address)
 
 
 def main(argv: list[str] | None = None) -> int:

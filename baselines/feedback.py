@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import cmath
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -99,6 +99,33 @@ class _FeedbackOnFF(DelayCompensatedFF):
         g = torque_paths(system, context.mode, context.speed_rps, model)
         return harmonic_actions(base / g, base, context.action_scale)
 
+    # Batched runs (stepdamp_env.bench.policy.BatchPolicy): each row is reset as a
+    # scalar run is and its settings gathered; act_batch repeats act's arithmetic
+    # element-wise (float64, then the same float32 rounding of the current).
+    _ROW_SETTINGS: tuple[str, ...] = ()
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        rows: dict[str, list[Any]] = {k: [] for k in ("_action", "_w_ref", "_to_action",
+                                                       "_full_step", "gains",
+                                                       *self._ROW_SETTINGS)}
+        for context in contexts:
+            self.reset(context)
+            for k, v in rows.items():
+                v.append(np.array(getattr(self, k), copy=True))
+        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        n = len(contexts)
+        self._rows_state = np.zeros((3, n))     # the law's filter states
+        self._rows_started = False
+
+    def _row_current(self, current: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The rows' actions: feedforward plus ``current`` (A, before scaling)."""
+        out = self._rows["_action"][rows].copy()
+        out[:, 6] = np.clip(current * self._rows["_to_action"][rows], -1.0, 1.0)
+        return out
+
+    def row_calibration_s(self, row: int) -> float:
+        return 0.0
+
     def _start(self, context: PolicyContext, system: SystemParams) -> None:
         self._action = np.zeros(7, dtype=np.float32)
         self._action[:6] = self._feedforward(context, system)
@@ -171,6 +198,24 @@ class VelocityFeedback(_FeedbackOnFF):
         self._action[6] = np.clip((a * self._fw + b * self._fp) * self._to_action, -1.0, 1.0)
         return self._action
 
+    _ROW_SETTINGS = ("_hp_alpha", "_beta")
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        r = self._rows
+        e_w = observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][rows]
+        e_theta = observations[:, OBS.position_error].astype(np.float64) * r["_full_step"][rows]
+        lp, fw, fp = (self._rows_state[k, rows] for k in range(3))
+        if not self._rows_started:
+            lp, fw, fp = e_theta, e_w, np.zeros(len(rows))
+            self._rows_started = True
+        lp = lp + r["_hp_alpha"][rows] * (e_theta - lp)
+        beta = r["_beta"][rows]
+        fw = fw + beta * (e_w - fw)
+        fp = fp + beta * (e_theta - lp - fp)
+        self._rows_state[:, rows] = lp, fw, fp
+        a, b = r["gains"][rows, 0], r["gains"][rows, 1]
+        return self._row_current(a * fw + b * fp, rows)
+
 
 class SensorlessDamping(_FeedbackOnFF):
     """``sensorless-damping``: damping without an encoder (the idea of US 5,847,535).
@@ -238,6 +283,20 @@ class SensorlessDamping(_FeedbackOnFF):
         self._action[6] = np.clip((a * e_w + b * (e_w - prev)) * self._to_action, -1.0, 1.0)
         return self._action
 
+    _ROW_SETTINGS = ("_beta",)
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        r = self._rows
+        raw = observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][rows]
+        prev, fw = self._rows_state[0, rows], self._rows_state[1, rows]
+        if not self._rows_started:
+            prev, fw = raw, raw
+            self._rows_started = True
+        fw = fw + r["_beta"][rows] * (raw - fw)
+        self._rows_state[0, rows], self._rows_state[1, rows] = fw, fw
+        a, b = r["gains"][rows, 0], r["gains"][rows, 1]
+        return self._row_current(a * fw + b * (fw - prev), rows)
+
 
 class OracleFloor(_FeedbackOnFF):
     """``oracle-floor`` (oracle): how far the ripple can fall on this drive.
@@ -293,6 +352,22 @@ class OracleFloor(_FeedbackOnFF):
                                   -1.0, 1.0)
         return self._action
 
+    _ROW_SETTINGS = ("_hp_alpha", "_i_w", "_i_theta")
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        r = self._rows
+        i_w, i_theta = int(r["_i_w"][0]), int(r["_i_theta"][0])
+        e_w = observations[:, i_w].astype(np.float64) * r["_w_ref"][rows]
+        e_theta = observations[:, i_theta].astype(np.float64) * r["_full_step"][rows]
+        lp = self._rows_state[0, rows]
+        if not self._rows_started:
+            lp = e_theta
+            self._rows_started = True
+        lp = lp + r["_hp_alpha"][rows] * (e_theta - lp)
+        self._rows_state[0, rows] = lp
+        a, b = r["gains"][rows, 0], r["gains"][rows, 1]
+        return self._row_current(a * e_w + b * (e_theta - lp), rows)
+
 
 class TunedConstantGain:
     """``tuned-constant-gain``: StepperDamp-v1's damping law on ``ff-delay-comp``
@@ -331,3 +406,9 @@ class TunedConstantGain:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        pass
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return np.tile(self._action, (len(rows), 1))

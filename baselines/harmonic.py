@@ -12,7 +12,7 @@ P/G instead of P puts the intended torque on the rotor.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -75,6 +75,23 @@ class DelayCompensatedFF(_HarmonicResidual):
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action
+
+    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): each
+    # row is reset as a scalar run is, and its (constant) action kept.
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        actions, calibration = [], []
+        for context in contexts:
+            self.reset(context)
+            actions.append(np.array(self._action, copy=True))
+            calibration.append(float(getattr(self, "calibration_s", 0.0)))
+        self._rows_action = np.stack(actions)
+        self._rows_calibration = calibration
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return self._rows_action[rows]
+
+    def row_calibration_s(self, row: int) -> float:
+        return self._rows_calibration[row]
 
 
 class AdaptiveFF(_HarmonicResidual):
@@ -192,4 +209,82 @@ class AdaptiveFF(_HarmonicResidual):
         self._action = harmonic_actions(target, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
         return self._action
+
+    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
+    # arithmetic on a stack of rows. filterpy's 2-D dot products become stacked
+    # matmuls, which call the same BLAS routine per row (tests/test_scale.py
+    # checks the result bit for bit against the scalar runs).
+    _ROW_SETTINGS = ("_base", "_inverse_path", "_w_ref", "_scale", "_action", "_applied",
+                     "_initial", "_start_step", "_adapt_step")
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        rows: dict[str, list[Any]] = {k: [] for k in (*self._ROW_SETTINGS, "x", "P")}
+        for context in contexts:
+            self.reset(context)
+            for k in self._ROW_SETTINGS:
+                rows[k].append(np.array(getattr(self, k), copy=True))
+            rows["x"].append(self._kf.x.copy())
+            rows["P"].append(self._kf.P.copy())
+        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        n = len(contexts)
+        self._rows["_reference_power"] = np.zeros((n, 3))
+        self._rows["_active"] = np.ones((n, 3), dtype=bool)
+        self._rows_kf = (self._kf.F, self._kf.Q, self._kf.R, np.eye(6))
+        self._rows_step = 0
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        self._rows_step += 1
+        r = self._rows
+        live = self._rows_step > r["_start_step"][rows]
+        if live.any():
+            self._adapt_rows(observations[live], rows[live])
+        return r["_action"][rows]
+
+    def _adapt_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
+        r = self._rows
+        f, q, noise, eye = self._rows_kf
+        h = np.zeros((len(idx), 1, 6))
+        h[:, 0, 0::2] = observations[:, HARMONIC_SIN]
+        h[:, 0, 1::2] = observations[:, HARMONIC_COS]
+        z = (observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][idx])
+        z = z[:, None, None]
+        x, p = r["x"][idx], r["P"][idx]
+        # filterpy's predict (F = I, alpha = 1) and update, row by row.
+        x = np.matmul(f, x)
+        p = np.matmul(np.matmul(f, p), f.T) + q
+        y = z - np.matmul(h, x)
+        pht = np.matmul(p, np.swapaxes(h, 1, 2))
+        gain = np.matmul(pht, np.linalg.inv(np.matmul(h, pht) + noise))
+        x = x + np.matmul(gain, y)
+        i_kh = eye - np.matmul(gain, h)
+        p = (np.matmul(np.matmul(i_kh, p), np.swapaxes(i_kh, 1, 2))
+             + np.matmul(np.matmul(gain, noise), np.swapaxes(gain, 1, 2)))
+        r["x"][idx], r["P"][idx] = x, p
+        ripple = x[:, 0::2, 0] + 1j * x[:, 1::2, 0]
+        power = np.abs(ripple) ** 2
+        variance = (np.diagonal(p[:, 0::2, 0::2], axis1=1, axis2=2)
+                    + np.diagonal(p[:, 1::2, 1::2], axis1=1, axis2=2))
+        probing = self._rows_step <= r["_adapt_step"][idx]
+        r["_reference_power"][idx[probing]] = power[probing]
+        adapt = ~probing
+        if not adapt.any():
+            return
+        idx, power, variance, ripple = idx[adapt], power[adapt], variance[adapt], ripple[adapt]
+        active, applied = r["_active"][idx], r["_applied"][idx]
+        diverged = active & (power > self.guard_ratio * r["_reference_power"][idx]
+                             + 4.0 * variance)
+        active &= ~diverged
+        applied = np.where(diverged, r["_initial"][idx], applied)
+        weight = active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300), 0.0, 1.0)
+        target = applied + self.step_gain * weight * ripple * r["_inverse_path"][idx]
+        base, scale = r["_base"][idx], r["_scale"][idx][:, None]
+        delta = (target - base) / scale
+        action = np.empty((len(idx), 6), dtype=np.float32)
+        action[:, 0::2] = delta.real
+        action[:, 1::2] = delta.imag
+        action = np.clip(action, -1.0, 1.0)
+        r["_action"][idx] = action
+        r["_applied"][idx] = base + scale * (action[:, 0::2].astype(float)
+                                             + 1j * action[:, 1::2].astype(float))
+        r["_active"][idx] = active
 

@@ -8,6 +8,7 @@ describe the feedforward of detent harmonic h as a phasor A_h (N*m; see
 from __future__ import annotations
 
 import math
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -261,3 +262,79 @@ class RepetitiveControl(DelayCompensatedFF):
             self._sums[:] = 0.0
             self._count = 0
         return self._action
+
+    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
+    # arithmetic on a stack of rows; the angles go through math.atan2 and Python's %
+    # row by row (numpy's SIMD arctan2 differs from libm's in the last bit).
+    _ROW_SETTINGS = ("_base", "_start", "_learn", "_w_ref", "_scale", "_action", "_table",
+                     "_wait")
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        rows: dict[str, list[Any]] = {k: [] for k in self._ROW_SETTINGS}
+        for context in contexts:
+            self.reset(context)
+            for k in self._ROW_SETTINGS:
+                rows[k].append(np.array(getattr(self, k), copy=True))
+        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        n = len(contexts)
+        self._rows.update(_angle=np.zeros(n), _turned=np.zeros(n),
+                          _sums=np.zeros((n, 3), dtype=complex), _count=np.zeros(n, dtype=int),
+                          _reference=np.zeros((n, 3)), _seen=np.zeros(n, dtype=bool),
+                          _active=np.ones((n, 3), dtype=bool))
+        self._rows_step = 0
+
+    def row_calibration_s(self, row: int) -> float:
+        return 0.0
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        self._rows_step += 1
+        r = self._rows
+        live = self._rows_step > r["_wait"][rows]
+        if live.any():
+            self._learn_rows(observations[live], rows[live])
+        return r["_action"][rows]
+
+    def _learn_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
+        r = self._rows
+        s = observations[:, HARMONIC_SIN].astype(float)
+        c = observations[:, HARMONIC_COS].astype(float)
+        e = observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][idx]
+        first = self._rows_step == r["_wait"][idx] + 1       # act's "_angle is None"
+        angle = [math.atan2(a, b) for a, b in zip(s[:, 0].tolist(), c[:, 0].tolist())]
+        turned = r["_turned"][idx]
+        for j, (a, prev) in enumerate(zip(angle, r["_angle"][idx].tolist())):
+            if not first[j]:
+                turned[j] += (a - prev + math.pi) % (2.0 * math.pi) - math.pi
+        r["_angle"][idx] = angle
+        r["_sums"][idx] += e[:, None] * (s + 1j * c)
+        r["_count"][idx] += 1
+        done = np.abs(turned) >= 2.0 * math.pi
+        r["_turned"][idx] = turned
+        if not done.any():
+            return
+        idx = idx[done]
+        ripple = 2.0 * r["_sums"][idx] / r["_count"][idx][:, None]
+        size = np.abs(ripple)
+        reference = np.where(r["_seen"][idx][:, None], np.minimum(r["_reference"][idx], size),
+                             size)
+        active = r["_active"][idx]
+        diverged = active & (size > self.guard_ratio * reference)
+        active &= ~diverged
+        start = r["_start"][idx]
+        table = np.where(diverged, start, r["_table"][idx])
+        table = start + self.leak * (table - start) + active * r["_learn"][idx] * ripple
+        base, scale = r["_base"][idx], r["_scale"][idx][:, None]
+        delta = (table - base) / scale
+        action = np.empty((len(idx), 6), dtype=np.float32)
+        action[:, 0::2] = delta.real
+        action[:, 1::2] = delta.imag
+        action = np.clip(action, -1.0, 1.0)
+        r["_action"][idx] = action
+        r["_table"][idx] = base + scale * (action[:, 0::2].astype(float)
+                                           + 1j * action[:, 1::2].astype(float))
+        r["_reference"][idx] = reference
+        r["_active"][idx] = active
+        r["_seen"][idx] = True
+        r["_turned"][idx] -= np.copysign(2.0 * math.pi, r["_turned"][idx])
+        r["_sums"][idx] = 0.0
+        r["_count"][idx] = 0

@@ -14,6 +14,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 from typing import Any, Sequence
@@ -21,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .io import check_output_dir, check_writable, staged_directory
+from .ray_backend import backend_map
 from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
                      preset_names)
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
@@ -133,7 +135,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     dampings = list(dict.fromkeys(args.damping))
     settings = [_settings(args, d) for d in dampings]
     speeds = parse_speed_range(args.speeds)
+    backend = backend_map(args.backend, args.ray_address)
     results = [run_sweep(system, speeds, st, accel_rps2=args.accel, workers=args.workers,
+                         backend=backend,
                          progress=not args.no_progress) for st in settings]
     names = ["sweep.json"] if len(results) == 1 else [f"sweep_{d}.json" for d in dampings]
     with staged_directory(args.out, SWEEP_FILES) as stage:
@@ -292,7 +296,9 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench.report import (RESULT_FILES, entry_rows, format_summary, render_per_motor,
                                splits)
 
-    check_output_dir(args.out, "--out")
+    from .bench.leaderboard import RESUME_DIR
+
+    check_output_dir(args.out, "--out", own_dirs=(RESUME_DIR,))
     protocol = protocol_for(args.protocol, quick=args.quick)
     if args.motors is not None:
         if args.protocol == "v0":
@@ -307,8 +313,12 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     if unknown:
         raise ParameterError(f"--entries: unknown {unknown}; choose from {list(named)}")
     extra = [p for group in args.policy for p in group]
+    resume = os.path.join(args.out, RESUME_DIR)
+    if args.no_resume:
+        shutil.rmtree(resume, ignore_errors=True)
     board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
-                            progress=not args.no_progress)
+                            progress=not args.no_progress, resume_dir=resume,
+                            backend=backend_map(args.backend, args.ray_address))
     with staged_directory(args.out, RESULT_FILES) as stage:
         written = write_outputs(board, stage, protocol, plots=not args.no_plots)
     for suite in protocol.suites:
@@ -362,6 +372,17 @@ def _add_pool_run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_number(int, 1, 4096), default=None,
                    help="processes (default: every core)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _add_backend_args(p)
+
+
+def _add_backend_args(p: argparse.ArgumentParser) -> None:
+    """--backend and --ray-address (``stepdamp train`` has them too)."""
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="where the runs go: this machine's process pool, or Ray (extra "
+                        "[ray]; see the README's section on clusters)")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="with --backend ray: a running cluster ('auto' or HOST:PORT); "
+                        "default: a local Ray on this machine's cores (loopback only)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -437,6 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "in each suite beside its knowledge (the README's table)")
     _add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--no-resume", action="store_true",
+                   help="run every batch again, ignoring the finished batches an interrupted "
+                        "run left in DIR/.resume (a run resumes by default)")
     p.set_defaults(func=_cmd_leaderboard)
 
     p = command("report", "print a result table from a leaderboard directory")

@@ -25,7 +25,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 __all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writable",
-           "check_output_dir", "staged_directory"]
+           "check_output_dir", "staged_directory", "cache_dir", "read_json_or_none"]
 
 
 @contextmanager
@@ -85,6 +85,35 @@ def write_json(path: str | os.PathLike[str], data: Any) -> None:
             fh.write("\n")
 
 
+def read_json_or_none(path: str | os.PathLike[str]) -> Any:
+    """The JSON in ``path``, or None if it is missing or unreadable (a cache entry)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
+def cache_dir(kind: str) -> str | None:
+    """A writable directory for cached results of ``kind`` (made if needed):
+    ``$STEPDAMP_CACHE_DIR/kind``, else ``$XDG_CACHE_HOME/stepdamp/kind`` or
+    ``~/.cache/stepdamp/kind``; None if it cannot be made or written (the
+    caller then computes without a cache). ``STEPDAMP_CACHE_DIR=off`` turns it off."""
+    root = os.environ.get("STEPDAMP_CACHE_DIR")
+    if root == "off":
+        return None
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
+                                                                 ".cache")
+        root = os.path.join(base, "stepdamp")
+    path = os.path.join(root, kind)
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return None
+    return path if os.access(path, os.W_OK) else None
+
+
 def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8), atomically."""
     with atomic_path(path) as tmp:
@@ -123,10 +152,11 @@ _STAGING = ".{name}.staging-{pid}"
 _PREVIOUS = ".{name}.previous-{pid}"
 
 
-def check_output_dir(path: str | os.PathLike[str], option: str) -> None:
-    """Before any work: ``path`` can be written and holds no sub-directory (a run
-    swaps the whole directory in, carrying other files over, see
-    :func:`staged_directory`)."""
+def check_output_dir(path: str | os.PathLike[str], option: str,
+                     own_dirs: Sequence[str] = ()) -> None:
+    """Before any work: ``path`` can be written and holds no sub-directory other
+    than the command's own ``own_dirs`` (a run swaps the whole directory in,
+    carrying other files over, see :func:`staged_directory`)."""
     from .params import ParameterError
 
     path = os.fspath(path)
@@ -135,7 +165,8 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> None:
     if not existed:                 # made by the probe; the run makes it when done
         os.rmdir(path)
         return
-    subdirs = sorted(e.name for e in os.scandir(path) if e.is_dir(follow_symlinks=False))
+    subdirs = sorted(e.name for e in os.scandir(path)
+                     if e.is_dir(follow_symlinks=False) and e.name not in own_dirs)
     if subdirs:
         raise ParameterError(
             f"{option} {path!r} holds the directory {subdirs[0]!r}; a run replaces its output "

@@ -1002,3 +1002,29 @@ def run_batch_law(configs, states, accs, inputs, laws, n_periods):
     empty = np.zeros((0, N_TRACE))
     for i in range(configs.shape[0]):
         _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, 1)
+
+
+@njit(cache=True)
+def merge_rows(totals, parts):
+    """``simulation.merge_accumulators`` row by row (no fast-math: the same sums,
+    and ``min``/``max`` as Python's: the first unless the second is strictly
+    smaller/larger)."""
+    for i in range(totals.shape[0]):
+        t = totals[i]
+        p = parts[i]
+        if p[A_COUNT] > 0:
+            if t[A_COUNT] > 0:
+                if p[A_MIN_E] < t[A_MIN_E]:
+                    t[A_MIN_E] = p[A_MIN_E]
+                if p[A_MAX_E] > t[A_MAX_E]:
+                    t[A_MAX_E] = p[A_MAX_E]
+            else:
+                t[A_MIN_E] = p[A_MIN_E]
+                t[A_MAX_E] = p[A_MAX_E]
+        for j in (A_COUNT, A_SUM_E, A_SUM_E2, A_SUM_IFF2, A_H1_S, A_H1_C, A_H2_S, A_H2_C,
+                  A_H4_S, A_H4_C, A_SUM_E2_ALL, A_COUNT_ALL, A_SUM_IFF2_ALL):
+            t[j] += p[j]
+        if p[A_MAX_LAG] > t[A_MAX_LAG]:
+            t[A_MAX_LAG] = p[A_MAX_LAG]
+        if p[A_MAX_CURRENT] > t[A_MAX_CURRENT]:
+            t[A_MAX_CURRENT] = p[A_MAX_CURRENT]

@@ -33,6 +33,8 @@ __all__ = [
     "initial_state",
     "new_accumulators",
     "metrics_from_accumulators",
+    "merge_accumulators",
+    "merge_accumulator_rows",
     "simulate",
 ]
 
@@ -324,6 +326,10 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
     return s
 
 
+_SUMS = (K.A_COUNT, K.A_SUM_E, K.A_SUM_E2, K.A_SUM_IFF2, K.A_H1_S, K.A_H1_C, K.A_H2_S, K.A_H2_C,
+         K.A_H4_S, K.A_H4_C, K.A_SUM_E2_ALL, K.A_COUNT_ALL, K.A_SUM_IFF2_ALL)
+
+
 def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
     """Fold the sums of a later stretch ``part`` into ``total`` (in place).
 
@@ -337,11 +343,16 @@ def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
         else:
             total[K.A_MIN_E] = part[K.A_MIN_E]
             total[K.A_MAX_E] = part[K.A_MAX_E]
-    for i in (K.A_COUNT, K.A_SUM_E, K.A_SUM_E2, K.A_SUM_IFF2, K.A_H1_S, K.A_H1_C, K.A_H2_S,
-              K.A_H2_C, K.A_H4_S, K.A_H4_C, K.A_SUM_E2_ALL, K.A_COUNT_ALL, K.A_SUM_IFF2_ALL):
+    for i in _SUMS:
         total[i] += part[i]
     total[K.A_MAX_LAG] = max(total[K.A_MAX_LAG], part[K.A_MAX_LAG])
     total[K.A_MAX_CURRENT] = max(total[K.A_MAX_CURRENT], part[K.A_MAX_CURRENT])
+
+
+def merge_accumulator_rows(total: np.ndarray, part: np.ndarray) -> None:
+    """:func:`merge_accumulators` row by row over (n, N_ACC) arrays, compiled
+    (:func:`stepdamp_env.kernel.merge_rows`), the same arithmetic."""
+    K.merge_rows(total, part)
 
 
 def new_accumulators(n: int | None = None) -> np.ndarray:

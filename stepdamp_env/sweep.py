@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -180,11 +180,14 @@ def _run_point(args: tuple[SystemParams, RunSettings, float, float]) -> dict[str
 
 def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
               settings: RunSettings | None = None, accel_rps2: float = DEFAULT_ACCEL_RPS2,
-              workers: int | None = None, progress: bool = True) -> SweepResult:
+              workers: int | None = None, progress: bool = True,
+              backend: Callable[..., list[Any]] | None = None) -> SweepResult:
     """Simulate each speed (constant-speed profile) and collect its metrics.
 
     Runs are independent and deterministic, so the result does not depend on
-    ``workers`` (default: every core this process may use).
+    ``workers`` (default: every core this process may use) nor on ``backend``
+    (default: this machine's process pool; :func:`stepdamp_env.ray_backend.ray_map`
+    for Ray).
     """
     settings = settings or RunSettings()
     speeds = np.asarray(speeds_rps, dtype=float)
@@ -196,7 +199,8 @@ def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
 
         bar = tqdm(total=len(jobs), desc=f"sweep {settings.mode}/{settings.damping}",
                    unit="run")
-    metrics = pool_map(_run_point, jobs, workers, min_jobs=4, bar=bar)
+    metrics = (pool_map if backend is None else backend)(_run_point, jobs, workers,
+                                                         min_jobs=4, bar=bar)
     if bar:
         bar.close()
     return SweepResult(system=system, settings=settings, accel_rps2=float(accel_rps2),

@@ -8,24 +8,27 @@ protocol_v1   the frozen ``stepdamp-bench v1`` spec: splits, servo grid,
               settling, statistics; ``--motors`` files
 motors        the protocols' motors (presets, seeded draws, v1 splits), speed
               grids, v1 settling
-policy        the policy contract: ``Policy``, ``PolicyContext``,
-              ``MotorKnowledge``, estimate resolution, the fair env options
+policy        the policy contract: ``Policy`` (and ``BatchPolicy``, one
+              policy for many runs), ``PolicyContext``, ``MotorKnowledge``,
+              estimate resolution, the fair env options
 registry      registered policies (filled by ``stepdamp_baselines`` and
               ``stepdamp_agents`` through the ``stepdamp.policies`` entry
               points), policy specs -> fresh instances
-runner        ``run_episode``: the one episode loop
+runner        ``run_episode`` (one episode, scalar env) and ``run_episodes``
+              (many, one compiled call per step; the same results)
 stats         interquartile mean, stratified (v0) and two-level (v1)
               bootstrap intervals, probability of improvement
 scoring       per-cell scores, a leaderboard entry (v0, v1)
-leaderboard   ``run_leaderboard``: all of the above in a process pool
+leaderboard   ``run_leaderboard``: all of the above in batches on a process
+              pool (or Ray), resumable
 report        LEADERBOARD.md and the figures (v1: performance profiles)
 ============  ================================================================
 """
 
 from .leaderboard import run_leaderboard
 from .motors import ProtocolMotor, protocol_motors, speed_grid
-from .policy import (MotorKnowledge, Policy, PolicyContext, ZeroAction, policy_context,
-                     policy_env_options, resolve_estimate)
+from .policy import (BatchPolicy, MotorKnowledge, Policy, PolicyContext, ScalarPolicies,
+                     ZeroAction, policy_context, policy_env_options, resolve_estimate)
 from .protocol import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, REFERENCE_POLICY,
                        SUITES, TRAINING_SEED_LIMIT, Protocol, full_protocol, quick_protocol)
 from .protocol_v1 import (SPLITS, ProtocolV1, full_protocol_v1, load_motors_file, protocol_for,
@@ -33,7 +36,7 @@ from .protocol_v1 import (SPLITS, ProtocolV1, full_protocol_v1, load_motors_file
 from .registry import (PolicySource, default_policy_names, register_loader, register_policy,
                        registered_policies, resolve_policy)
 from .report import render_markdown, write_outputs
-from .runner import EpisodeResult, run_episode
+from .runner import EpisodeResult, EpisodeSpec, run_episode, run_episodes
 from .scoring import make_entry, reference_index, score_runs
 from .stats import (iqm, probability_of_improvement, stratified_bootstrap_ci, summary,
                     two_level_bootstrap)
@@ -48,5 +51,6 @@ __all__ = [
     "write_outputs", "EpisodeResult", "run_episode", "make_entry", "reference_index",
     "score_runs", "iqm", "stratified_bootstrap_ci", "summary", "SPLITS", "ProtocolV1",
     "full_protocol_v1", "quick_protocol_v1", "load_motors_file", "protocol_for",
-    "probability_of_improvement", "two_level_bootstrap",
+    "probability_of_improvement", "two_level_bootstrap", "BatchPolicy", "ScalarPolicies",
+    "EpisodeSpec", "run_episodes",
 ]

@@ -1,29 +1,36 @@
 """The leaderboard: every policy under a protocol, in a process pool, scored and ranked.
 
-:func:`run_leaderboard` identifies each (motor, seed) once, runs every policy
-(:mod:`.registry`) on every motor, seed, suite and speed of the protocol
-(:mod:`.protocol`, :mod:`.motors`) with the one episode runner
-(:func:`.runner.run_episode`), scores the runs against the reference policy
-(:mod:`.scoring`, :mod:`.stats`) and returns the board as a JSON-ready dict;
-:func:`.report.write_outputs` writes it.
+:func:`run_leaderboard` identifies each (motor, seed) once (cached on disk per
+motor, seed and package version), runs every policy (:mod:`.registry`) on every
+motor, seed, suite and speed of the protocol (:mod:`.protocol`, :mod:`.motors`)
+with the batched episode runner (:func:`.runner.run_episodes`: the runs of one
+entry, model and suite go in batches of up to ``BATCH_RUNS``), scores the runs
+against the reference policy (:mod:`.scoring`, :mod:`.stats`) and returns the
+board as a JSON-ready dict; :func:`.report.write_outputs` writes it. With a
+``resume_dir`` every finished batch is kept there, so an interrupted run started
+again with the same arguments picks up where it stopped.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib.metadata
+import json
 import math
+import os
 import platform
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..env.options import EnvOptions
 from ..env.scalar import StepperDampEnv
 from ..identify import identify
+from ..io import cache_dir, read_json_or_none, write_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
@@ -33,11 +40,18 @@ from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, Protocol
 from .protocol_v1 import ProtocolV1
 from .registry import PolicySource, default_policy_names, resolve_policy
-from .runner import run_episode
+from .runner import EpisodeSpec, run_episode, run_episodes
 from .scoring import (add_probability_of_improvement, make_entry, make_entry_v1,
                       reference_index)
 
-__all__ = ["LeaderboardJob", "run_leaderboard", "package_versions", "protocol_knowledge"]
+__all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "package_versions",
+           "protocol_knowledge", "identify_cached", "BATCH_RUNS", "RESUME_DIR"]
+
+# Runs of one entry, model and suite stepped together (and kept together on resume).
+BATCH_RUNS = 64
+# The directory inside a leaderboard's output directory that holds the finished
+# batches of a run in progress (gone once the run has written its results).
+RESUME_DIR = ".resume"
 
 
 @dataclass(frozen=True)
@@ -52,12 +66,27 @@ class LeaderboardJob:
     training_seed: int | None = None      # v1: which of a learned entry's models
 
 
+@dataclass(frozen=True)
+class LeaderboardBatch:
+    """Runs of one entry, model and suite that the batched runner steps together."""
+
+    spec: str
+    suite: str
+    training_seed: int | None
+    runs: tuple[tuple[int, int, int], ...]     # (motor_index, seed, speed_index)
+
+    def jobs(self) -> list[LeaderboardJob]:
+        return [LeaderboardJob(self.spec, self.suite, i, seed, j, self.training_seed)
+                for i, seed, j in self.runs]
+
+
 # What a worker process needs; set once per process by _init_worker.
 _WORKER: dict[str, Any] = {}
 
 
 def _init_worker(motors: tuple[ProtocolMotor, ...], knowledge: dict, protocol: Protocol,
-                 sources: dict[str, PolicySource] | None) -> None:
+                 sources: dict[str, PolicySource] | None, runner: str = "batched") -> None:
+    _WORKER["runner"] = runner
     _WORKER["motors"] = motors
     _WORKER["knowledge"] = knowledge
     _WORKER["protocol"] = protocol
@@ -78,33 +107,116 @@ def _make(spec: str, training_seed: int | None) -> Any:
     return source.make() if training_seed is None else source.training_seeds[training_seed]()
 
 
+def identify_cached(system: SystemParams, method: str, seed: int) -> FeedforwardModel | str:
+    """``identify(system, method=method, noise_seed=seed).model``, or the failure
+    as a string ("ErrorType: message"), kept on disk (:func:`..io.cache_dir`)
+    per system, method, seed and package version: identification is
+    deterministic, so a kept model is the one it would compute."""
+    from ..version import __version__
+
+    where = cache_dir("identify")
+    path = None
+    if where is not None:
+        key = json.dumps({"system": system.to_dict(), "method": method, "seed": seed,
+                          "version": __version__}, sort_keys=True)
+        path = os.path.join(where, hashlib.sha256(key.encode()).hexdigest()[:32] + ".json")
+        kept = read_json_or_none(path)
+        if isinstance(kept, dict) and kept.get("failed") is not None:
+            return str(kept["failed"])
+        if isinstance(kept, dict) and isinstance(kept.get("model"), dict):
+            return FeedforwardModel(**kept["model"])
+    try:
+        model: FeedforwardModel | str = identify(system, method=method, noise_seed=seed).model
+        entry = {"model": dataclasses.asdict(model), "failed": None}
+    except (RuntimeError, ParameterError) as exc:
+        model = f"{type(exc).__name__}: {exc}"
+        entry = {"model": None, "failed": model}
+    if path is not None:
+        try:
+            write_json(path, entry)
+        except OSError:                 # a full or read-only cache: computed anyway
+            pass
+    return model
+
+
 def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     """The identified model; under v1 the reason as a string if identification
     failed (the drive then falls back to its nominal model, see protocol_v1)."""
     motor_index, seed = args
-    motor = _WORKER["motors"][motor_index]
     protocol = _WORKER["protocol"]
-    try:
-        return identify(motor.system, method=protocol.identification_method,
-                        noise_seed=seed).model
-    except (RuntimeError, ParameterError) as exc:
-        if not isinstance(protocol, ProtocolV1):
-            raise
-        return f"{type(exc).__name__}: {exc}"
+    model = identify_cached(_WORKER["motors"][motor_index].system,
+                            protocol.identification_method, seed)
+    if isinstance(model, str) and not isinstance(protocol, ProtocolV1):
+        raise ParameterError(f"identification failed: {model}")
+    return model
 
 
-def _run_job(job: LeaderboardJob) -> dict[str, Any]:
+def _run_batch(item: tuple[LeaderboardBatch, str | None]) -> list[dict[str, Any]]:
+    """The records of a batch's runs; read from ``path`` if a earlier, interrupted
+    run of the same leaderboard finished it, else run and (with a path) kept there."""
+    batch, path = item
+    if path is not None:
+        done = read_json_or_none(path)
+        if isinstance(done, list) and len(done) == len(batch.runs):
+            return done
     protocol: Protocol = _WORKER["protocol"]
-    motor: ProtocolMotor = _WORKER["motors"][job.motor_index]
-    speeds, labels = motor.speeds(job.suite)
-    speed = speeds[job.speed_index]
-    result = run_episode(_make(job.spec, job.training_seed),
-                         _WORKER["knowledge"][(job.motor_index, job.seed)], motor.system,
-                         mode=job.suite, speed_rps=speed, seed=job.seed,
-                         accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
-                         settle_s=motor.settle_s(job.suite))
-    return result.record(motor.name, job.seed, speed, labels[job.speed_index],
-                         job.training_seed)
+    motors: Sequence[ProtocolMotor] = _WORKER["motors"]
+    specs = []
+    for i, seed, j in batch.runs:
+        motor = motors[i]
+        specs.append(EpisodeSpec(_WORKER["knowledge"][(i, seed)], motor.system,
+                                 motor.speeds(batch.suite)[0][j], seed,
+                                 motor.settle_s(batch.suite)))
+    if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
+        results = [run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
+                               mode=batch.suite, speed_rps=e.speed_rps, seed=e.seed,
+                               accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
+                               settle_s=e.settle_s) for e in specs]
+    else:
+        results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
+                               mode=batch.suite, accel_rps2=protocol.accel_rps2,
+                               window_s=protocol.window_s)
+    records = []
+    for (i, seed, j), spec, result in zip(batch.runs, specs, results):
+        motor = motors[i]
+        records.append(result.record(motor.name, seed, spec.speed_rps,
+                                     motor.speeds(batch.suite)[1][j], batch.training_seed))
+    if path is not None:
+        write_json(path, records)
+    return records
+
+
+def _fingerprint(spec: str) -> str:
+    """What a policy spec stands for: the name, plus the bytes of its file(s)."""
+    h = hashlib.sha256(spec.encode())
+    paths = []
+    if os.path.isfile(spec):
+        paths = [spec]
+    elif os.path.isdir(spec):
+        paths = sorted(os.path.join(d, f) for d, _, fs in os.walk(spec) for f in fs)
+    for path in paths:
+        h.update(path.encode())
+        with open(path, "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()
+
+
+def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
+                  ) -> list[str]:
+    """One file per batch, named by the run's header and the batch; files of other
+    runs (another protocol, policy, model file or package version) are removed."""
+    os.makedirs(resume_dir, exist_ok=True)
+    run = hashlib.sha256(json.dumps(header, sort_keys=True, default=str).encode()
+                         ).hexdigest()[:16]
+    for name in os.listdir(resume_dir):
+        if not name.startswith(run + "-"):
+            try:
+                os.remove(os.path.join(resume_dir, name))
+            except OSError:
+                pass
+    return [os.path.join(resume_dir, f"{run}-" + hashlib.sha256(
+        repr((b.spec, b.suite, b.training_seed, b.runs)).encode()).hexdigest()[:24] + ".json")
+        for b in batches]
 
 
 def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
@@ -186,7 +298,10 @@ def _suites(source: PolicySource, protocol: Protocol | ProtocolV1
 
 
 def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | None = None, *,
-                    workers: int | None = None, progress: bool = True) -> dict[str, Any]:
+                    workers: int | None = None, progress: bool = True,
+                    resume_dir: str | None = None,
+                    backend: Callable[..., list[Any]] | None = None,
+                    runner: str = "batched") -> dict[str, Any]:
     """Evaluate policies (registered names, module paths, model files) under ``protocol``.
 
     ``policies`` defaults to :func:`.registry.default_policy_names`; the
@@ -198,7 +313,17 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
     exactly what a worker does. Under v1 a learned entry runs every training
     seed it has (:meth:`.registry.PolicySource.factories`) and entries are
     scored per split (:func:`.scoring.make_entry_v1`).
+
+    ``resume_dir``: where finished batches are kept (see the module docstring);
+    a batch found there is not run again. ``backend``: runs the batches in
+    place of the local process pool, called as ``pool_map`` is (the Ray
+    backend, :mod:`stepdamp_env.ray_backend`). ``runner``: "batched"
+    (:func:`.runner.run_episodes`) or "scalar" (each run alone through
+    :func:`.runner.run_episode`: the same numbers, slower; the reference of
+    ``benchmarks/bench_scale.py`` and of the tests).
     """
+    if runner not in ("batched", "scalar"):
+        raise ParameterError(f"runner={runner!r} is not one of ['batched', 'scalar']")
     wall_start = time.perf_counter()
     v1 = isinstance(protocol, ProtocolV1)
     specs = list(dict.fromkeys([REFERENCE_POLICY, *(policies if policies is not None
@@ -222,8 +347,9 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
 
     bar = progress_bar(len(pairs), "identify", "motor")
     init = (motors, {}, protocol, None)
-    identified = pool_map(_identify_job, pairs, workers, initializer=_init_worker,
-                          initargs=init, max_chunk=16, bar=bar)
+    run_map = pool_map if backend is None else backend
+    identified = run_map(_identify_job, pairs, workers, initializer=_init_worker,
+                         initargs=init, max_chunk=16, bar=bar)
     if bar is not None:
         bar.close()
     failures = {pair: m for pair, m in zip(pairs, identified) if isinstance(m, str)}
@@ -237,17 +363,31 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
     meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
     suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
 
-    jobs = [LeaderboardJob(spec, suite, i, seed, j, ts)
-            for spec in specs for ts in sources[spec].factories(pooled=v1)
-            for suite in suites[spec][0]
-            for i, m in enumerate(motors) for seed in protocol.eval_seeds
-            for j in range(len(m.speeds(suite)[0]))]
-    bar = progress_bar(len(jobs), "leaderboard", "run")
+    batches = []
+    for spec in specs:
+        for ts in sources[spec].factories(pooled=v1):
+            for suite in suites[spec][0]:
+                runs = [(i, seed, j) for i, m in enumerate(motors) for seed in protocol.eval_seeds
+                        for j in range(len(m.speeds(suite)[0]))]
+                batches += [LeaderboardBatch(spec, suite, ts, tuple(runs[k:k + BATCH_RUNS]))
+                            for k in range(0, len(runs), BATCH_RUNS)]
+    paths: list[str | None] = [None] * len(batches)
+    if resume_dir is not None:
+        from ..version import __version__
+
+        header = {"version": __version__, "protocol": protocol.to_dict(),
+                  "motors": [m.to_dict() for m in motors],
+                  "policies": {spec: _fingerprint(spec) for spec in specs}}
+        paths = list(_resume_paths(resume_dir, batches, header))
+    bar = progress_bar(len(batches), "leaderboard", "batch")
     # SB3 models are loaded in the parent and inherited by the forked workers.
-    results = pool_map(_run_job, jobs, workers, initializer=_init_worker,
-                       initargs=(motors, knowledge, protocol, sources), max_chunk=16, bar=bar)
+    done = run_map(_run_batch, list(zip(batches, paths)), workers, initializer=_init_worker,
+                   initargs=(motors, knowledge, protocol, sources, runner), max_chunk=1,
+                   bar=bar)
     if bar is not None:
         bar.close()
+    jobs = [job for b in batches for job in b.jobs()]
+    results = [r for records in done for r in records]
 
     by_entry: dict[tuple[str, str], list[dict]] = {}
     for job, res in zip(jobs, results):

@@ -7,13 +7,13 @@ environment options it needs (base controller, its model, action mode) through
 never the true plant), and is told the episode's context by :meth:`Policy.reset`.
 Read observation entries by name (:mod:`stepdamp_env.env.layout`). Baselines
 (``stepdamp_baselines``) and agents (``stepdamp_agents``) implement it; the
-leaderboard runs every policy through :func:`stepdamp_env.bench.runner.run_episode`.
+leaderboard runs every policy through :func:`stepdamp_env.bench.runner.run_episodes`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Protocol as TypingProtocol, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol as TypingProtocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -26,7 +26,8 @@ from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, SUITE
 __all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
            "ZeroAction", "reference_policy", "KNOWLEDGE_ESTIMATES", "ORACLE_OPTIONS",
            "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
-           "check_policy", "policy_env_id", "POLICY_ENV_IDS"]
+           "check_policy", "policy_env_id", "POLICY_ENV_IDS", "BatchPolicy", "ScalarPolicies",
+           "batch_policy"]
 
 # The envs a policy may run in (its optional ``env_id`` attribute; v0 by default).
 POLICY_ENV_IDS = (ENV_ID, ENV_ID_V1)
@@ -157,6 +158,75 @@ class Policy(TypingProtocol):
         """Action in [-1, 1] (float32) for one observation."""
 
 
+@runtime_checkable
+class BatchPolicy(Policy, TypingProtocol):
+    """A policy that acts for many runs at once (the batched episode runner's).
+
+    Rows are the runs of one :meth:`reset_batch`, numbered from 0; a row leaves
+    the batch when its run ends and never comes back. A batched policy must act
+    on each row exactly as a fresh scalar instance reset with that row's
+    context would (``tests/test_scale.py`` checks this bit for bit).
+    ``env_options`` and ``name`` are those of :class:`Policy`; ``reset`` and
+    ``act`` may raise. A policy without ``act_batch`` is run through
+    :class:`ScalarPolicies`.
+    """
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        """Start one run per context: rows 0 .. len(contexts) - 1."""
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Actions (k, act_dim) in [-1, 1] for the observations (k, obs_dim) of
+        the running ``rows`` (k increasing row numbers)."""
+
+
+class ScalarPolicies:
+    """A scalar :class:`Policy` as a :class:`BatchPolicy`: one fresh instance
+    per row from ``make`` (a zero-argument factory), each reset and stepped
+    alone, so every row is what a scalar run gives."""
+
+    def __init__(self, make: Callable[[], Any], probe: Any = None) -> None:
+        self._make = make
+        self._probe = make() if probe is None else probe
+        self.name = str(self._probe.name)
+        self._rows: list[Any] = []
+
+    @property
+    def probe(self) -> Any:
+        """The instance that answers ``env_options``, ``card`` and ``env_id``."""
+        return self._probe
+
+    def __getattr__(self, attr: str) -> Any:
+        # card, env_id, privileged, velocity_estimator ...: the wrapped policy's.
+        if attr.startswith("_"):
+            raise AttributeError(attr)
+        return getattr(self._probe, attr)
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return self._probe.env_options(knowledge)
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        self._rows = [self._make() for _ in contexts]
+        for policy, context in zip(self._rows, contexts):
+            policy.reset(context)
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return np.stack([np.asarray(self._rows[r].act(obs))
+                         for r, obs in zip(rows.tolist(), observations)])
+
+    def row_calibration_s(self, row: int) -> float:
+        """Simulated seconds row ``row``'s instance calibrated (0 if it does not)."""
+        return float(getattr(self._rows[row], "calibration_s", 0.0))
+
+
+def batch_policy(make: Callable[[], Any]) -> Any:
+    """``make()`` if it is a :class:`BatchPolicy`, else :class:`ScalarPolicies` of ``make``."""
+    policy = make()
+    if callable(getattr(policy, "act_batch", None)) and \
+            callable(getattr(policy, "reset_batch", None)):
+        return policy
+    return ScalarPolicies(make, policy)
+
+
 def check_policy(obj: Any, spec: str) -> None:
     """A ParameterError unless ``obj`` has the Policy interface."""
     for attr in ("name", "env_options", "reset", "act"):
@@ -194,6 +264,12 @@ class ZeroAction:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._zero
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        pass
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return np.zeros((len(rows), 1), dtype=np.float32)
 
 
 def reference_policy() -> ZeroAction:

@@ -1,27 +1,34 @@
-"""The one episode runner: a policy on a motor at one speed, measured as the protocol says.
+"""The episode runner: a policy on a motor at one speed, measured as the protocol says.
 
-Used by the leaderboard, the figures, the training validator and the tests::
+:func:`run_episode` runs one episode in a scalar env (the figures, the training
+validator and the tests use it)::
 
     result = run_episode(policy, knowledge, system, mode="open-loop", speed_rps=0.67,
                          seed=1_000_000)
     result.metrics["rms_velocity_error_rad_s"]
+
+:func:`run_episodes` runs many episodes of one policy and suite together (the
+leaderboard's): their drives advance in one compiled call per agent step and
+the policy acts for all of them at once (:class:`.policy.BatchPolicy`); every
+episode gives what :func:`run_episode` gives, bit for bit.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..env.registration import ENV_ID_V1
-from ..env.scalar import StepperDampEnv
-from ..env.v1 import StepperDampV1Env
+from ..env.scalar import StepperDampBatch, StepperDampEnv
+from ..env.v1 import StepperDampV1Batch, StepperDampV1Env
 from ..params import SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
-from .policy import MotorKnowledge, Policy, policy_context, policy_env_id, policy_env_options
+from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
+                     policy_env_options)
 
-__all__ = ["EpisodeResult", "run_episode", "episode_window"]
+__all__ = ["EpisodeResult", "EpisodeSpec", "run_episode", "run_episodes", "episode_window"]
 
 
 @dataclass
@@ -81,6 +88,43 @@ def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
                             RunSettings(window_s=window_s, settle_s=settle_s))
 
 
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Where one episode of :func:`run_episodes` runs (see :func:`run_episode`
+    for the fields)."""
+
+    knowledge: MotorKnowledge
+    system: SystemParams
+    speed_rps: float
+    seed: int
+    settle_s: float | None = None
+    measure_from_s: float | None = None
+    until_s: float | None = None
+
+
+def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
+              render: str | None) -> tuple[Any, float, float, float, dict[str, Any]]:
+    """The episode's env (not reset), window (start, length), end time and options."""
+    system = spec.system
+    start, length = episode_window(system, spec.speed_rps, accel_rps2, window_s, spec.settle_s)
+    if spec.measure_from_s is not None:
+        start, length = float(spec.measure_from_s), float(window_s)
+    options = policy_env_options(policy, spec.knowledge)
+    # Half a PWM period of slack: time_s is a float multiple of the period.
+    end = start + length - 0.5 / system.drive.pwm_hz if spec.until_s is None else spec.until_s
+    env: Any
+    if policy_env_id(policy) == ENV_ID_V1:
+        env = StepperDampV1Env(motor=system, nominal=spec.knowledge.nominal, mode=mode,
+                               speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
+                               measure_from_s=start, episode_s=end + 1.0, render_mode=render,
+                               **options)
+    else:
+        env = StepperDampEnv(motor=system, mode=mode, speed_rps=spec.speed_rps,
+                             accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
+                             **options)
+    return env, start, length, end, options
+
+
 def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams, *,
                 mode: str, speed_rps: float, seed: int,
                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
@@ -104,23 +148,9 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     ``pwm_trace`` the env records every PWM period of a step
     (``env.step_trace``) for ``on_step`` to read; the run is otherwise the same.
     """
-    start, length = episode_window(system, speed_rps, accel_rps2, window_s, settle_s)
-    if measure_from_s is not None:
-        start, length = float(measure_from_s), float(window_s)
-    options = policy_env_options(policy, knowledge)
-    # Half a PWM period of slack: time_s is a float multiple of the period.
-    end = start + length - 0.5 / system.drive.pwm_hz if until_s is None else until_s
-    render = "rgb_array" if pwm_trace else None
-    env: Any
-    if policy_env_id(policy) == ENV_ID_V1:
-        env = StepperDampV1Env(motor=system, nominal=knowledge.nominal, mode=mode,
-                               speed_rps=speed_rps, accel_rps2=accel_rps2,
-                               measure_from_s=start, episode_s=end + 1.0, render_mode=render,
-                               **options)
-    else:
-        env = StepperDampEnv(motor=system, mode=mode, speed_rps=speed_rps,
-                             accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
-                             **options)
+    spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s)
+    env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
+                                                 "rgb_array" if pwm_trace else None)
     obs, _ = env.reset(seed=seed)
     policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
     steps, terminated, reason = 0, False, ""
@@ -147,3 +177,78 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
                          trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
                          simulated_s=float(time_s))
+
+
+def _batch_of(envs: list[Any]) -> Any:
+    return (StepperDampV1Batch if isinstance(envs[0], StepperDampV1Env)
+            else StepperDampBatch)(envs)
+
+
+def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *, mode: str,
+                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3
+                 ) -> list[EpisodeResult]:
+    """One episode per spec, all of one policy and suite, stepped together.
+
+    ``make_policy()`` gives a fresh policy: a :class:`.policy.BatchPolicy`
+    acts for every episode at once, any other is run as one fresh instance
+    per episode (:class:`.policy.ScalarPolicies`). Episodes whose envs differ
+    in layout (e.g. a motor with another PWM rate) run in separate batches.
+    Each result equals ``run_episode(make_policy(), ...)`` of its spec, bit
+    for bit (no ``on_step`` trace); the results come back in the specs' order.
+    """
+    policy = batch_policy(make_policy)
+    n = len(specs)
+    envs, ends, windows, contexts = [], np.zeros(n), [], []
+    for i, spec in enumerate(specs):
+        env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
+                                                     None)
+        env.reset(seed=spec.seed)
+        envs.append(env)
+        ends[i] = end
+        windows.append((start, length))
+        contexts.append(policy_context(options, spec.knowledge, mode, spec.speed_rps,
+                                       accel_rps2))
+    policy.reset_batch(contexts)
+    calibration = getattr(policy, "row_calibration_s", None)
+    results: list[EpisodeResult | None] = [None] * n
+    groups: dict[tuple, list[int]] = {}
+    for i, env in enumerate(envs):
+        step_s = (env.task.seconds_per_step if isinstance(env, StepperDampV1Env)
+                  else env.seconds_per_step)
+        key = (type(env), env.observation_space.shape, env.action_space.shape, step_s)
+        groups.setdefault(key, []).append(i)
+    for rows_list in groups.values():
+        rows = np.asarray(rows_list, dtype=np.int64)
+        batch = _batch_of([envs[i] for i in rows_list])
+        obs = batch.obs
+        steps = np.zeros(n, dtype=np.int64)
+        while len(rows):
+            actions = policy.act_batch(obs.copy(), rows)
+            terminated, step_loss, overcurrent = batch.step(actions)
+            steps[rows] += 1
+            time_s = batch.time_s
+            done = terminated | (time_s >= ends[rows])
+            for j in np.flatnonzero(done).tolist():
+                i = int(rows[j])
+                term = bool(terminated[j])
+                reason = ("" if not term else "step_loss" if step_loss[j] else
+                          "overcurrent" if overcurrent[j] else "non_finite")
+                try:
+                    metrics: dict[str, Any] | None = batch.run_metrics(j).to_dict()
+                except ValueError:          # terminated before the window opened
+                    metrics = None
+                failed = term or (metrics is not None and bool(metrics["step_loss"]))
+                cal = float(calibration(i)) if calibration is not None else \
+                    float(getattr(policy, "calibration_s", 0.0))
+                results[i] = EpisodeResult(
+                    terminated=term, termination=reason, failed=bool(failed),
+                    steps=int(steps[i]), window_start_s=windows[i][0], window_s=windows[i][1],
+                    metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]))
+            if done.any():
+                keep = np.flatnonzero(~done)
+                batch.keep(keep)
+                rows = rows[keep]
+            obs = batch.obs
+    for env in envs:
+        env.close()
+    return [r for r in results if r is not None]

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
 
 from .. import kernel as K
 from ..params import ParameterError, SystemParams
-from ..simulation import RunMetrics, merge_accumulators, metrics_from_accumulators, new_accumulators
+from ..simulation import (RunMetrics, merge_accumulator_rows, merge_accumulators,
+                          metrics_from_accumulators, new_accumulators)
 from . import compiled as C
 from .actions import action_error, as_action
 from .arguments import check_render_mode
@@ -18,7 +19,7 @@ from .registration import ENV_ID
 from .render import render_episode, trace_rows
 from .sampler import EpisodeSampler
 
-__all__ = ["StepperDampEnv"]
+__all__ = ["StepperDampEnv", "StepperDampBatch"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -198,6 +199,18 @@ class StepperDampEnv(gym.Env):
         """
         return self._trace.copy()
 
+    @property
+    def drive_arrays(self) -> dict[str, np.ndarray]:
+        """Copies of the episode's arrays, one row each, as :class:`StepperDampBatch`
+        stacks them: ``config``, ``state`` (kernel), ``sums`` (the last step's
+        metric sums), ``input``, ``par`` (the env's per-episode constants),
+        ``action`` (last), ``obs``, ``out`` (the last step's outputs) and
+        ``window_sums`` (the run's metric sums since ``measure_from_s``)."""
+        return {"config": self._c2.copy(), "state": self._s2.copy(), "sums": self._acc2.copy(),
+                "input": self._u2.copy(), "par": self._par2.copy(), "action": self._a2.copy(),
+                "obs": self._obs2.copy(), "out": self._out2.copy(),
+                "window_sums": self._run_acc[None].copy()}
+
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far, over the window
         that opens at ``measure_from_s`` (lag, current peak: whole episode).
@@ -263,3 +276,84 @@ class StepperDampEnv(gym.Env):
             return None
         speed = self._par[C.P_W_REF] / TWO_PI
         return render_episode(self._history, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")
+
+
+class StepperDampBatch:
+    """Reset ``StepperDamp-v0`` envs of one layout stepped together: one compiled
+    call per step for all of them (the batched episode runner's drive).
+
+    Each row continues its env's episode exactly as the env's own ``step`` would,
+    bit for bit (the kernel advances each row alone); the envs themselves are
+    left as they were. The envs must share the action layout, agent rate and
+    observation (motors, speeds, seeds and windows may differ) and measure
+    (``measure_from_s``). Rows end for good: :meth:`keep` drops the others.
+
+    Attributes:
+        obs: (n, obs_dim) float32, the rows' latest observations.
+        systems, speeds_rps: each row's plant and held command speed (rev/s).
+    """
+
+    _ARRAYS = ("_c", "_s", "_acc", "_u", "_par", "_a", "_obs", "_out", "_run")
+
+    def __init__(self, envs: Sequence[StepperDampEnv]) -> None:
+        first = envs[0]
+        layout = _layout(first)
+        for env in envs:
+            if env.system is None or env.options.measure_from_s is None:
+                raise ValueError("StepperDampBatch needs envs reset with measure_from_s set")
+            if _layout(env) != layout:
+                raise ValueError("StepperDampBatch needs envs of one layout (action mode, "
+                                 "agent rate, observation)")
+        sampler = first.sampler
+        self._n, self._offset = sampler.n_periods, sampler.input_offset
+        self._privileged = bool(first.options.privileged)
+        self._act_dim = first.action_space.shape[0]
+        rows = [env.drive_arrays for env in envs]
+        for name, key in (("_c", "config"), ("_s", "state"), ("_acc", "sums"), ("_u", "input"),
+                          ("_par", "par"), ("_a", "action"), ("_obs", "obs"), ("_out", "out"),
+                          ("_run", "window_sums")):
+            setattr(self, name, np.concatenate([r[key] for r in rows]))
+        self.systems = [env.system for env in envs]
+        self.speeds_rps = np.array([env.speed_rps for env in envs])
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self._obs
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Each row's simulated time (s), as the env's ``time_s``."""
+        return self._s[:, K.S_PERIOD] * self._c[:, K.C_DT]
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance every row one agent step with ``actions`` (n, act_dim); returns
+        the masks (terminated, step_loss, overcurrent) of this step."""
+        shape = (len(self.systems), self._act_dim)
+        self._a[:] = as_action(actions, shape)
+        if C.load_actions(self._a, self._u, self._acc, self._par, self._offset) >= 0:
+            raise action_error(actions, shape)
+        K.run_batch(self._c, self._s, self._acc, self._u, self._n)
+        merge_accumulator_rows(self._run, self._acc)
+        C.observe(self._s, self._acc, self._a, self._par, C.KERNEL_INDEX, self._privileged,
+                  self._obs, self._out)
+        out = self._out
+        return (out[:, C.O_TERMINATED] != 0.0, out[:, C.O_STEP_LOSS] != 0.0,
+                out[:, C.O_OVERCURRENT] != 0.0)
+
+    def run_metrics(self, i: int) -> RunMetrics:
+        """Row i's metrics, as the env's ``run_metrics()``."""
+        return metrics_from_accumulators(self._run[i], self.systems[i],
+                                         float(self.speeds_rps[i]))
+
+    def keep(self, rows: np.ndarray) -> None:
+        """Keep only ``rows`` (indices into the current rows, in order)."""
+        for name in self._ARRAYS:
+            setattr(self, name, getattr(self, name)[rows])
+        self.systems = [self.systems[i] for i in rows]
+        self.speeds_rps = self.speeds_rps[rows]
+
+
+def _layout(env: StepperDampEnv) -> tuple:
+    """What envs stepped together must share."""
+    return (env.sampler.n_periods, env.sampler.input_offset, bool(env.options.privileged),
+            env.action_space.shape, env.observation_space.shape)

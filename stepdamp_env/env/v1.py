@@ -21,7 +21,8 @@ from .. import kernel as K
 from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..response import phasors, torque_paths
 from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, initial_state,
-                          merge_accumulators, metrics_from_accumulators, new_accumulators)
+                          merge_accumulator_rows, merge_accumulators,
+                          metrics_from_accumulators, new_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
 from .actions import action_error, as_action
@@ -33,7 +34,8 @@ from .sampler import EpisodeSampler
 from .v1_options import (ACTION_NAMES_V1, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
 
-__all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv"]
+__all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv",
+           "StepperDampV1Batch"]
 
 TWO_PI = 2.0 * math.pi
 _FF_COLUMNS = (K.C_FF_S1, K.C_FF_C1, K.C_FF_S2, K.C_FF_C2, K.C_FF_S4, K.C_FF_C4)
@@ -182,8 +184,35 @@ class DriveBatch:
         self.t = np.zeros(n, dtype=np.int64)
         self.speeds_rps = np.zeros(n)
         self.systems: list[SystemParams | None] = [None] * n
-        self._dest = self.law if t.law_actions else self.u
+        # Each drive's episode length in steps (the task's; a batch of several
+        # envs' drives, StepperDampV1Batch, holds each env's own).
+        self.max_steps = np.full(n, t.max_episode_steps, dtype=np.int64)
         self._privileged = bool(t.options.privileged)
+
+    _ROWS = ("c", "s", "acc", "u", "law", "par", "history", "ctx", "obs", "out", "a", "t",
+             "speeds_rps", "max_steps")
+
+    @property
+    def _dest(self) -> np.ndarray:
+        return self.law if self.task.law_actions else self.u
+
+    @classmethod
+    def stack(cls, batches: Sequence["DriveBatch"], rows: Sequence[int] | None = None
+              ) -> "DriveBatch":
+        """One batch of the drives of ``batches`` (which share the first one's
+        layout), or of the ``rows`` of a single batch; arrays are copied."""
+        first = batches[0]
+        if rows is not None:
+            arrays = {k: getattr(first, k)[np.asarray(rows, dtype=np.int64)] for k in cls._ROWS}
+            systems = [first.systems[i] for i in rows]
+        else:
+            arrays = {k: np.concatenate([getattr(b, k) for b in batches]) for k in cls._ROWS}
+            systems = [sys_ for b in batches for sys_ in b.systems]
+        out = cls(first.task, len(systems))
+        for k, v in arrays.items():
+            setattr(out, k, v)
+        out.systems = systems
+        return out
 
     def reset_drive(self, i: int, rng: np.random.Generator) -> dict[str, Any]:
         info, self.systems[i] = self.task.new_episode(rng, self.c[i], self.s[i], self.par[i],
@@ -233,7 +262,7 @@ class DriveBatch:
         self.t += 1
         out = self.out
         terminated = out[:, V.O_TERMINATED] != 0.0
-        left = self.task.max_episode_steps - self.t
+        left = self.max_steps - self.t
         if terminated.any():
             # The worst reward of every step it did not play: ending early never pays.
             out[terminated, V.O_REWARD] -= (REWARD_BOUND * (1.0 + self.par[terminated, V.P_CUR_PEN])
@@ -399,6 +428,17 @@ class StepperDampV1Env(gym.Env):
         an empty (0, N_TRACE) array."""
         return self._trace.copy()
 
+    @property
+    def drive_batch(self) -> DriveBatch:
+        """A copy of this env's drive (a :class:`DriveBatch` of one), as
+        :class:`StepperDampV1Batch` stacks it."""
+        return DriveBatch.stack([self._drives])
+
+    @property
+    def window_sums(self) -> np.ndarray:
+        """A copy of the run's metric sums since ``measure_from_s`` (``kernel.A_*``)."""
+        return self._run_acc.copy()
+
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far (needs ``measure_from_s``)."""
         if self.options.measure_from_s is None:
@@ -562,3 +602,63 @@ class StepperDampV1VectorEnv(VectorEnv):
 
     def render(self) -> None:
         return None
+
+
+class StepperDampV1Batch:
+    """Reset ``StepperDamp-v1`` envs of one layout stepped together, as
+    :class:`~stepdamp_env.env.scalar.StepperDampBatch` does for v0: one compiled
+    call per step, each row bit for bit its env's own ``step``; the envs are
+    left as they were. They must share the task's layout (action mode, agent
+    rate, observation) and measure (``measure_from_s``); their motors, speeds,
+    seeds, windows and episode lengths may differ.
+    """
+
+    def __init__(self, envs: Sequence[StepperDampV1Env]) -> None:
+        layout = _layout(envs[0].task)
+        for env in envs:
+            if env.system is None or env.options.measure_from_s is None:
+                raise ValueError("StepperDampV1Batch needs envs reset with measure_from_s set")
+            if _layout(env.task) != layout:
+                raise ValueError("StepperDampV1Batch needs envs of one layout (action mode, "
+                                 "agent rate, observation)")
+        self._d = DriveBatch.stack([env.drive_batch for env in envs])
+        self._run = np.stack([env.window_sums for env in envs])
+
+    @property
+    def obs(self) -> np.ndarray:
+        """(n, obs_dim) float32: the rows' latest observations."""
+        return self._d.obs
+
+    @property
+    def systems(self) -> list[SystemParams | None]:
+        return self._d.systems
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Each row's simulated time (s), as the env's ``time_s``."""
+        return self._d.t * self._d.task.seconds_per_step
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance every row one agent step; returns the masks (terminated,
+        step_loss, overcurrent) of this step."""
+        d = self._d
+        d.load(actions, (d.n, d.task.act_dim))
+        terminated, _ = d.advance()
+        merge_accumulator_rows(self._run, d.acc)
+        return (terminated, d.out[:, V.O_STEP_LOSS] != 0.0, d.out[:, V.O_OVERCURRENT] != 0.0)
+
+    def run_metrics(self, i: int) -> RunMetrics:
+        """Row i's metrics, as the env's ``run_metrics()``."""
+        return metrics_from_accumulators(self._run[i], self._d.systems[i],
+                                         float(self._d.speeds_rps[i]))
+
+    def keep(self, rows: np.ndarray) -> None:
+        """Keep only ``rows`` (indices into the current rows, in order)."""
+        self._d = DriveBatch.stack([self._d], rows)
+        self._run = self._run[rows]
+
+
+def _layout(t: TaskV1) -> tuple:
+    """What envs stepped together must share."""
+    return (t.n_periods, t.seconds_per_step, t.law_actions, t.input_offset, t.act_dim,
+            t.obs_dim, t.n_context, t.options.history, bool(t.options.privileged))

@@ -1,0 +1,107 @@
+"""Ray as the backend of ``leaderboard``, ``sweep`` and multi-seed ``train`` (extra ``[ray]``).
+
+:func:`ray_map` gives a drop-in for :func:`stepdamp_env.parallel.pool_map` that
+sends the jobs, in chunks, to the Ray cluster at ``address`` (a running cluster:
+``"auto"`` or ``"HOST:PORT"``), or to a local Ray started on this machine's cores
+and the loopback interface when ``address`` is None. Every job computes what it
+computes locally (the runs are deterministic), so the numbers are those of the
+local backend. The worker processes need this package installed (the same
+version) and, for policies given by path, the files at the same paths; they
+run in the driver's working directory when it exists on their machine.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from typing import Any, Callable, Sequence
+
+from .params import ParameterError
+
+__all__ = ["ray_map", "BACKENDS", "backend_map"]
+
+BACKENDS = ("local", "ray")
+
+# Per worker process: the key of the initializer last run there.
+_WORKER_KEY: dict[str, str] = {}
+
+
+def _start(address: str | None) -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise ParameterError("--backend ray needs Ray: pip install 'stepdamp-env[ray]'") from None
+    if not ray.is_initialized():
+        options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
+                                   "configure_logging": False}
+        if address is None:
+            from .parallel import default_workers
+
+            ray.init(num_cpus=default_workers(), _node_ip_address="127.0.0.1",
+                     object_store_memory=200 * 1024 ** 2, **options)
+        else:
+            try:
+                ray.init(address=address, **options)
+            except (ConnectionError, ValueError, RuntimeError) as exc:
+                raise ParameterError(f"--ray-address {address!r}: cannot connect "
+                                     f"({type(exc).__name__}: {exc})") from None
+    return ray
+
+
+def _run_chunk(fn: Callable[[Any], Any], init: tuple, jobs: Sequence[Any]) -> list[Any]:
+    initializer, initargs, key, cwd = init
+    if _WORKER_KEY.get("key") != key:
+        if os.path.isdir(cwd):
+            os.chdir(cwd)
+        if initializer is not None:
+            initializer(*initargs)
+        _WORKER_KEY["key"] = key
+    return [fn(job) for job in jobs]
+
+
+def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
+    """A :func:`~stepdamp_env.parallel.pool_map` that runs on Ray (see the module docstring)."""
+
+    def run(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
+            initializer: Callable[..., None] | None = None, initargs: tuple = (),
+            min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None) -> list[Any]:
+        jobs = list(jobs)
+        if not jobs:
+            return []
+        ray = _start(address)
+        cpus = max(1, int(ray.cluster_resources().get("CPU", workers)))
+        chunk = max(1, len(jobs) // (cpus * 8))
+        if max_chunk is not None:
+            chunk = min(chunk, max_chunk)
+        init = ray.put((initializer, initargs, uuid.uuid4().hex, os.getcwd()))
+        task = ray.remote(num_cpus=1, max_retries=0)(_run_chunk)
+        refs = [task.remote(fn, init, jobs[k:k + chunk]) for k in range(0, len(jobs), chunk)]
+        sizes = {ref: min(chunk, len(jobs) - k) for ref, k in zip(refs, range(0, len(jobs),
+                                                                               chunk))}
+        pending = list(refs)
+        try:
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                if bar is not None:
+                    bar.update(sizes[ready[0]])
+            out: list[Any] = []
+            for part in ray.get(refs):
+                out.extend(part)
+            return out
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+
+    return run
+
+
+def backend_map(backend: str, address: str | None) -> Callable[..., list[Any]] | None:
+    """None for the local process pool, else :func:`ray_map` of ``address``."""
+    if backend not in BACKENDS:
+        raise ParameterError(f"--backend {backend!r} is not one of {list(BACKENDS)}")
+    if backend == "local":
+        if address is not None:
+            raise ParameterError("--ray-address needs --backend ray")
+        return None
+    return ray_map(address)

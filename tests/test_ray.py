@@ -1,0 +1,50 @@
+"""The Ray backend gives the local backend's numbers (a local Ray: 2 CPUs, loopback only).
+
+Skipped without Ray (extra ``[ray]``); CI installs it and runs this file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+
+from stepdamp_env.bench import protocol_motors, quick_protocol_v1, run_leaderboard  # noqa: E402
+from stepdamp_env.params import load_system  # noqa: E402
+from stepdamp_env.ray_backend import ray_map  # noqa: E402
+from stepdamp_env.simulation import RunSettings  # noqa: E402
+from stepdamp_env.sweep import run_sweep  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, _node_ip_address="127.0.0.1", include_dashboard=False,
+             object_store_memory=100 * 1024 ** 2, log_to_driver=False)
+    yield ray_map(None)
+    ray.shutdown()
+
+
+def test_ray_leaderboard_equals_local(local_ray):
+    protocol = quick_protocol_v1()
+    motors = protocol_motors(protocol)
+    protocol = protocol.with_custom_motors([motors[0].system])
+    policies = ["ff-delay-comp", "velocity-feedback", "adaptive-ff", "ars-per-step"]
+    local = run_leaderboard(protocol, policies, workers=2, progress=False)
+    remote = run_leaderboard(protocol, policies, workers=2, progress=False, backend=local_ray)
+    for key in ("protocol", "entries", "identification"):
+        assert json.dumps(remote[key], sort_keys=True) == json.dumps(local[key], sort_keys=True)
+
+
+def test_ray_sweep_equals_local(local_ray):
+    system = load_system("patent")
+    speeds = np.linspace(0.3, 0.9, 6)
+    local = run_sweep(system, speeds, RunSettings(damping="patent-ff"), workers=2,
+                      progress=False)
+    remote = run_sweep(system, speeds, RunSettings(damping="patent-ff"), workers=2,
+                       progress=False, backend=local_ray)
+    assert json.dumps(remote.to_dict(), sort_keys=True) == \
+        json.dumps(local.to_dict(), sort_keys=True)

@@ -1,0 +1,285 @@
+"""Scale: the batched episode runner, resumable leaderboards, the identification cache.
+
+The batched runner must give every run exactly what the scalar runner gives
+(bit for bit, every baseline and reference agent); a leaderboard interrupted and
+started again must give the numbers of an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+import pytest
+
+from stepdamp_agents import reference_agent, reference_names
+from stepdamp_baselines import BASELINE_NAMES
+from stepdamp_env import kernel as K
+from stepdamp_env.bench import (EpisodeSpec, ScalarPolicies, quick_protocol_v1, protocol_motors,
+                                run_episode, run_episodes, run_leaderboard)
+from stepdamp_env.bench.leaderboard import RESUME_DIR, identify_cached, protocol_knowledge
+from stepdamp_env.bench.registry import resolve_policy
+from stepdamp_env.env import StepperDampEnv
+from stepdamp_env.env.scalar import StepperDampBatch
+from stepdamp_env.identify import identify
+from stepdamp_env.parallel import pool_map
+from stepdamp_env.simulation import merge_accumulator_rows, merge_accumulators
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture(scope="module")
+def specs():
+    """Per suite: two motors (a preset and a drawn one) at three speeds, with their
+    identified models: runs that end at different steps."""
+    protocol = quick_protocol_v1()
+    motors = protocol_motors(protocol)
+    chosen = [motors[0], motors[-1]]
+    out = {}
+    for suite in protocol.suites:
+        rows = []
+        for m in chosen:
+            seed = protocol.eval_seeds[0]
+            model = identify(m.system, method=protocol.identification_method,
+                             noise_seed=seed).model
+            knowledge = protocol_knowledge(m, seed, model, protocol)
+            for v in m.speeds(suite)[0][:3]:
+                rows.append(EpisodeSpec(knowledge, m.system, v, seed, m.settle_s(suite)))
+        out[suite] = rows
+    return protocol, out
+
+
+def _scalar(make, specs, suite, protocol):
+    return [run_episode(make(), s.knowledge, s.system, mode=suite, speed_rps=s.speed_rps,
+                        seed=s.seed, accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
+                        settle_s=s.settle_s).to_dict() for s in specs]
+
+
+def _batched(make, specs, suite, protocol):
+    return [r.to_dict() for r in run_episodes(make, specs, mode=suite,
+                                              accel_rps2=protocol.accel_rps2,
+                                              window_s=protocol.window_s)]
+
+
+@pytest.mark.parametrize("name", BASELINE_NAMES)
+def test_batched_runner_equals_scalar_runner_for_every_baseline(name, specs):
+    protocol, by_suite = specs
+    make = resolve_policy(name).make
+    for suite, rows in by_suite.items():
+        assert _batched(make, rows, suite, protocol) == _scalar(make, rows, suite, protocol), \
+            (name, suite)
+
+
+@pytest.mark.parametrize("name", reference_names())
+def test_batched_runner_equals_scalar_runner_for_every_reference_agent(name, specs):
+    protocol, by_suite = specs
+    make = lambda: reference_agent(name, seed=1)       # noqa: E731
+    rows = by_suite["open-loop"]
+    assert _batched(make, rows, "open-loop", protocol) == \
+        _scalar(make, rows, "open-loop", protocol)
+
+
+def test_batched_runner_adapts_a_scalar_policy_and_keeps_failed_runs(specs):
+    """A policy without act_batch runs one instance per row; a run that loses its
+    steps ends early, alone, and reads the same as the scalar one."""
+    protocol, by_suite = specs
+
+    class Shaker:
+        """Pushes with three times the holding current on the fastest speeds only."""
+        name = "shaker"
+
+        def env_options(self, knowledge):
+            return {"base_controller": "none", "action_mode": "current",
+                    "current_scale_a": 3 * knowledge.nominal.drive.holding_current}
+
+        def reset(self, context):
+            self._k, self._push = 0, context.speed_rps > 2.0
+
+        def act(self, observation):
+            self._k += 1
+            push = self._push and self._k > 5
+            return np.array([1.0 if push else 0.0], dtype=np.float32)
+
+    assert not hasattr(Shaker(), "act_batch")
+    rows = by_suite["open-loop"]
+    scalar = _scalar(Shaker, rows, "open-loop", protocol)
+    assert any(r["failed"] for r in scalar) and not all(r["failed"] for r in scalar)
+    assert _batched(Shaker, rows, "open-loop", protocol) == scalar
+    assert isinstance(ScalarPolicies(Shaker), ScalarPolicies)
+
+
+def test_merge_accumulator_rows_is_merge_accumulators_row_by_row():
+    rng = np.random.default_rng(3)
+    total = rng.normal(size=(6, K.N_ACC))
+    part = rng.normal(size=(6, K.N_ACC))
+    total[:, K.A_COUNT] = [0, 3, 2, 0, 5, 1]
+    part[:, K.A_COUNT] = [0, 0, 4, 2, 1, 1]
+    part[5, K.A_MIN_E] = np.nan                      # Python's min keeps the first
+    expected = total.copy()
+    for t, p in zip(expected, part):
+        merge_accumulators(t, p)
+    merge_accumulator_rows(total, part)
+    assert np.array_equal(total, expected, equal_nan=True)
+
+
+def test_batch_refuses_envs_of_two_layouts():
+    a = StepperDampEnv(motor="patent", speed_rps=0.5, measure_from_s=0.1)
+    b = StepperDampEnv(motor="patent", speed_rps=0.5, measure_from_s=0.1, action_mode="current")
+    a.reset(seed=0)
+    b.reset(seed=0)
+    with pytest.raises(ValueError, match="one layout"):
+        StepperDampBatch([a, b])
+
+
+def test_predict_rows_equals_sb3_predict():
+    from stepdamp_agents.policy import load_model, predict_rows
+    from stepdamp_agents import reference_seeds
+
+    for name in reference_names():
+        model = load_model(reference_seeds(name)[1])
+        d = model.observation_space.shape[0]
+        x = np.random.default_rng(0).normal(size=(40, d)).astype(np.float32)
+        one_by_one = np.stack([model.predict(row, deterministic=True)[0] for row in x])
+        assert np.array_equal(predict_rows(model, x), one_by_one), name
+
+
+# -- resume -------------------------------------------------------------------------
+def _tiny():
+    protocol = quick_protocol_v1()
+    motors = protocol_motors(protocol)
+    return protocol.with_custom_motors([motors[0].system]).with_suites(("open-loop",))
+
+
+def _numbers(board):
+    return json.dumps({k: board[k] for k in ("protocol", "entries", "identification")},
+                      sort_keys=True)
+
+
+class _Interrupt(Exception):
+    pass
+
+
+def test_an_interrupted_leaderboard_resumes_to_the_same_numbers(tmp_path):
+    protocol = _tiny()
+    policies = ["ff-delay-comp", "velocity-feedback", "tuned-constant-gain"]
+    whole = run_leaderboard(protocol, policies, workers=1, progress=False)
+
+    calls = {"batches": 0}
+
+    def dies_after_two(fn, jobs, workers, **kw):
+        if fn.__name__ != "_run_batch":
+            return pool_map(fn, jobs, workers, **kw)
+
+        def counted(item):
+            if calls["batches"] == 2:
+                raise _Interrupt
+            calls["batches"] += 1
+            return fn(item)
+        return pool_map(counted, jobs, 1, **kw)
+
+    resume = str(tmp_path / RESUME_DIR)
+    with pytest.raises(_Interrupt):
+        run_leaderboard(protocol, policies, workers=1, progress=False, resume_dir=resume,
+                        backend=dies_after_two)
+    kept = os.listdir(resume)
+    assert len(kept) == 2
+
+    ran = []
+
+    def records(fn, jobs, workers, **kw):
+        if fn.__name__ == "_run_batch":
+            ran.extend(p for _, p in jobs if not os.path.isfile(p))
+        return pool_map(fn, jobs, workers, **kw)
+
+    resumed = run_leaderboard(protocol, policies, workers=1, progress=False, resume_dir=resume,
+                              backend=records)
+    assert _numbers(resumed) == _numbers(whole)
+    assert len(ran) == len(os.listdir(resume)) - 2      # the two kept batches were not rerun
+
+
+def test_a_changed_protocol_does_not_reuse_kept_batches(tmp_path):
+    protocol = _tiny()
+    resume = str(tmp_path / RESUME_DIR)
+    run_leaderboard(protocol, ["ff-delay-comp"], workers=1, progress=False, resume_dir=resume)
+    first = set(os.listdir(resume))
+    other = dataclasses.replace(protocol, window_s=protocol.window_s * 2)
+    run_leaderboard(other, ["ff-delay-comp"], workers=1, progress=False, resume_dir=resume)
+    assert not first & set(os.listdir(resume))
+
+
+def test_leaderboard_command_keeps_batches_until_done(tmp_path):
+    from stepdamp_env.cli import main
+
+    out = tmp_path / "board"
+    args = ["leaderboard", "--quick", "--protocol", "v1", "--entries", "ff-delay-comp",
+            "--suite", "open-loop", "--workers", "1", "--no-progress", "--no-plots",
+            "--out", str(out)]
+    os.makedirs(out / RESUME_DIR)
+    (out / RESUME_DIR / "stale.json").write_text("[]")
+    assert main(args) == 0
+    assert (out / "leaderboard.json").is_file()
+    assert not (out / RESUME_DIR).exists()                  # gone with the finished run
+
+
+# -- identification cache -----------------------------------------------------------
+def test_identification_is_cached_per_motor_seed_and_version(tmp_path, monkeypatch):
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", str(tmp_path))
+    system = protocol_motors(_tiny())[0].system
+    first = identify_cached(system, "iterative", 7)
+    assert first == identify(system, method="iterative", noise_seed=7).model
+    assert len(os.listdir(tmp_path / "identify")) == 1
+    assert identify_cached(system, "iterative", 7) == first      # read back, exactly
+    identify_cached(system, "iterative", 8)
+    assert len(os.listdir(tmp_path / "identify")) == 2
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", "off")
+    assert identify_cached(system, "iterative", 7) == first
+
+
+@pytest.mark.parametrize("name", ["adaptive-ff", "repetitive-control", "velocity-feedback",
+                                  "sensorless-damping"])
+def test_batched_filters_equal_scalar_filters_over_long_synthetic_runs(name, specs):
+    """The vectorised filters against their scalar selves on 4000 steps of a
+    synthetic ripple (every adaptation, period completion and guard path),
+    action by action, with rows leaving the batch on the way."""
+    from stepdamp_env.bench import policy_context, policy_env_options
+    from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
+
+    protocol, by_suite = specs
+    rows = by_suite["open-loop"]
+    make = resolve_policy(name).make
+    probe = make()
+    contexts = []
+    for s in rows:
+        options = policy_env_options(probe, s.knowledge)
+        contexts.append(policy_context(options, s.knowledge, "open-loop", s.speed_rps,
+                                       protocol.accel_rps2))
+    dim = StepperDampEnv(action_mode=policy_env_options(probe, rows[0].knowledge)
+                         ["action_mode"]).observation_space.shape[0]
+    rng = np.random.default_rng(5)
+    n, steps = len(rows), 4000
+    rate = rng.uniform(0.02, 0.3, n)            # electrical angle per step (rad)
+    gain = rng.uniform(0.02, 3.0, n)            # ripple size, up to divergence
+    scalar = [make() for _ in rows]
+    for policy, context in zip(scalar, contexts):
+        policy.reset(context)
+    batch = make()
+    batch.reset_batch(contexts)
+    live = np.arange(n)
+    seen = set()
+    for t in range(steps):
+        x = rate * t
+        obs = np.zeros((n, dim), dtype=np.float32)
+        obs[:, HARMONIC_SIN] = np.stack([np.sin(x), np.sin(2 * x), np.sin(4 * x)], 1)
+        obs[:, HARMONIC_COS] = np.stack([np.cos(x), np.cos(2 * x), np.cos(4 * x)], 1)
+        obs[:, OBS.velocity_error] = (gain * np.sin(x + 0.4) * (1 + t / steps)
+                                      + 0.01 * rng.normal(size=n))
+        obs[:, OBS.position_error] = 0.1 * np.cos(x) + 0.01 * rng.normal(size=n)
+        got = batch.act_batch(obs[live], live)
+        want = np.stack([np.asarray(scalar[i].act(obs[i])) for i in live])
+        assert np.array_equal(got, want), (name, t)
+        seen.update(row.tobytes() for row in got)
+        if t in (1000, 2500):                    # rows end at different steps
+            live = live[1:]
+    assert len(seen) > 20                        # the filters did adapt the action
