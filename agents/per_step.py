@@ -220,10 +220,10 @@ class StepAgent:
 
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy).
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        pass
+        self.model.policy.set_training_mode(False)
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         from .policy import predict_rows
 
-        return np.clip(np.asarray(predict_rows(self.model, observations), dtype=np.float32),
-                       -1.0, 1.0)
+        return np.clip(np.asarray(predict_rows(self.model, observations, eval_mode=False),
+                                  dtype=np.float32), -1.0, 1.0)

@@ -57,18 +57,58 @@ def load_model(path: str) -> Any:
     return _MODELS[path]
 
 
-def predict_rows(model: Any, observations: np.ndarray) -> np.ndarray:
+def _deterministic_action(policy: Any) -> Any:
+    """The network part of the policy's deterministic ``predict`` (the body of
+    SB3's ``_predict`` for each policy family, through public methods)."""
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.sac.policies import SACPolicy
+    from stable_baselines3.td3.policies import TD3Policy
+
+    if isinstance(policy, ActorCriticPolicy):
+        if isinstance(policy.action_dist, DiagGaussianDistribution) and \
+                type(policy).get_distribution is ActorCriticPolicy.get_distribution:
+            # The Gaussian's mode is its mean: the action net on the actor's latent
+            # (get_distribution's steps without building the distribution object).
+            return lambda obs: policy.action_net(policy.mlp_extractor.forward_actor(
+                policy.extract_features(obs, policy.pi_features_extractor)))
+        return lambda obs: policy.get_distribution(obs).get_actions(deterministic=True)
+    if isinstance(policy, SACPolicy):
+        return lambda obs: policy.actor(obs, deterministic=True)
+    if isinstance(policy, TD3Policy):
+        return policy.actor
+    return policy            # ARS: forward is the deterministic action
+
+
+def predict_rows(model: Any, observations: np.ndarray, *, eval_mode: bool = True
+                 ) -> np.ndarray:
     """``model.predict(x[None], deterministic=True)[0][0]`` of each row x, stacked.
 
     Each row goes through the network as a batch of its own: a batch of many
     rows would change the matrix kernels' summation order and with it the
     last bits of the actions, and the leaderboard's batched runs must equal
-    the scalar ones bit for bit.
+    the scalar ones bit for bit. ``predict``'s bookkeeping (mode switch, input
+    checks, clipping) is done once for all rows; the per-row steps are its own
+    (``tests/test_scale.py`` checks the equality on every reference model).
+    ``eval_mode=False`` skips the switch to evaluation mode (the caller made it).
     """
+    import torch
+    from gymnasium import spaces
+
     policy = model.policy
-    x = np.asarray(observations, dtype=np.float32)
-    return np.stack([policy.predict(x[k:k + 1], deterministic=True)[0][0]
-                     for k in range(len(x))])
+    if eval_mode:
+        policy.set_training_mode(False)
+    act = _deterministic_action(policy)
+    x = torch.as_tensor(np.asarray(observations, dtype=np.float32))
+    with torch.no_grad():
+        out = [act(x[k:k + 1]) for k in range(len(x))]
+    actions = torch.cat(out).cpu().numpy().reshape((-1, *policy.action_space.shape))
+    if isinstance(policy.action_space, spaces.Box):
+        if policy.squash_output:
+            actions = policy.unscale_action(actions)
+        else:
+            actions = np.clip(actions, policy.action_space.low, policy.action_space.high)
+    return actions
 
 
 def forget_model(path: str) -> None:
@@ -129,12 +169,13 @@ class ResidualAgent:
             self._rows.set(i, context.knowledge.nominal, est, context.mode, context.speed_rps,
                            context.action_scale, self.base)
         self._rows_step, self._rows_gain, self._rows_sq = 0, np.zeros(n), np.zeros(n)
+        self.model.policy.set_training_mode(False)
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         obs = np.asarray(observations, dtype=np.float32)
         x = self._rows.augment(obs, rows)
         if self.residual_action != "feedback":
-            r = np.asarray(predict_rows(self.model, x), dtype=np.float64)
+            r = np.asarray(predict_rows(self.model, x, eval_mode=False), dtype=np.float64)
             return self._rows.env_action(r, self.residual_scale, self.residual_action,
                                          rows).astype(np.float32)
         from .residual import feedback_current
@@ -146,7 +187,7 @@ class ResidualAgent:
             rms = (np.sqrt(self._rows_sq[rows] / self.hold_steps) if self._rows_step > 0
                    else np.zeros(len(rows)))
             x_in = np.concatenate([x, rms.astype(np.float32)[:, None]], axis=1)
-            self._rows_gain[rows] = np.asarray(predict_rows(self.model, x_in),
+            self._rows_gain[rows] = np.asarray(predict_rows(self.model, x_in, eval_mode=False),
                                                dtype=np.float64).reshape(-1)
             self._rows_sq[rows] = 0.0
         self._rows_step += 1

@@ -1,7 +1,7 @@
 """Scale: leaderboard throughput against the kernel, and SB3 training throughput.
 
 Run: ``PYTHONPATH=. python benchmarks/bench_scale.py [--workers 2] [--skip-board]
-[--skip-training] [--train-steps 200000]``.
+[--skip-training]``.
 
 Everything is measured in this run, on this machine:
 
@@ -16,12 +16,13 @@ Everything is measured in this run, on this machine:
   no imports or figures), ``simulated_seconds`` and the efficiency: simulated
   seconds per wall second over (workers x the kernel rate). Targets on 2 cores:
   efficiency >= 0.3, full board < 300 s, model-based baselines alone < 60 s;
-* training throughput: SB3 ``learn`` on the native vector env (one process:
-  numba steps the drives, torch updates the network on ``--workers`` threads),
-  env-steps per wall second for each algorithm, on StepperDamp-v1 at its
-  default 100 Hz and at 1 kHz and on StepperDamp-v0 (1 kHz). Target: PPO at
-  least 100,000 env-steps/s. The settings are throughput settings (stated in
-  the output), not the committed agents' hyperparameters.
+* training throughput: SB3 on the native vector env (one process: numba steps
+  the drives, torch updates the network on ``--workers`` threads), env-steps
+  per wall second: each algorithm as ``stepdamp train`` runs it with its
+  committed settings (StepperDamp-v1 at 100 Hz; a short run, no validation),
+  then PPO with throughput settings (512 drives, 32-step rollouts, one epoch
+  of 8192-sample batches) on StepperDamp-v1 at 100 Hz and 1 kHz and on
+  StepperDamp-v0 (1 kHz). Target: PPO at least 100,000 env-steps/s.
 """
 
 from __future__ import annotations
@@ -80,47 +81,49 @@ def bench_boards(workers: int, rate: float) -> None:
         print(f"batched boards equal the scalar board: {same}")
 
 
-def bench_training(steps: int, threads: int) -> None:
+def bench_training(threads: int) -> None:
+    """Env-steps per wall second of SB3 training on the native vector env."""
+    import dataclasses
+
     import torch
+    from stable_baselines3 import PPO
 
-    from stable_baselines3 import PPO, SAC, TD3, A2C
-    from sb3_contrib import ARS
-
+    from stepdamp_agents.train import Args, train
     from stepdamp_env.sb3 import make_sb3_vec_env, make_sb3_vec_env_v1
 
     torch.set_num_threads(threads)
-    envs = {"v1 100 Hz": lambda n: make_sb3_vec_env_v1(num_envs=n),
-            "v1 1 kHz": lambda n: make_sb3_vec_env_v1(num_envs=n, agent_hz=1000.0),
-            "v0 1 kHz": lambda n: make_sb3_vec_env(num_envs=n, action_mode="harmonic")}
-    # Throughput settings: many drives per call, large batches, few epochs.
-    algos = {
-        "ppo": (PPO, 256, dict(n_steps=64, batch_size=4096, n_epochs=2)),
-        "a2c": (A2C, 256, dict(n_steps=8)),
-        "ars": (ARS, 256, dict(n_delta=128, n_top=32, n_eval_episodes=1)),
-        "sac": (SAC, 256, dict(train_freq=1, gradient_steps=1, batch_size=1024,
-                                learning_starts=0, buffer_size=200_000)),
-        "td3": (TD3, 256, dict(train_freq=1, gradient_steps=1, batch_size=1024,
-                                learning_starts=0, buffer_size=200_000)),
-    }
-    for env_label, make in envs.items():
-        for name, (cls, n, kw) in algos.items():
-            if name == "ars":
-                venv = make(1)
-                kw = {**kw}
-            else:
-                venv = make(n)
-            model = cls("MlpPolicy" if name != "ars" else "LinearPolicy", venv, seed=0,
-                        verbose=0, device="cpu", **kw)
-            total = steps if name in ("ppo", "a2c") else steps // 4
-            model.learn(min(total, 4096 if name != "ars" else 2000))          # warm-up
-            t0 = time.perf_counter()
-            model.learn(total, reset_num_timesteps=False)
-            wall = time.perf_counter() - t0
-            rate = total / wall
-            target = " (target >= 100,000)" if name == "ppo" else ""
-            print(f"train {env_label:9s} {name}: {rate:9.0f} env-steps/s{target}; "
-                  f"{venv.num_envs} drives, {kw}", flush=True)
-            venv.close()
+    # 1. Each algorithm as `stepdamp train` runs it (the committed YAML settings,
+    # StepperDamp-v1 at 100 Hz), a short run without validation or checkpoints.
+    budgets = {"ars": 240_000, "ppo": 64_000, "td3": 16_000, "sac": 16_000}
+    with tempfile.TemporaryDirectory() as tmp:
+        for algo, steps in budgets.items():
+            args = Args(algo=algo, out=os.path.join(tmp, algo), total_timesteps=steps,
+                        eval_freq=0, checkpoint_freq=0, progress=False, tensorboard=False)
+            if algo in ("sac", "td3"):       # learn from the first step (the YAML waits 32k)
+                args = dataclasses.replace(args, extra={"learning_starts": 0})
+            log = train(args)
+            rate = steps / log["train_wall_s"]
+            print(f"train {algo} (committed settings, v1 at 100 Hz, {log['n_envs']} drives): "
+                  f"{rate:9.0f} env-steps/s", flush=True)
+    # 2. PPO with throughput settings: 512 drives per compiled call, 32 steps per
+    # rollout, one epoch of batches of 8192.
+    envs = {"StepperDamp-v1, 100 Hz": lambda: make_sb3_vec_env_v1(num_envs=512, agent_hz=100.0),
+            "StepperDamp-v1, 1 kHz": lambda: make_sb3_vec_env_v1(num_envs=512,
+                                                                  agent_hz=1000.0),
+            "StepperDamp-v0, 1 kHz": lambda: make_sb3_vec_env(num_envs=512,
+                                                              action_mode="harmonic")}
+    for label, make in envs.items():
+        venv = make()
+        model = PPO("MlpPolicy", venv, n_steps=32, batch_size=8192, n_epochs=1, seed=0,
+                    verbose=0, device="cpu")
+        model.learn(512 * 32)                                  # warm-up (compiles)
+        steps = 512 * 32 * 12
+        t0 = time.perf_counter()
+        model.learn(steps, reset_num_timesteps=False)
+        rate = steps / (time.perf_counter() - t0)
+        print(f"train ppo (throughput settings, {label}, 512 drives): {rate:9.0f} env-steps/s "
+              f"(target >= 100,000)", flush=True)
+        venv.close()
 
 
 def main() -> None:
@@ -129,7 +132,6 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-board", action="store_true")
     parser.add_argument("--skip-training", action="store_true")
-    parser.add_argument("--train-steps", type=int, default=200_000)
     args = parser.parse_args()
     sys.path.insert(0, ROOT)
     import stepdamp_agents
@@ -144,7 +146,7 @@ def main() -> None:
     if not args.skip_board:
         bench_boards(args.workers, rate)
     if not args.skip_training:
-        bench_training(args.train_steps, args.workers)
+        bench_training(args.workers)
 
 
 if __name__ == "__main__":
