@@ -38,13 +38,15 @@ def _worker_start(parent: int, initializer: Callable[..., None] | None,
 
 def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
              initializer: Callable[..., None] | None = None, initargs: tuple = (),
-             min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None) -> list[Any]:
+             min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None,
+             on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
     """``[fn(job) for job in jobs]``, in order, in this process or on ``workers`` processes.
 
     Runs serially (after calling ``initializer(*initargs)`` here) when
     ``workers <= 1`` or there are fewer than ``min_jobs`` jobs. Workers are
     forked where the platform can, so they inherit what the parent loaded
-    (compiled kernels, models). ``bar`` (a tqdm bar) is advanced per result.
+    (compiled kernels, models). ``bar`` (a tqdm bar) is advanced per result;
+    ``on_result(i, result)`` is called here as each result arrives (in order).
     Workers end with the parent: on any exception here (Ctrl-C included) the
     pool is terminated, and on Linux a worker is killed when its parent dies.
     """
@@ -52,8 +54,10 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     if workers <= 1 or len(jobs) < min_jobs:
         if initializer is not None:
             initializer(*initargs)
-        for job in jobs:
+        for i, job in enumerate(jobs):
             out.append(fn(job))
+            if on_result is not None:
+                on_result(i, out[-1])
             if bar is not None:
                 bar.update()
         return out
@@ -66,6 +70,8 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     try:
         for r in pool.imap(fn, jobs, chunksize=chunk):
             out.append(r)
+            if on_result is not None:
+                on_result(len(out) - 1, r)
             if bar is not None:
                 bar.update()
         pool.close()

@@ -64,7 +64,8 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
 
     def run(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
             initializer: Callable[..., None] | None = None, initargs: tuple = (),
-            min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None) -> list[Any]:
+            min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None,
+            on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
         jobs = list(jobs)
         if not jobs:
             return []
@@ -75,15 +76,19 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
             chunk = min(chunk, max_chunk)
         init = ray.put((initializer, initargs, uuid.uuid4().hex, os.getcwd()))
         task = ray.remote(num_cpus=1, max_retries=0)(_run_chunk)
-        refs = [task.remote(fn, init, jobs[k:k + chunk]) for k in range(0, len(jobs), chunk)]
-        sizes = {ref: min(chunk, len(jobs) - k) for ref, k in zip(refs, range(0, len(jobs),
-                                                                               chunk))}
+        starts = list(range(0, len(jobs), chunk))
+        refs = [task.remote(fn, init, jobs[k:k + chunk]) for k in starts]
+        first = dict(zip(refs, starts))
         pending = list(refs)
         try:
             while pending:
                 ready, pending = ray.wait(pending, num_returns=1)
+                part = ray.get(ready[0])
+                if on_result is not None:       # here, in the driver, as chunks arrive
+                    for j, result in enumerate(part):
+                        on_result(first[ready[0]] + j, result)
                 if bar is not None:
-                    bar.update(sizes[ready[0]])
+                    bar.update(len(part))
             out: list[Any] = []
             for part in ray.get(refs):
                 out.extend(part)

@@ -48,3 +48,23 @@ def test_ray_sweep_equals_local(local_ray):
                        progress=False, backend=local_ray)
     assert json.dumps(remote.to_dict(), sort_keys=True) == \
         json.dumps(local.to_dict(), sort_keys=True)
+
+
+def test_ray_multi_seed_training_equals_local(local_ray, tmp_path):
+    """`stepdamp train --seeds 1-2 --backend ray`: the same models as one after the other."""
+    import dataclasses as dc
+
+    import torch
+
+    from stepdamp_agents.policy import load_model
+    from stepdamp_agents.train import Args, train_seeds
+
+    base = Args(algo="ppo", seeds=(1, 2), total_timesteps=3200, eval_freq=0,
+                checkpoint_freq=0, progress=False, tensorboard=False)
+    train_seeds(dc.replace(base, out=str(tmp_path / "local")))
+    train_seeds(dc.replace(base, out=str(tmp_path / "ray"), backend="ray"))
+    for k in (1, 2):
+        a = load_model(str(tmp_path / "local" / f"seed{k}" / "final.zip")).policy.state_dict()
+        b = load_model(str(tmp_path / "ray" / f"seed{k}" / "final.zip")).policy.state_dict()
+        assert a.keys() == b.keys()
+        assert all(torch.equal(a[key], b[key]) for key in a)

@@ -151,14 +151,8 @@ def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     return model
 
 
-def _run_batch(item: tuple[LeaderboardBatch, str | None]) -> list[dict[str, Any]]:
-    """The records of a batch's runs; read from ``path`` if a earlier, interrupted
-    run of the same leaderboard finished it, else run and (with a path) kept there."""
-    batch, path = item
-    if path is not None:
-        done = read_json_or_none(path)
-        if isinstance(done, list) and len(done) == len(batch.runs):
-            return done
+def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
+    """The records of a batch's runs."""
     protocol: Protocol = _WORKER["protocol"]
     motors: Sequence[ProtocolMotor] = _WORKER["motors"]
     specs = []
@@ -181,8 +175,6 @@ def _run_batch(item: tuple[LeaderboardBatch, str | None]) -> list[dict[str, Any]
         motor = motors[i]
         records.append(result.record(motor.name, seed, spec.speed_rps,
                                      motor.speeds(batch.suite)[1][j], batch.training_seed))
-    if path is not None:
-        write_json(path, records)
     return records
 
 
@@ -379,13 +371,25 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
                   "motors": [m.to_dict() for m in motors],
                   "policies": {spec: _fingerprint(spec) for spec in specs}}
         paths = list(_resume_paths(resume_dir, batches, header))
-    bar = progress_bar(len(batches), "leaderboard", "batch")
+    # Batches an interrupted run of this very board finished are read, not run.
+    done: list[Any] = [read_json_or_none(p) if p is not None else None for p in paths]
+    todo = [k for k, (b, d) in enumerate(zip(batches, done))
+            if not (isinstance(d, list) and len(d) == len(b.runs))]
+
+    def keep(j: int, records: list[dict[str, Any]]) -> None:
+        path = paths[todo[j]]
+        if path is not None:
+            write_json(path, records)
+
+    bar = progress_bar(len(todo), "leaderboard", "batch")
     # SB3 models are loaded in the parent and inherited by the forked workers.
-    done = run_map(_run_batch, list(zip(batches, paths)), workers, initializer=_init_worker,
-                   initargs=(motors, knowledge, protocol, sources, runner), max_chunk=1,
-                   bar=bar)
+    ran = run_map(_run_batch, [batches[k] for k in todo], workers, initializer=_init_worker,
+                  initargs=(motors, knowledge, protocol, sources, runner), max_chunk=1,
+                  bar=bar, on_result=keep)
     if bar is not None:
         bar.close()
+    for k, records in zip(todo, ran):
+        done[k] = records
     jobs = [job for b in batches for job in b.jobs()]
     results = [r for records in done for r in records]
 
