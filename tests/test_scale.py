@@ -282,3 +282,19 @@ def test_batched_filters_equal_scalar_filters_over_long_synthetic_runs(name, spe
         if t in (1000, 2500):                    # rows end at different steps
             live = live[1:]
     assert len(seen) > 20                        # the filters did adapt the action
+
+
+@pytest.mark.parametrize("name", ["adaptive-ff", "velocity-feedback", "calibrated-table"])
+def test_runs_of_two_layouts_go_in_two_batches(name, specs):
+    """A motor with another PWM rate (another number of periods per step) runs in
+    a batch of its own, and every run still equals its scalar run."""
+    from stepdamp_env.params import load_system
+
+    protocol, by_suite = specs
+    rows = by_suite["open-loop"][:3]
+    slow = load_system("patent", {"pwm_hz": 16000.0})
+    mixed = [rows[0], dataclasses.replace(rows[1], system=slow), rows[2],
+             dataclasses.replace(rows[0], system=slow)]
+    make = resolve_policy(name).make
+    assert _batched(make, mixed, "open-loop", protocol) == \
+        _scalar(make, mixed, "open-loop", protocol)

@@ -172,7 +172,8 @@ class BatchPolicy(Policy, TypingProtocol):
     """
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        """Start one run per context: rows 0 .. len(contexts) - 1."""
+        """Start one run per context: rows 0 .. len(contexts) - 1 (a new batch; the
+        previous one, if any, is over)."""
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Actions (k, act_dim) in [-1, 1] for the observations (k, obs_dim) of

@@ -179,11 +179,6 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                          simulated_s=float(time_s))
 
 
-def _batch_of(envs: list[Any]) -> Any:
-    return (StepperDampV1Batch if isinstance(envs[0], StepperDampV1Env)
-            else StepperDampBatch)(envs)
-
-
 def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *, mode: str,
                  accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3
                  ) -> list[EpisodeResult]:
@@ -208,28 +203,27 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         windows.append((start, length))
         contexts.append(policy_context(options, spec.knowledge, mode, spec.speed_rps,
                                        accel_rps2))
-    policy.reset_batch(contexts)
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}
     for i, env in enumerate(envs):
-        step_s = (env.task.seconds_per_step if isinstance(env, StepperDampV1Env)
-                  else env.seconds_per_step)
-        key = (type(env), env.observation_space.shape, env.action_space.shape, step_s)
-        groups.setdefault(key, []).append(i)
-    for rows_list in groups.values():
-        rows = np.asarray(rows_list, dtype=np.int64)
-        batch = _batch_of([envs[i] for i in rows_list])
-        obs = batch.obs
-        steps = np.zeros(n, dtype=np.int64)
+        kind = StepperDampV1Batch if isinstance(env, StepperDampV1Env) else StepperDampBatch
+        groups.setdefault((kind, kind.layout_of(env)), []).append(i)
+    for (kind, _), members in groups.items():
+        # One batch: its runs are rows 0..k-1 of one reset_batch; they leave as they end.
+        index = np.asarray(members, dtype=np.int64)
+        policy.reset_batch([contexts[i] for i in members])
+        batch = kind([envs[i] for i in members])
+        rows = np.arange(len(members))
+        steps = np.zeros(len(members), dtype=np.int64)
         while len(rows):
-            actions = policy.act_batch(obs.copy(), rows)
+            actions = policy.act_batch(batch.obs.copy(), rows)
             terminated, step_loss, overcurrent = batch.step(actions)
             steps[rows] += 1
             time_s = batch.time_s
-            done = terminated | (time_s >= ends[rows])
+            done = terminated | (time_s >= ends[index[rows]])
             for j in np.flatnonzero(done).tolist():
-                i = int(rows[j])
+                row, i = int(rows[j]), int(index[rows[j]])
                 term = bool(terminated[j])
                 reason = ("" if not term else "step_loss" if step_loss[j] else
                           "overcurrent" if overcurrent[j] else "non_finite")
@@ -238,17 +232,16 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
                 except ValueError:          # terminated before the window opened
                     metrics = None
                 failed = term or (metrics is not None and bool(metrics["step_loss"]))
-                cal = float(calibration(i)) if calibration is not None else \
+                cal = float(calibration(row)) if calibration is not None else \
                     float(getattr(policy, "calibration_s", 0.0))
                 results[i] = EpisodeResult(
                     terminated=term, termination=reason, failed=bool(failed),
-                    steps=int(steps[i]), window_start_s=windows[i][0], window_s=windows[i][1],
+                    steps=int(steps[row]), window_start_s=windows[i][0], window_s=windows[i][1],
                     metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]))
             if done.any():
                 keep = np.flatnonzero(~done)
                 batch.keep(keep)
                 rows = rows[keep]
-            obs = batch.obs
     for env in envs:
         env.close()
     return [r for r in results if r is not None]

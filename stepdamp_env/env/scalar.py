@@ -295,13 +295,19 @@ class StepperDampBatch:
 
     _ARRAYS = ("_c", "_s", "_acc", "_u", "_par", "_a", "_obs", "_out", "_run")
 
+    @staticmethod
+    def layout_of(env: StepperDampEnv) -> tuple:
+        """What envs stepped together must share (equal tuples: one batch)."""
+        return (env.sampler.n_periods, env.sampler.input_offset, bool(env.options.privileged),
+                env.action_space.shape, env.observation_space.shape)
+
     def __init__(self, envs: Sequence[StepperDampEnv]) -> None:
         first = envs[0]
-        layout = _layout(first)
+        layout = self.layout_of(first)
         for env in envs:
             if env.system is None or env.options.measure_from_s is None:
                 raise ValueError("StepperDampBatch needs envs reset with measure_from_s set")
-            if _layout(env) != layout:
+            if self.layout_of(env) != layout:
                 raise ValueError("StepperDampBatch needs envs of one layout (action mode, "
                                  "agent rate, observation)")
         sampler = first.sampler
@@ -351,9 +357,3 @@ class StepperDampBatch:
             setattr(self, name, getattr(self, name)[rows])
         self.systems = [self.systems[i] for i in rows]
         self.speeds_rps = self.speeds_rps[rows]
-
-
-def _layout(env: StepperDampEnv) -> tuple:
-    """What envs stepped together must share."""
-    return (env.sampler.n_periods, env.sampler.input_offset, bool(env.options.privileged),
-            env.action_space.shape, env.observation_space.shape)

@@ -613,12 +613,19 @@ class StepperDampV1Batch:
     seeds, windows and episode lengths may differ.
     """
 
+    @staticmethod
+    def layout_of(env: StepperDampV1Env) -> tuple:
+        """What envs stepped together must share (equal tuples: one batch)."""
+        t = env.task
+        return (t.n_periods, t.seconds_per_step, t.law_actions, t.input_offset, t.act_dim,
+                t.obs_dim, t.n_context, t.options.history, bool(t.options.privileged))
+
     def __init__(self, envs: Sequence[StepperDampV1Env]) -> None:
-        layout = _layout(envs[0].task)
+        layout = self.layout_of(envs[0])
         for env in envs:
             if env.system is None or env.options.measure_from_s is None:
                 raise ValueError("StepperDampV1Batch needs envs reset with measure_from_s set")
-            if _layout(env.task) != layout:
+            if self.layout_of(env) != layout:
                 raise ValueError("StepperDampV1Batch needs envs of one layout (action mode, "
                                  "agent rate, observation)")
         self._d = DriveBatch.stack([env.drive_batch for env in envs])
@@ -656,9 +663,3 @@ class StepperDampV1Batch:
         """Keep only ``rows`` (indices into the current rows, in order)."""
         self._d = DriveBatch.stack([self._d], rows)
         self._run = self._run[rows]
-
-
-def _layout(t: TaskV1) -> tuple:
-    """What envs stepped together must share."""
-    return (t.n_periods, t.seconds_per_step, t.law_actions, t.input_offset, t.act_dim,
-            t.obs_dim, t.n_context, t.options.history, bool(t.options.privileged))
