@@ -28,7 +28,7 @@ from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import SystemParams
 from stepdamp_env.response import current_path, phasors, torque_paths, velocity_filter
 
-from .harmonic import DelayCompensatedFF, harmonic_actions
+from .harmonic import DelayCompensatedFF, gather_rows, harmonic_actions
 
 __all__ = ["VelocityFeedback", "SensorlessDamping", "OracleFloor", "TunedConstantGain",
            "design_gains",
@@ -105,14 +105,8 @@ class _FeedbackOnFF(DelayCompensatedFF):
     _ROW_SETTINGS: tuple[str, ...] = ()
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        rows: dict[str, list[Any]] = {k: [] for k in ("_action", "_w_ref", "_to_action",
-                                                       "_full_step", "gains",
-                                                       *self._ROW_SETTINGS)}
-        for context in contexts:
-            self.reset(context)
-            for k, v in rows.items():
-                v.append(np.array(getattr(self, k), copy=True))
-        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        names = ("_action", "_w_ref", "_to_action", "_full_step", "gains", *self._ROW_SETTINGS)
+        self._rows = gather_rows(self, contexts, lambda: {k: getattr(self, k) for k in names})
         n = len(contexts)
         self._rows_state = np.zeros((3, n))     # the law's filter states
         self._rows_started = False

@@ -12,7 +12,7 @@ P/G instead of P puts the intended torque on the rotor.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -23,9 +23,36 @@ from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 __all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS", "phasors", "torque_paths",
-           "harmonic_actions"]
+           "harmonic_actions", "harmonic_action_rows", "gather_rows"]
 
 HARMONICS = DETENT_HARMONICS
+
+
+def gather_rows(policy: Any, contexts: Sequence[PolicyContext],
+                get: Callable[[], dict[str, Any]]) -> dict[str, np.ndarray]:
+    """A batched policy's per-row settings: ``policy`` is reset for each context
+    (its own scalar ``reset``) and what ``get()`` reads of it then is stacked,
+    one row per context."""
+    rows: dict[str, list[np.ndarray]] = {}
+    for context in contexts:
+        policy.reset(context)
+        for k, v in get().items():
+            rows.setdefault(k, []).append(np.array(v, copy=True))
+    return {k: np.stack(v) for k, v in rows.items()}
+
+
+def harmonic_action_rows(applied: np.ndarray, base: np.ndarray, scale: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`harmonic_actions` row by row ((n, 3) phasors, (n,) scales), with the
+    phasors the actions really apply (each row the same arithmetic as one call)."""
+    scale = scale[:, None]
+    delta = (applied - base) / scale
+    action = np.empty((len(applied), 6), dtype=np.float32)
+    action[:, 0::2] = delta.real
+    action[:, 1::2] = delta.imag
+    action = np.clip(action, -1.0, 1.0)
+    return action, base + scale * (action[:, 0::2].astype(float)
+                                   + 1j * action[:, 1::2].astype(float))
 
 
 def harmonic_actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
@@ -79,19 +106,14 @@ class DelayCompensatedFF(_HarmonicResidual):
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): each
     # row is reset as a scalar run is, and its (constant) action kept.
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        actions, calibration = [], []
-        for context in contexts:
-            self.reset(context)
-            actions.append(np.array(self._action, copy=True))
-            calibration.append(float(getattr(self, "calibration_s", 0.0)))
-        self._rows_action = np.stack(actions)
-        self._rows_calibration = calibration
+        self._rows = gather_rows(self, contexts, lambda: {
+            "_action": self._action, "calibration_s": float(getattr(self, "calibration_s", 0.0))})
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        return self._rows_action[rows]
+        return self._rows["_action"][rows]
 
     def row_calibration_s(self, row: int) -> float:
-        return self._rows_calibration[row]
+        return float(self._rows["calibration_s"][row])
 
 
 class AdaptiveFF(_HarmonicResidual):
@@ -218,14 +240,8 @@ class AdaptiveFF(_HarmonicResidual):
                      "_initial", "_start_step", "_adapt_step")
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        rows: dict[str, list[Any]] = {k: [] for k in (*self._ROW_SETTINGS, "x", "P")}
-        for context in contexts:
-            self.reset(context)
-            for k in self._ROW_SETTINGS:
-                rows[k].append(np.array(getattr(self, k), copy=True))
-            rows["x"].append(self._kf.x.copy())
-            rows["P"].append(self._kf.P.copy())
-        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        self._rows = gather_rows(self, contexts, lambda: {
+            **{k: getattr(self, k) for k in self._ROW_SETTINGS}, "x": self._kf.x, "P": self._kf.P})
         n = len(contexts)
         self._rows["_reference_power"] = np.zeros((n, 3))
         self._rows["_active"] = np.ones((n, 3), dtype=bool)
@@ -277,14 +293,7 @@ class AdaptiveFF(_HarmonicResidual):
         applied = np.where(diverged, r["_initial"][idx], applied)
         weight = active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300), 0.0, 1.0)
         target = applied + self.step_gain * weight * ripple * r["_inverse_path"][idx]
-        base, scale = r["_base"][idx], r["_scale"][idx][:, None]
-        delta = (target - base) / scale
-        action = np.empty((len(idx), 6), dtype=np.float32)
-        action[:, 0::2] = delta.real
-        action[:, 1::2] = delta.imag
-        action = np.clip(action, -1.0, 1.0)
-        r["_action"][idx] = action
-        r["_applied"][idx] = base + scale * (action[:, 0::2].astype(float)
-                                             + 1j * action[:, 1::2].astype(float))
+        r["_action"][idx], r["_applied"][idx] = harmonic_action_rows(target, r["_base"][idx],
+                                                                     r["_scale"][idx])
         r["_active"][idx] = active
 

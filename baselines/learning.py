@@ -17,7 +17,8 @@ from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
-from .harmonic import DelayCompensatedFF, harmonic_actions
+from .harmonic import (DelayCompensatedFF, gather_rows, harmonic_action_rows,
+                       harmonic_actions)
 
 __all__ = ["CalibratedTable", "RepetitiveControl", "golden_section"]
 
@@ -270,12 +271,8 @@ class RepetitiveControl(DelayCompensatedFF):
                      "_wait")
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        rows: dict[str, list[Any]] = {k: [] for k in self._ROW_SETTINGS}
-        for context in contexts:
-            self.reset(context)
-            for k in self._ROW_SETTINGS:
-                rows[k].append(np.array(getattr(self, k), copy=True))
-        self._rows = {k: np.stack(v) for k, v in rows.items()}
+        self._rows = gather_rows(self, contexts,
+                                 lambda: {k: getattr(self, k) for k in self._ROW_SETTINGS})
         n = len(contexts)
         self._rows.update(_angle=np.zeros(n), _turned=np.zeros(n),
                           _sums=np.zeros((n, 3), dtype=complex), _count=np.zeros(n, dtype=int),
@@ -323,15 +320,8 @@ class RepetitiveControl(DelayCompensatedFF):
         start = r["_start"][idx]
         table = np.where(diverged, start, r["_table"][idx])
         table = start + self.leak * (table - start) + active * r["_learn"][idx] * ripple
-        base, scale = r["_base"][idx], r["_scale"][idx][:, None]
-        delta = (table - base) / scale
-        action = np.empty((len(idx), 6), dtype=np.float32)
-        action[:, 0::2] = delta.real
-        action[:, 1::2] = delta.imag
-        action = np.clip(action, -1.0, 1.0)
-        r["_action"][idx] = action
-        r["_table"][idx] = base + scale * (action[:, 0::2].astype(float)
-                                           + 1j * action[:, 1::2].astype(float))
+        r["_action"][idx], r["_table"][idx] = harmonic_action_rows(table, r["_base"][idx],
+                                                                   r["_scale"][idx])
         r["_reference"][idx] = reference
         r["_active"][idx] = active
         r["_seen"][idx] = True

@@ -298,3 +298,17 @@ def test_runs_of_two_layouts_go_in_two_batches(name, specs):
     make = resolve_policy(name).make
     assert _batched(make, mixed, "open-loop", protocol) == \
         _scalar(make, mixed, "open-loop", protocol)
+
+
+def test_backend_mistakes_are_one_line_errors(tmp_path, monkeypatch, capsys):
+    import sys
+
+    from stepdamp_env.cli import main
+
+    sweep = ["sweep", "--speeds", "0.5:0.5:0.1", "--out", str(tmp_path / "s"), "--no-progress"]
+    assert main(sweep + ["--ray-address", "auto"]) == 2
+    assert "--ray-address needs --backend ray" in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "ray", None)          # Ray not installed
+    assert main(sweep + ["--backend", "ray"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "pip install" in err and "[ray]" in err and len(err.splitlines()) == 1

@@ -3,7 +3,7 @@ vector size, autoreset, reset seeds), so that v0 and v1 refuse them in the same 
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -11,7 +11,7 @@ from gymnasium.vector import AutoresetMode
 
 from ..params import ParameterError
 
-__all__ = ["check_render_mode", "check_vector_args", "reseed"]
+__all__ = ["check_render_mode", "check_vector_args", "reseed", "check_batch_envs"]
 
 
 def check_render_mode(render_mode: str | None, allowed: Sequence[str]) -> str | None:
@@ -71,3 +71,17 @@ def reseed(rngs: list[np.random.Generator | None], seed: Any, options: dict[str,
             if mask[i] and (sd is not None or rngs[i] is None):
                 rngs[i], _ = seeding.np_random(sd)
     return mask
+
+
+def check_batch_envs(envs: Sequence[Any], layout_of: Callable[[Any], tuple], kind: str) -> None:
+    """Envs stepped together: at least one, each reset with ``measure_from_s`` set, all
+    of one layout (``layout_of``); else a ValueError naming ``kind``."""
+    if not envs:
+        raise ValueError(f"{kind} needs at least one env")
+    layout = layout_of(envs[0])
+    for env in envs:
+        if env.system is None or env.options.measure_from_s is None:
+            raise ValueError(f"{kind} needs envs reset with measure_from_s set")
+        if layout_of(env) != layout:
+            raise ValueError(f"{kind} needs envs of one layout (action mode, agent rate, "
+                             "observation)")

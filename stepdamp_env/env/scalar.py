@@ -13,7 +13,7 @@ from ..simulation import (RunMetrics, merge_accumulator_rows, merge_accumulators
                           metrics_from_accumulators, new_accumulators)
 from . import compiled as C
 from .actions import action_error, as_action
-from .arguments import check_render_mode
+from .arguments import check_batch_envs, check_render_mode
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
 from .render import render_episode, trace_rows
@@ -302,14 +302,8 @@ class StepperDampBatch:
                 env.action_space.shape, env.observation_space.shape)
 
     def __init__(self, envs: Sequence[StepperDampEnv]) -> None:
+        check_batch_envs(envs, self.layout_of, "StepperDampBatch")
         first = envs[0]
-        layout = self.layout_of(first)
-        for env in envs:
-            if env.system is None or env.options.measure_from_s is None:
-                raise ValueError("StepperDampBatch needs envs reset with measure_from_s set")
-            if self.layout_of(env) != layout:
-                raise ValueError("StepperDampBatch needs envs of one layout (action mode, "
-                                 "agent rate, observation)")
         sampler = first.sampler
         self._n, self._offset = sampler.n_periods, sampler.input_offset
         self._privileged = bool(first.options.privileged)

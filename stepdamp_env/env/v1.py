@@ -27,7 +27,7 @@ from . import compiled as C
 from . import v1_compiled as V
 from .actions import action_error, as_action
 from .options import default_action_scales
-from .arguments import check_render_mode, check_vector_args, reseed
+from .arguments import check_batch_envs, check_render_mode, check_vector_args, reseed
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
@@ -621,13 +621,7 @@ class StepperDampV1Batch:
                 t.obs_dim, t.n_context, t.options.history, bool(t.options.privileged))
 
     def __init__(self, envs: Sequence[StepperDampV1Env]) -> None:
-        layout = self.layout_of(envs[0])
-        for env in envs:
-            if env.system is None or env.options.measure_from_s is None:
-                raise ValueError("StepperDampV1Batch needs envs reset with measure_from_s set")
-            if self.layout_of(env) != layout:
-                raise ValueError("StepperDampV1Batch needs envs of one layout (action mode, "
-                                 "agent rate, observation)")
+        check_batch_envs(envs, self.layout_of, "StepperDampV1Batch")
         self._d = DriveBatch.stack([env.drive_batch for env in envs])
         self._run = np.stack([env.window_sums for env in envs])
 
