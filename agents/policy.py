@@ -61,7 +61,7 @@ def _deterministic_action(policy: Any) -> Any:
     """The network part of the policy's deterministic ``predict`` (the body of
     SB3's ``_predict`` for each policy family, through public methods)."""
     from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.policies import ActorCriticPolicy, BaseModel
     from stable_baselines3.sac.policies import SACPolicy
     from stable_baselines3.td3.policies import TD3Policy
 
@@ -71,7 +71,7 @@ def _deterministic_action(policy: Any) -> Any:
             # The Gaussian's mode is its mean: the action net on the actor's latent
             # (get_distribution's steps without building the distribution object).
             return lambda obs: policy.action_net(policy.mlp_extractor.forward_actor(
-                policy.extract_features(obs, policy.pi_features_extractor)))
+                BaseModel.extract_features(policy, obs, policy.pi_features_extractor)))
         return lambda obs: policy.get_distribution(obs).get_actions(deterministic=True)
     if isinstance(policy, SACPolicy):
         return lambda obs: policy.actor(obs, deterministic=True)

@@ -513,7 +513,9 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
     if not args.seeds:
         return [train(args)]
     check_args(args)
-    runs = [dataclasses.replace(args, seed=k, seeds=(), out=os.path.join(args.out, f"seed{k}"),
+    # Absolute for Ray: a task writes where the driver means (on a cluster: a shared path).
+    out = os.path.abspath(args.out) if args.backend == "ray" else args.out
+    runs = [dataclasses.replace(args, seed=k, seeds=(), out=os.path.join(out, f"seed{k}"),
                                 progress=args.progress and args.backend == "local")
             for k in args.seeds]
     if args.backend == "local":

@@ -5,28 +5,36 @@ sends the jobs, in chunks, to the Ray cluster at ``address`` (a running cluster:
 ``"auto"`` or ``"HOST:PORT"``), or to a local Ray started on this machine's cores
 and the loopback interface when ``address`` is None. Every job computes what it
 computes locally (the runs are deterministic), so the numbers are those of the
-local backend. The worker processes need this package installed (the same
-version) and, for policies given by path, the files at the same paths; they
-run in the driver's working directory when it exists on their machine.
+local backend, provided the nodes share the driver's CPU instruction set (the
+kernel is compiled on each host, with fused multiply-adds where the CPU has
+them). The worker processes need this package installed (the same version) and
+the files that commands name by path (``--motors``, models, ``--out`` of
+``train``) at the same paths, e.g. on a shared file system; they run in the
+driver's working directory when it exists on their machine. A local Ray gets
+``workers`` CPUs.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 import uuid
 from typing import Any, Callable, Sequence
 
 from .params import ParameterError
 
-__all__ = ["ray_map", "BACKENDS", "backend_map"]
+__all__ = ["ray_map", "BACKENDS", "backend_map", "BY_VALUE"]
 
 BACKENDS = ("local", "ray")
+# A module with this attribute set true is sent to Ray's workers by value (the
+# registry marks the policy files it imports by path).
+BY_VALUE = "__stepdamp_by_value__"
 
 # Per worker process: the key of the initializer last run there.
 _WORKER_KEY: dict[str, str] = {}
 
 
-def _start(address: str | None) -> Any:
+def _start(address: str | None, workers: int) -> Any:
     try:
         import ray
     except ImportError:
@@ -35,9 +43,7 @@ def _start(address: str | None) -> Any:
         options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                    "configure_logging": False}
         if address is None:
-            from .parallel import default_workers
-
-            ray.init(num_cpus=default_workers(), _node_ip_address="127.0.0.1",
+            ray.init(num_cpus=max(1, int(workers)), _node_ip_address="127.0.0.1",
                      object_store_memory=200 * 1024 ** 2, **options)
         else:
             try:
@@ -69,7 +75,12 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
         jobs = list(jobs)
         if not jobs:
             return []
-        ray = _start(address)
+        ray = _start(address, workers)
+        # Policy files loaded by path (``file.py:attr``) are modules the workers
+        # cannot import by name: they travel by value.
+        for module in list(sys.modules.values()):
+            if getattr(module, BY_VALUE, False):
+                ray.cloudpickle.register_pickle_by_value(module)
         cpus = max(1, int(ray.cluster_resources().get("CPU", workers)))
         chunk = max(1, len(jobs) // (cpus * 8))
         if max_chunk is not None:
@@ -93,9 +104,14 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
             for part in ray.get(refs):
                 out.extend(part)
             return out
-        except BaseException:
+        except BaseException as exc:
             for ref in pending:
                 ray.cancel(ref, force=True)
+            if isinstance(exc, ray.exceptions.RayTaskError) and exc.cause is not None:
+                raise exc.cause from None       # the job's own error, as the local pool gives it
+            if isinstance(exc, ray.exceptions.RayError):
+                first = (str(exc).strip().splitlines() or [""])[0]
+                raise ParameterError(f"--backend ray: {type(exc).__name__}: {first}") from None
             raise
 
     return run

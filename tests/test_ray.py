@@ -68,3 +68,29 @@ def test_ray_multi_seed_training_equals_local(local_ray, tmp_path):
         b = load_model(str(tmp_path / "ray" / f"seed{k}" / "final.zip")).policy.state_dict()
         assert a.keys() == b.keys()
         assert all(torch.equal(a[key], b[key]) for key in a)
+
+
+def test_ray_runs_a_policy_file_and_reports_its_errors_in_one_line(local_ray, tmp_path):
+    """A policy given by file path travels to the workers by value; an error in a
+    worker comes back as the job's own exception, not Ray's remote traceback."""
+    import os
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    spec = os.path.join(root, "tests", "leaderboard_policy.py") + ":NominalFeedforward"
+    protocol = quick_protocol_v1()
+    protocol = protocol.with_custom_motors([protocol_motors(protocol)[0].system])
+    local = run_leaderboard(protocol, [spec], workers=2, progress=False)
+    remote = run_leaderboard(protocol, [spec], workers=2, progress=False, backend=local_ray)
+    assert json.dumps(remote["entries"], sort_keys=True) == \
+        json.dumps(local["entries"], sort_keys=True)
+
+    bad = tmp_path / "bad_policy.py"
+    bad.write_text(open(spec.rpartition(":")[0]).read() + '''
+
+class Broken(NominalFeedforward):
+    def act(self, observation):
+        raise ArithmeticError("broken on purpose")
+''')
+    with pytest.raises(ArithmeticError, match="broken on purpose"):
+        run_leaderboard(protocol, [f"{bad}:Broken"], workers=2, progress=False,
+                        backend=local_ray)

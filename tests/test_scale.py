@@ -54,7 +54,8 @@ def specs():
 def _scalar(make, specs, suite, protocol):
     return [run_episode(make(), s.knowledge, s.system, mode=suite, speed_rps=s.speed_rps,
                         seed=s.seed, accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
-                        settle_s=s.settle_s).to_dict() for s in specs]
+                        settle_s=s.settle_s, measure_from_s=s.measure_from_s,
+                        until_s=s.until_s).to_dict() for s in specs]
 
 
 def _batched(make, specs, suite, protocol):
@@ -312,3 +313,37 @@ def test_backend_mistakes_are_one_line_errors(tmp_path, monkeypatch, capsys):
     assert main(sweep + ["--backend", "ray"]) == 2
     err = capsys.readouterr().err.strip()
     assert "pip install" in err and "[ray]" in err and len(err.splitlines()) == 1
+
+
+def test_kept_batches_of_a_changed_policy_file_are_not_reused(tmp_path):
+    policy_file = tmp_path / "my_policy.py"
+    source = open(os.path.join(ROOT, "tests", "leaderboard_policy.py")).read()
+    policy_file.write_text(source)
+    spec = f"{policy_file}:NominalFeedforward"
+    resume = str(tmp_path / RESUME_DIR)
+    run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
+    first = set(os.listdir(resume))
+    policy_file.write_text(source + "\n# changed\n")
+    run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
+    assert first and not first & set(os.listdir(resume))
+
+
+def test_a_subclass_that_changes_act_alone_runs_per_row():
+    from stepdamp_baselines import VelocityFeedback
+    from stepdamp_env.bench.policy import batch_policy
+
+    class Louder(VelocityFeedback):
+        def act(self, observation):
+            return np.clip(2.0 * super().act(observation), -1.0, 1.0)
+
+    assert isinstance(batch_policy(Louder), ScalarPolicies)
+    assert isinstance(batch_policy(VelocityFeedback), VelocityFeedback)
+
+
+def test_a_run_that_ends_at_its_start_takes_no_step(specs):
+    protocol, by_suite = specs
+    rows = [dataclasses.replace(s, until_s=0.0) for s in by_suite["open-loop"][:2]]
+    make = resolve_policy("ff-delay-comp").make
+    got = _batched(make, rows, "open-loop", protocol)
+    assert got == _scalar(make, rows, "open-loop", protocol)
+    assert [r["steps"] for r in got] == [0, 0]

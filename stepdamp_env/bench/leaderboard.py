@@ -14,6 +14,7 @@ again with the same arguments picks up where it stopped.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import importlib.metadata
 import json
@@ -45,7 +46,8 @@ from .scoring import (add_probability_of_improvement, make_entry, make_entry_v1,
                       reference_index)
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "package_versions",
-           "protocol_knowledge", "identify_cached", "BATCH_RUNS", "RESUME_DIR"]
+           "protocol_knowledge", "identify_cached", "code_fingerprint", "BATCH_RUNS",
+           "RESUME_DIR"]
 
 # Runs of one entry, model and suite stepped together (and kept together on resume).
 BATCH_RUNS = 64
@@ -110,21 +112,23 @@ def _make(spec: str, training_seed: int | None) -> Any:
 def identify_cached(system: SystemParams, method: str, seed: int) -> FeedforwardModel | str:
     """``identify(system, method=method, noise_seed=seed).model``, or the failure
     as a string ("ErrorType: message"), kept on disk (:func:`..io.cache_dir`)
-    per system, method, seed and package version: identification is
-    deterministic, so a kept model is the one it would compute."""
-    from ..version import __version__
-
+    per system, method, seed and code (:func:`code_fingerprint`: the package's
+    sources and dependency versions): identification is deterministic, so a
+    kept model is the one it would compute."""
     where = cache_dir("identify")
     path = None
     if where is not None:
         key = json.dumps({"system": system.to_dict(), "method": method, "seed": seed,
-                          "version": __version__}, sort_keys=True)
+                          "code": code_fingerprint()}, sort_keys=True)
         path = os.path.join(where, hashlib.sha256(key.encode()).hexdigest()[:32] + ".json")
         kept = read_json_or_none(path)
-        if isinstance(kept, dict) and kept.get("failed") is not None:
-            return str(kept["failed"])
-        if isinstance(kept, dict) and isinstance(kept.get("model"), dict):
-            return FeedforwardModel(**kept["model"])
+        try:
+            if isinstance(kept, dict) and kept.get("failed") is not None:
+                return str(kept["failed"])
+            if isinstance(kept, dict) and isinstance(kept.get("model"), dict):
+                return FeedforwardModel(**kept["model"])
+        except (TypeError, ValueError, ParameterError):     # unreadable: computed again
+            pass
     try:
         model: FeedforwardModel | str = identify(system, method=method, noise_seed=seed).model
         entry = {"model": dataclasses.asdict(model), "failed": None}
@@ -147,7 +151,9 @@ def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     model = identify_cached(_WORKER["motors"][motor_index].system,
                             protocol.identification_method, seed)
     if isinstance(model, str) and not isinstance(protocol, ProtocolV1):
-        raise ParameterError(f"identification failed: {model}")
+        raise ParameterError(f"identification of motor "
+                             f"{_WORKER['motors'][motor_index].name!r} (seed {seed}) failed: "
+                             f"{model}")
     return model
 
 
@@ -178,18 +184,58 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     return records
 
 
-def _fingerprint(spec: str) -> str:
-    """What a policy spec stands for: the name, plus the bytes of its file(s)."""
+@functools.lru_cache(maxsize=None)
+def _tree_hash(root: str, suffixes: tuple[str, ...] = ()) -> str:
+    """sha256 of the files under ``root`` (those ending in ``suffixes``, if given)."""
+    h = hashlib.sha256()
+    for d, dirs, files in sorted(os.walk(root)):
+        dirs[:] = sorted(x for x in dirs if x != "__pycache__")
+        for f in sorted(files):
+            if suffixes and not f.endswith(suffixes):
+                continue
+            path = os.path.join(d, f)
+            h.update(os.path.relpath(path, root).encode())
+            with open(path, "rb") as fh:
+                h.update(fh.read())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """This package's sources and the versions of its numerical dependencies: a
+    result kept on disk is reused only by the same code."""
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    return hashlib.sha256(json.dumps([_tree_hash(here, (".py",)), package_versions()],
+                                     sort_keys=True).encode()).hexdigest()
+
+
+def _fingerprint(source: PolicySource) -> str:
+    """What a policy stands for: its spec, the files it names (a model with its
+    side files, a directory of models, a policy file) and the package its
+    factories come from (registered baselines and agents: code and models)."""
+    spec = source.spec
     h = hashlib.sha256(spec.encode())
-    paths = []
-    if os.path.isfile(spec):
-        paths = [spec]
-    elif os.path.isdir(spec):
-        paths = sorted(os.path.join(d, f) for d, _, fs in os.walk(spec) for f in fs)
-    for path in paths:
-        h.update(path.encode())
-        with open(path, "rb") as fh:
-            h.update(fh.read())
+    roots: list[str] = []
+    path = spec.rpartition(":")[0] if ":" in spec and not os.path.exists(spec) else spec
+    if os.path.isfile(path):
+        stem = os.path.splitext(os.path.abspath(path))[0].split(".")[0]
+        folder = os.path.dirname(stem)
+        roots += sorted(os.path.join(folder, f) for f in os.listdir(folder)
+                        if os.path.join(folder, f).startswith(stem + "."))
+    elif os.path.isdir(path):
+        roots.append(os.path.abspath(path))
+    factories = [source.make, *(source.training_seeds or {}).values()]
+    for module in {getattr(f, "__module__", None) for f in factories} - {None}:
+        top = sys.modules.get(str(module).split(".")[0])
+        if top is not None and getattr(top, "__file__", None):
+            roots.append(os.path.dirname(os.path.abspath(top.__file__)))
+    for root in sorted(set(roots)):
+        h.update(root.encode())
+        if os.path.isdir(root):
+            h.update(_tree_hash(root).encode())
+        else:
+            with open(root, "rb") as fh:
+                h.update(fh.read())
     return h.hexdigest()
 
 
@@ -369,12 +415,17 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
 
         header = {"version": __version__, "protocol": protocol.to_dict(),
                   "motors": [m.to_dict() for m in motors],
-                  "policies": {spec: _fingerprint(spec) for spec in specs}}
+                  "code": code_fingerprint(),
+                  "policies": {spec: _fingerprint(sources[spec]) for spec in specs}}
         paths = list(_resume_paths(resume_dir, batches, header))
     # Batches an interrupted run of this very board finished are read, not run.
     done: list[Any] = [read_json_or_none(p) if p is not None else None for p in paths]
     todo = [k for k, (b, d) in enumerate(zip(batches, done))
             if not (isinstance(d, list) and len(d) == len(b.runs))]
+
+    if len(todo) < len(batches):
+        print(f"resuming: {len(batches) - len(todo)} of {len(batches)} batches read from "
+              f"{resume_dir}", file=sys.stderr)
 
     def keep(j: int, records: list[dict[str, Any]]) -> None:
         path = paths[todo[j]]

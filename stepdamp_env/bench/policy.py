@@ -166,8 +166,11 @@ class BatchPolicy(Policy, TypingProtocol):
     the batch when its run ends and never comes back. A batched policy must act
     on each row exactly as a fresh scalar instance reset with that row's
     context would (``tests/test_scale.py`` checks this bit for bit).
-    ``env_options`` and ``name`` are those of :class:`Policy`; ``reset`` and
-    ``act`` may raise. A policy without ``act_batch`` is run through
+    ``env_options`` and ``name`` are those of :class:`Policy`. A policy that
+    calibrates reports each row's simulated rig seconds by an optional
+    ``row_calibration_s(row)`` (without it, its ``calibration_s`` counts for
+    every row). A policy without ``act_batch`` (or whose ``act_batch`` is
+    inherited from another class than its ``act``) is run through
     :class:`ScalarPolicies`.
     """
 
@@ -219,11 +222,20 @@ class ScalarPolicies:
         return float(getattr(self._rows[row], "calibration_s", 0.0))
 
 
+def _defined_by(cls: type, name: str) -> type | None:
+    return next((c for c in cls.__mro__ if name in vars(c)), None)
+
+
 def batch_policy(make: Callable[[], Any]) -> Any:
-    """``make()`` if it is a :class:`BatchPolicy`, else :class:`ScalarPolicies` of ``make``."""
+    """``make()`` if it is a :class:`BatchPolicy` whose ``act_batch`` belongs to
+    its ``act`` (both defined by the same class: a subclass that changes ``act``
+    alone does not inherit a batched law that is no longer its own), else
+    :class:`ScalarPolicies` of ``make``."""
     policy = make()
+    cls = type(policy)
     if callable(getattr(policy, "act_batch", None)) and \
-            callable(getattr(policy, "reset_batch", None)):
+            callable(getattr(policy, "reset_batch", None)) and \
+            _defined_by(cls, "act_batch") is _defined_by(cls, "act"):
         return policy
     return ScalarPolicies(make, policy)
 

@@ -33,6 +33,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..params import ParameterError
+from ..ray_backend import BY_VALUE
 from .policy import (MotorKnowledge, Policy, PolicyContext, check_policy, reference_policy,
                      resolve_estimate)
 from .protocol import REFERENCE_POLICY
@@ -224,6 +225,7 @@ def _import_attr(spec: str) -> Any:
                 raise ImportError(f"cannot import {target!r}")
             module = importlib.util.module_from_spec(module_spec)
             sys.modules[module_name] = module    # forked workers and pickling find it
+            setattr(module, BY_VALUE, True)      # Ray's workers cannot import it by name
             module_spec.loader.exec_module(module)
         else:
             module = importlib.import_module(target)

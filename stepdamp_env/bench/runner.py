@@ -216,12 +216,12 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         batch = kind([envs[i] for i in members])
         rows = np.arange(len(members))
         steps = np.zeros(len(members), dtype=np.int64)
-        while len(rows):
-            actions = policy.act_batch(batch.obs.copy(), rows)
-            terminated, step_loss, overcurrent = batch.step(actions)
-            steps[rows] += 1
+
+        def finish(done: np.ndarray, terminated: np.ndarray, step_loss: np.ndarray,
+                   overcurrent: np.ndarray) -> None:
+            """Record the runs ``done`` (a mask over the batch's current rows) and drop them."""
+            nonlocal rows
             time_s = batch.time_s
-            done = terminated | (time_s >= ends[index[rows]])
             for j in np.flatnonzero(done).tolist():
                 row, i = int(rows[j]), int(index[rows[j]])
                 term = bool(terminated[j])
@@ -242,6 +242,19 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
                 keep = np.flatnonzero(~done)
                 batch.keep(keep)
                 rows = rows[keep]
+
+        while len(rows):
+            # As run_episode: a run steps while its time is before its end, and ends
+            # at once when it terminates.
+            over = batch.time_s >= ends[index[rows]]
+            no = np.zeros(len(rows), dtype=bool)
+            finish(over, no, no, no)
+            if not len(rows):
+                break
+            actions = policy.act_batch(batch.obs.copy(), rows)
+            terminated, step_loss, overcurrent = batch.step(actions)
+            steps[rows] += 1
+            finish(terminated, terminated, step_loss, overcurrent)
     for env in envs:
         env.close()
     return [r for r in results if r is not None]
