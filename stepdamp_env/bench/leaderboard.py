@@ -29,7 +29,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..env.options import EnvOptions
-from ..env.scalar import StepperDampEnv
+from ..env.scalar import StepperDampBatch, StepperDampEnv
+from ..env.v1 import StepperDampV1Batch, StepperDampV1Env
 from ..identify import identify
 from ..io import cache_dir, read_json_or_none, write_json
 from ..parallel import default_workers, pool_map
@@ -276,6 +277,16 @@ def _warm_up(system: SystemParams) -> None:
     env.reset(seed=0)
     env.step(np.zeros(env.action_space.shape, dtype=np.float32))
     env.run_metrics()
+    # The batched runner's compiled steps (v0, and v1 with and without its law).
+    for make in (lambda: StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0),
+                 lambda: StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0),
+                 lambda: StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
+                                          action_mode="harmonic")):
+        env = make()
+        env.reset(seed=0)
+        kind = StepperDampV1Batch if isinstance(env, StepperDampV1Env) else StepperDampBatch
+        batch = kind([env])
+        batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
 
 
 def package_versions() -> dict[str, str]:
