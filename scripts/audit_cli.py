@@ -342,6 +342,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     ident("--set encoder_cpr=1000.5", "--set", "encoder_cpr=1000.5")
     ident("--set J=nan", "--set", "J=nan")
     ident("--set missing '='", "--set", "Kd4")
+    sweep("--backend not a choice", **{"--backend": "dask"})
+    sweep("--ray-address without --backend ray", **{"--ray-address": "auto"})
     ident("--out an existing file", **{"--out": f["file"]})
     ident("--out under /proc", **{"--out": "/proc/stepdamp-audit/out"})
     ident("--out under a file", **{"--out": os.path.join(f["file"], "out")})
@@ -372,6 +374,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     board("--policy a directory", "--policy", f["dir"])
     for v in ("0", "-1", "nan", "1.5", HUGE_INT, "abc"):
         board(f"--workers {v!r}", **{"--workers": v})
+    board("--backend not a choice", **{"--backend": "dask"})
+    board("--ray-address without --backend ray", **{"--ray-address": "auto"})
     board("--out an existing file", **{"--out": f["file"]})
     board("--out under /proc", **{"--out": "/proc/stepdamp-audit/out"})
     board("--out under a file", **{"--out": os.path.join(f["file"], "out")})
@@ -388,6 +392,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
 
     # --- train ------------------------------------------------------------
     train("--algo not a choice", **{"--algo": "a2c"})
+    train("--backend not a choice", **{"--backend": "dask"})
+    train("--ray-address without --backend ray", "--seeds", "1-2", **{"--ray-address": "auto"})
     for v in ("nan", "inf", "-1", "0", "1e300", HUGE_INT, "abc", "1.5"):
         train(f"--total-timesteps {v!r}", **{"--total-timesteps": v})
     for v in ("-1", "1000", HUGE_INT, "nan"):
