@@ -521,9 +521,12 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
     if args.backend == "local":
         logs = [train(run) for run in runs]
     else:           # each seed a Ray task (one CPU each); the models are those of local runs
+        from stepdamp_env.parallel import default_workers
         from stepdamp_env.ray_backend import backend_map
 
-        logs = backend_map(args.backend, args.ray_address)(train, runs, len(runs), max_chunk=1)
+        # A local Ray gets this machine's cores; each seed is a task of one CPU.
+        logs = backend_map(args.backend, args.ray_address)(train, runs, default_workers(),
+                                                           max_chunk=1)
     print(f"{'seed':>4} {'train s':>8} {'best validation IQM':>20}")
     for k, log in zip(args.seeds, logs):
         best = (log.get("best") or {}).get("headline_iqm", math.nan)

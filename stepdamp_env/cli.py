@@ -505,7 +505,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"stepdamp {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"stepdamp {args.command}: interrupted; earlier results are unchanged",
+        # A second Ctrl-C during the interpreter's shutdown would print a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        resume = " (run the same command again to resume)" if args.command == "leaderboard" \
+            else ""
+        print(f"stepdamp {args.command}: interrupted; earlier results are unchanged{resume}",
               file=sys.stderr)
         return 130
     finally:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import multiprocessing
 import os
 import signal
 import sys
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 __all__ = ["default_workers", "pool_map"]
 
@@ -76,8 +77,24 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
                 bar.update()
         pool.close()
     except BaseException:
-        pool.terminate()
+        # A second Ctrl-C inside terminate() would leave live workers that join()
+        # then waits for forever: the teardown runs with SIGINT ignored.
+        with _sigint_ignored():
+            pool.terminate()
+            pool.join()
         raise
-    finally:
-        pool.join()
+    pool.join()
     return out
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:                  # not the main thread: signals are not ours
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

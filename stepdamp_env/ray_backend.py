@@ -17,6 +17,7 @@ driver's working directory when it exists on their machine. A local Ray gets
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import uuid
 from typing import Any, Callable, Sequence
@@ -39,6 +40,8 @@ def _start(address: str | None, workers: int) -> Any:
         import ray
     except ImportError:
         raise ParameterError("--backend ray needs Ray: pip install 'stepdamp-env[ray]'") from None
+    if address is not None:
+        _check_reachable(address)
     if not ray.is_initialized():
         options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                    "configure_logging": False}
@@ -48,10 +51,31 @@ def _start(address: str | None, workers: int) -> Any:
         else:
             try:
                 ray.init(address=address, **options)
-            except (ConnectionError, ValueError, RuntimeError) as exc:
+            except ConnectionError:
+                raise ParameterError(f"--ray-address {address!r}: no running Ray cluster "
+                                     "found (start one with `ray start --head`, or give "
+                                     "its HOST:PORT)") from None
+            except (ValueError, RuntimeError) as exc:
                 raise ParameterError(f"--ray-address {address!r}: cannot connect "
                                      f"({type(exc).__name__}: {exc})") from None
     return ray
+
+
+def _check_reachable(address: str) -> None:
+    """A HOST:PORT that does not answer is a one-line error at once (Ray itself
+    would keep retrying for minutes)."""
+    import socket
+
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return                          # "auto" and Ray's other forms: Ray decides
+    try:
+        with socket.create_connection((host, int(port)), timeout=5.0):
+            pass
+    except OSError as exc:
+        raise ParameterError(f"--ray-address {address!r}: no Ray cluster answers there "
+                             f"({exc.strerror or type(exc).__name__}); start one with "
+                             "`ray start --head` or give its HOST:PORT") from None
 
 
 def _run_chunk(fn: Callable[[Any], Any], init: tuple, jobs: Sequence[Any]) -> list[Any]:
@@ -107,6 +131,14 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
         except BaseException as exc:
             for ref in pending:
                 ray.cancel(ref, force=True)
+            if isinstance(exc, KeyboardInterrupt):
+                # Shut Ray down here, undisturbed by a second Ctrl-C: left to the
+                # interpreter's exit it prints its own crash report.
+                previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+                try:
+                    ray.shutdown()
+                finally:
+                    signal.signal(signal.SIGINT, previous)
             if isinstance(exc, ray.exceptions.RayTaskError) and exc.cause is not None:
                 raise exc.cause from None       # the job's own error, as the local pool gives it
             if isinstance(exc, ray.exceptions.RayError):

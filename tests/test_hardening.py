@@ -203,6 +203,34 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["warm"]
 
 
+def test_ctrl_c_twice_on_the_whole_process_group_neither_hangs_nor_prints_a_traceback(tmp_path):
+    """A terminal's Ctrl-C reaches the workers too, and users press it twice: the
+    second one used to land inside the pool's teardown and leave it waiting forever
+    (reproduced during the leaderboard's identification, whose tasks are long)."""
+    env = {**os.environ, "MPLBACKEND": "Agg", "STEPDAMP_CACHE_DIR": str(tmp_path / "cache")}
+    subprocess.run([sys.executable, "-m", "stepdamp_env.cli", "sweep", "--speeds", "1:1.02:0.02",
+                    "--out", str(tmp_path / "warm"), "--workers", "2", "--no-progress"],
+                   check=True, capture_output=True, env=env)
+    cmd = [sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--quick", "--no-plots",
+           "--no-progress", "--workers", "2", "--out", str(tmp_path / "o")]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env=env, preexec_fn=lambda: (os.setpgid(0, 0), signal.signal(
+                                signal.SIGINT, signal.default_int_handler)))
+    time.sleep(5.0)
+    assert proc.poll() is None
+    os.killpg(proc.pid, signal.SIGINT)         # the terminal's Ctrl-C, to every process
+    os.kill(proc.pid, signal.SIGINT)           # and a second one to the impatient parent
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == [
+        "stepdamp leaderboard: interrupted; earlier results are unchanged (run the same "
+        "command again to resume)"]
+
+
 # -- result files ------------------------------------------------------------------------
 def test_a_failed_run_leaves_the_previous_results_whole(tmp_path):
     out = tmp_path / "res"

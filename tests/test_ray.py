@@ -94,3 +94,13 @@ class Broken(NominalFeedforward):
     with pytest.raises(ArithmeticError, match="broken on purpose"):
         run_leaderboard(protocol, [f"{bad}:Broken"], workers=2, progress=False,
                         backend=local_ray)
+
+
+def test_an_address_where_no_ray_answers_is_a_one_line_error(tmp_path, capsys):
+    from stepdamp_env.cli import main
+
+    args = ["sweep", "--speeds", "0.5:0.5:0.1", "--no-progress", "--out", str(tmp_path / "s"),
+            "--backend", "ray", "--ray-address", "127.0.0.1:1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--ray-address '127.0.0.1:1'" in err and len(err.splitlines()) == 1
