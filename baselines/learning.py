@@ -8,7 +8,7 @@ describe the feedforward of detent harmonic h as a phasor A_h (N*m; see
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 

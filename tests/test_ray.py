@@ -5,7 +5,6 @@ Skipped without Ray (extra ``[ray]``); CI installs it and runs this file.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np
