@@ -11,7 +11,7 @@ import signal
 import sys
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["default_workers", "pool_map"]
+__all__ = ["default_workers", "pool_map", "sigint_ignored"]
 
 
 def default_workers() -> int:
@@ -79,7 +79,7 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     except BaseException:
         # A second Ctrl-C inside terminate() would leave live workers that join()
         # then waits for forever: the teardown runs with SIGINT ignored.
-        with _sigint_ignored():
+        with sigint_ignored():
             pool.terminate()
             pool.join()
         raise
@@ -88,7 +88,9 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
 
 
 @contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
+def sigint_ignored() -> Iterator[None]:
+    """Run the block with Ctrl-C ignored (a teardown a second Ctrl-C must not cut
+    short); outside the main thread, where signals are not ours, it does nothing."""
     try:
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     except ValueError:                  # not the main thread: signals are not ours

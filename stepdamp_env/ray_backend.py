@@ -17,11 +17,11 @@ driver's working directory when it exists on their machine. A local Ray gets
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import uuid
 from typing import Any, Callable, Sequence
 
+from .parallel import sigint_ignored
 from .params import ParameterError
 
 __all__ = ["ray_map", "BACKENDS", "backend_map", "BY_VALUE"]
@@ -134,11 +134,8 @@ def ray_map(address: str | None = None) -> Callable[..., list[Any]]:
             if isinstance(exc, KeyboardInterrupt):
                 # Shut Ray down here, undisturbed by a second Ctrl-C: left to the
                 # interpreter's exit it prints its own crash report.
-                previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-                try:
+                with sigint_ignored():
                     ray.shutdown()
-                finally:
-                    signal.signal(signal.SIGINT, previous)
             if isinstance(exc, ray.exceptions.RayTaskError) and exc.cause is not None:
                 raise exc.cause from None       # the job's own error, as the local pool gives it
             if isinstance(exc, ray.exceptions.RayError):
