@@ -152,7 +152,7 @@ class VelocityFeedback(_FeedbackOnFF):
 
     card = PolicyCard(sensors="encoder (velocity estimate, position error), currents",
                       model="nominal (law), identified (feedforward)",
-                      suites=("open-loop",),
+                      suites=("open-loop", "mid-band"),
                       not_in_suites="the servo's own loop is velocity feedback already "
                                     "(eq. 15): a second one on top retunes the servo (and, "
                                     "designed for the open-loop spring, loses steps there)")
@@ -237,7 +237,7 @@ class SensorlessDamping(_FeedbackOnFF):
 
     card = PolicyCard(sensors="currents + winding voltages (no encoder)",
                       model="nominal (law), identified (feedforward), winding R, L",
-                      suites=("open-loop",),
+                      suites=("open-loop", "mid-band"),
                       not_in_suites="a servo closes its loop on an encoder: sensorless "
                                     "damping is for open-loop drives")
     velocity_estimator = "back-emf"

@@ -282,6 +282,31 @@ def _cmd_presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_analyse(args: argparse.Namespace) -> int:
+    from .analysis import midband
+
+    motors = args.motor or list(preset_names())
+    rows = []
+    for spec in motors:
+        base = load_system(spec, parse_set_overrides(args.overrides))
+        for mode in ("current", "voltage"):
+            rows.append(midband(base.replace(drive_mode=mode)))
+    if args.json:
+        print(json.dumps([r.to_dict() for r in rows], indent=2))
+        return 0
+    print("Predicted mid-band of the open-loop drive (linearised at constant speed, "
+          "0.25-30 rev/s; current mode: its PI loops in continuous time, without the "
+          "bridge's limit, so valid below the bridge circle):")
+    for r in rows:
+        band = (f"unstable {r.unstable_rps[0]:.2f}-{r.unstable_rps[1]:.2f} rev/s"
+                if r.unstable_rps else "no unstable band")
+        stall = f", no steady state from {r.stall_rps:.2f}" if r.stall_rps else ""
+        print(f"{r.motor:24s} {r.drive_mode:8s} {band:30s} least damping ratio "
+              f"{r.min_damping:+.4f} at {r.at_rps:.2f} rev/s; bridge circle at "
+              f"{r.bridge_limit_rps:.2f} rev/s{stall}")
+    return 0
+
+
 def _register_policies() -> None:
     import stepdamp_agents
     import stepdamp_baselines
@@ -291,7 +316,7 @@ def _register_policies() -> None:
 
 
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
-    from .bench import SUITES, default_policy_names, run_leaderboard, write_outputs
+    from .bench import default_policy_names, run_leaderboard, write_outputs
     from .bench.protocol_v1 import load_motors_file, protocol_for
     from .bench.report import (RESULT_FILES, entry_rows, format_summary, render_per_motor,
                                splits)
@@ -305,8 +330,11 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
             raise ParameterError("--motors needs --protocol v1 (v0's motors are frozen)")
         protocol = protocol.with_custom_motors(load_motors_file(args.motors, protocol))
     _register_policies()
-    suites = SUITES if args.suite == "all" else (args.suite,)
-    protocol = protocol.with_suites(suites)
+    if args.suite == "mid-band" and args.protocol != "v2":
+        raise ParameterError("--suite mid-band needs --protocol v2 (v0 and v1 are frozen "
+                             "without it)")
+    if args.suite != "all":
+        protocol = protocol.with_suites((args.suite,))
     named = default_policy_names()
     chosen = list(named) if args.entries is None else [b for g in args.entries for b in g]
     unknown = sorted(set(chosen) - set(named))
@@ -399,6 +427,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("presets", "list the built-in motors and their predicted resonances")
     p.set_defaults(func=_cmd_presets)
 
+    p = command("analyse", "the predicted mid-band (unstable speed band) per motor and "
+                "drive mode, from the eigenvalues of the linearised drive")
+    p.add_argument("--motor", action="append", default=None, metavar="NAME|FILE.json",
+                   help="a preset or motor file; repeatable (default: every preset)")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
+    p.add_argument("--json", action="store_true", help="print the bands as JSON")
+    p.set_defaults(func=_cmd_analyse)
+
     p = command("simulate", "one run at one speed (or one move); prints its metrics")
     _add_system_args(p)
     p.add_argument("--speed", type=_number(float, -1000, 1000), required=True, metavar="RPS",
@@ -434,9 +471,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("leaderboard", "run the stepdamp-bench protocol (v1 by default) on the "
                                "baselines, the reference agents and given policies")
-    p.add_argument("--protocol", choices=["v0", "v1"], default="v1",
+    p.add_argument("--protocol", choices=["v0", "v1", "v2"], default="v1",
                    help="protocol version: v1 (default; interpolation and extrapolation "
-                        "splits) or the frozen v0 of the published numbers")
+                        "splits), v2 (v1 plus the voltage-mode drive's mid-band suite) or "
+                        "the frozen v0 of the published numbers")
     p.add_argument("--quick", action="store_true",
                    help="the protocol's reduced CI variant (v1: 8 motors, resonant speeds, "
                         "two servo speeds, 0.1 s window; v0: presets, one seed)")
@@ -453,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                    default=None, metavar="NAME",
                    help="run only these registered entries, baselines and reference agents "
                         "(default: all; 'none' always runs)")
-    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
+    p.add_argument("--suite", choices=["open-loop", "servo", "mid-band", "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
     _add_pool_run_args(p)
@@ -465,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("report", "print a result table from a leaderboard directory")
     p.add_argument("dir", metavar="DIR", help="a directory `stepdamp leaderboard` wrote")
-    p.add_argument("--suite", choices=["open-loop", "servo", "all"], default="all",
+    p.add_argument("--suite", choices=["open-loop", "servo", "mid-band", "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")

@@ -93,7 +93,13 @@ C_KF_K0 = 48       # steady-state Kalman gains on the encoder innovation
 C_KF_K1 = 49       # (position: dimensionless, velocity: 1/s)
 C_BEMF_G1 = 50     # back-EMF observer: e = v - G1*i_k + G2*i_(k-1) (Ohm), the exact
 C_BEMF_G2 = 51     # one-period winding solution, G1 = R/(1-a), G2 = R*a/(1-a), a = exp(-R*dt/L)
-N_CONFIG = 52
+C_DRIVE_MODE = 52  # DRIVE_CURRENT (DQ PI loops) or DRIVE_VOLTAGE (winding-model voltages)
+C_R_EST = 53       # the voltage-mode drive's model of the winding: resistance (Ohm)
+C_L_EST = 54       # and inductance (H)
+N_CONFIG = 55
+
+DRIVE_CURRENT = 0
+DRIVE_VOLTAGE = 1
 
 VEL_EST_LOWPASS = 0
 VEL_EST_KALMAN = 1
@@ -162,6 +168,9 @@ Q_KF_K0 = 31       # Kalman gain on the innovation, position (dimensionless)
 Q_KF_K1 = 32       # Kalman gain on the innovation, velocity (1/s)
 Q_BEMF_G1 = 33     # back-EMF observer constants (Ohm), see C_BEMF_G1
 Q_BEMF_G2 = 34
+Q_DRIVE_MODE = 35  # DRIVE_CURRENT or DRIVE_VOLTAGE
+Q_R_EST = 36       # voltage mode's winding model: resistance (Ohm), inductance (H)
+Q_L_EST = 37
 
 # ---------------------------------------------------------------------------
 # State vector (per drive, float64).
@@ -681,7 +690,8 @@ def controller_params(c):
     Kp_i, Ki_i, encoder angle, velocity filter alpha, Kp_vel, Kp_pos, Ki_pos,
     mode, ff_on, Km_est, Fs_est, ff s1, c1, s2, c2, s4, c4, Vdc, profile kind,
     speed, accel, distance, current noise, offset a, offset b, noise seed,
-    velocity estimator, Kalman k0, k1, back-EMF G1, G2).
+    velocity estimator, Kalman k0, k1, back-EMF G1, G2, drive mode, R and L of
+    the voltage mode's winding model).
     """
     return (c[C_DT], c[C_NR], c[C_HOLD], c[C_MICROSTEP], c[C_KP_I], c[C_KI_I],
             c[C_ENCODER], c[C_VEL_ALPHA], c[C_KP_VEL], c[C_KP_POS], c[C_KI_POS],
@@ -689,7 +699,8 @@ def controller_params(c):
             c[C_FF_S1], c[C_FF_C1], c[C_FF_S2], c[C_FF_C2], c[C_FF_S4], c[C_FF_C4],
             c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE],
             c[C_I_NOISE], c[C_I_OFFSET_A], c[C_I_OFFSET_B], c[C_NOISE_SEED], c[C_VEL_EST],
-            c[C_KF_K0], c[C_KF_K1], c[C_BEMF_G1], c[C_BEMF_G2])
+            c[C_KF_K0], c[C_KF_K1], c[C_BEMF_G1], c[C_BEMF_G2], c[C_DRIVE_MODE],
+            c[C_R_EST], c[C_L_EST])
 
 
 @_jit_inline
@@ -790,8 +801,26 @@ def control_step(period, theta, ia, ib, cs, q, u):
                   + q[Q_KI_POS] * pos_int)
         iq_cmd = tau_fb * (1.0 / q[Q_KM_EST]) + iq_inj
 
-    # Park, PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
     id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
+    if q[Q_DRIVE_MODE] == DRIVE_VOLTAGE:
+        # No current feedback: the steady-state winding voltages in the frame
+        # of the angle for the commanded currents at the command's electrical
+        # speed, the back-EMF estimated from the command speed (docs/model.md,
+        # "Voltage-mode drive"). They are applied during the next period, so
+        # the inverse Park turns them to that period's middle, 1.5 periods on.
+        w_e = nr * omega_cmd
+        r_est, l_est = q[Q_R_EST], q[Q_L_EST]
+        vd = r_est * id_cmd - w_e * l_est * iq_cmd
+        vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[Q_KM_EST] * omega_cmd
+        sin_v, cos_v = sincos_shifted(angle, sin_a, cos_a, 1.5 * dt * w_e)
+        va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
+        v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[Q_VDC])
+        return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
+                 vb_old),
+                (v_alpha - v_gamma, v_beta - v_gamma),
+                (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a,
+                 cos_a))
+    # PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
     kp, ki = q[Q_KP_I], q[Q_KI_I]
     err_d = id_cmd - id_m
     err_q = iq_cmd - iq_m

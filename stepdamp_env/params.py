@@ -11,7 +11,8 @@ of ``stepdamp ... --set FIELD=VALUE``. The named presets are in
 Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in docs/model.md):
     R, L, Km, Nr, J, D, Kd1, Kd2, Kd4, phi1, phi2, Fs, load_torque
 Drive: Vdc, pwm_hz, holding_current, microsteps, current_bandwidth_hz,
-    Kp_current, Ki_current, current_noise_a, current_offset_a, current_offset_b
+    Kp_current, Ki_current, current_noise_a, current_offset_a, current_offset_b,
+    drive_mode ("current" or "voltage", the one field that is not a number)
 Servo: encoder_cpr, velocity_cutoff_hz, Kp_vel, Kp_pos, Ki_pos, kalman_accel_std
 
 Derived gains (``None`` means "derive"): the current PI is designed on the
@@ -46,6 +47,7 @@ import numpy as np
 __all__ = [
     "MotorParams",
     "DriveParams",
+    "DRIVE_MODES",
     "ServoParams",
     "SystemParams",
     "FeedforwardModel",
@@ -107,6 +109,19 @@ class Allowed:
             raise ParameterError(outside)
 
 
+@dataclass(frozen=True)
+class OneOf:
+    """Allowed values of a text field (the drive's ``drive_mode``)."""
+
+    choices: tuple[str, ...]
+    integer: bool = False
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise ``ParameterError`` naming ``name`` and the choices if ``value`` is not one."""
+        if not isinstance(value, str) or value not in self.choices:
+            raise ParameterError(f"{name}={_show(value)} is not one of {list(self.choices)}")
+
+
 def _show(value: Any) -> str:
     """A value for a one-line message (a 300-digit integer in short)."""
     text = repr(value)
@@ -135,8 +150,10 @@ def _validate_fields(obj: Any) -> None:
         value = getattr(obj, f.name)
         if value is None and f.default is None:      # an optional gain: derived
             continue
-        rng: Allowed = f.metadata["allowed"]
+        rng: Allowed | OneOf = f.metadata["allowed"]
         rng.check(f.name, value)
+        if isinstance(rng, OneOf):
+            continue
         if rng.integer:
             object.__setattr__(obj, f.name, int(value))
         else:
@@ -183,6 +200,10 @@ class MotorParams:
         return 2.0 * math.pi / (4 * self.Nr)
 
 
+#: Values of ``drive_mode``: current control (the default) or voltage mode.
+DRIVE_MODES = ("current", "voltage")
+
+
 @dataclass(frozen=True)
 class DriveParams:
     """Three-leg SVPWM chopper and DQ current loops.
@@ -197,6 +218,13 @@ class DriveParams:
         Ki_current: integral gain (V/(A*s)); ``None`` derives it likewise.
         current_noise_a: current-sensor noise, standard deviation per sample (A).
         current_offset_a, current_offset_b: current-sensor offsets (A).
+        drive_mode: ``"current"`` (the DQ PI current loops, the default) or
+            ``"voltage"``: the drive applies the winding voltages its model of
+            the winding (R, L and the back-EMF Km*omega at the command speed)
+            predicts for the commanded currents, with no current feedback, as
+            quiet voltage-mode stepper drivers do (docs/model.md, "Voltage-mode
+            drive"). Its rotor is negatively damped in a mid-band of speeds
+            (:func:`stepdamp_env.analysis.midband`).
     """
 
     Vdc: float = field(default=48.0, metadata=allowed(0.0, 1e4, low_open=True))
@@ -211,6 +239,7 @@ class DriveParams:
     current_noise_a: float = field(default=0.0, metadata=allowed(0.0, 100.0))
     current_offset_a: float = field(default=0.0, metadata=allowed(-100.0, 100.0))
     current_offset_b: float = field(default=0.0, metadata=allowed(-100.0, 100.0))
+    drive_mode: str = field(default="current", metadata={"allowed": OneOf(DRIVE_MODES)})
 
     def __post_init__(self) -> None:
         _validate_fields(self)
@@ -255,6 +284,8 @@ SERVO_FIELDS = tuple(f.name for f in fields(ServoParams))
 ALL_FIELDS = MOTOR_FIELDS + DRIVE_FIELDS + SERVO_FIELDS
 _INTEGER_FIELDS = frozenset(f.name for cls in (MotorParams, DriveParams, ServoParams)
                             for f in fields(cls) if f.metadata["allowed"].integer)
+#: The fields whose value is text, not a number.
+TEXT_FIELDS = ("drive_mode",)
 # Keys a motor file may carry besides the fields: where it starts from and what it is.
 META_KEYS = ("base", "name", "source", "notes")
 
@@ -302,12 +333,16 @@ class SystemParams:
         """Flat dict of every field as set (``None`` = derived) plus ``name``.
 
         Loading it back with :meth:`from_dict` gives an equal system; the gains in
-        use are in :meth:`derived_dict`.
+        use are in :meth:`derived_dict`. ``drive_mode`` is left out while it is
+        the default ``"current"``, so the files and leaderboards written before it
+        existed stay the same byte for byte.
         """
         out: dict[str, Any] = {"name": self.name}
         out.update(dataclasses.asdict(self.motor))
         out.update(dataclasses.asdict(self.drive))
         out.update(dataclasses.asdict(self.servo))
+        if out["drive_mode"] == "current":
+            del out["drive_mode"]
         return out
 
     def derived_dict(self) -> dict[str, float]:
@@ -566,9 +601,10 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
     return system
 
 
-def parse_set_overrides(items: Iterable[str]) -> dict[str, float]:
-    """Parse ``FIELD=VALUE`` strings (``--set``) into a dict of numbers."""
-    out: dict[str, float] = {}
+def parse_set_overrides(items: Iterable[str]) -> dict[str, float | str]:
+    """Parse ``FIELD=VALUE`` strings (``--set``) into a dict of numbers (text for
+    ``drive_mode``)."""
+    out: dict[str, float | str] = {}
     for item in items:
         name, sep, raw = item.partition("=")
         name = name.strip()
@@ -577,6 +613,12 @@ def parse_set_overrides(items: Iterable[str]) -> dict[str, float]:
         if name not in ALL_FIELDS:
             raise ParameterError(f"--set: unknown parameter {name!r}; allowed: "
                                  f"{list(ALL_FIELDS)}")
+        if name in TEXT_FIELDS:
+            text = raw.strip()
+            DriveParams.__dataclass_fields__[name].metadata["allowed"].check(f"--set {name}",
+                                                                             text)
+            out[name] = text
+            continue
         try:
             value = float(raw)
         except ValueError:

@@ -28,9 +28,18 @@ def current_path(system: SystemParams, w: float) -> complex:
     """From the q current the controller computes at a sample to the torque.
 
     The sampled current loop with its period of computation delay,
-    g/(z^2 - z + g), times the half-period lag of the held voltage.
+    g/(z^2 - z + g), times the half-period lag of the held voltage. A
+    voltage-mode drive (``drive_mode="voltage"``) has no current loop: the
+    model's voltage R*i_q one period later, held, drives the winding's
+    R + j*w*L, R/(R + j*w*L)/z with the same half-period lag (the back-EMF and
+    the frame's cross-coupling left out, as the current loop's are).
     """
     z, dt = _z(system, w)
+    if system.drive.drive_mode == "voltage":
+        m = system.motor
+        delay = w * dt / 2.0
+        return (m.R / complex(m.R, w * m.L) / z
+                * complex(math.cos(delay), -math.sin(delay)))
     kp, _ = system.current_gains()
     pole = math.exp(-system.motor.R * dt / system.motor.L)
     g = kp * (1.0 - pole) / system.motor.R

@@ -39,6 +39,7 @@ __all__ = [
 ]
 
 MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
+DRIVE_MODE_CODES = {"current": K.DRIVE_CURRENT, "voltage": K.DRIVE_VOLTAGE}
 DAMPINGS = ("none", "patent-ff")
 VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN,
                        "back-emf": K.VEL_EST_BACK_EMF}
@@ -253,6 +254,10 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     x = m.R * dt / m.L
     c[K.C_BEMF_G1] = m.L / dt * (x / -math.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
     c[K.C_BEMF_G2] = c[K.C_BEMF_G1] * math.exp(-x)
+    # Voltage mode: the winding model from the same standstill measurement.
+    c[K.C_DRIVE_MODE] = DRIVE_MODE_CODES[d.drive_mode]
+    c[K.C_R_EST] = m.R
+    c[K.C_L_EST] = m.L
     return c
 
 

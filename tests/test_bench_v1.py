@@ -215,8 +215,9 @@ def test_protocol_versions():
     assert protocol_for("v0") == full_protocol() and protocol_for("v0", True) == quick_protocol()
     assert protocol_for("v1") == full_protocol_v1()
     assert protocol_for("v1", True) == quick_protocol_v1()
+    assert protocol_for("v2").version == "v2" and protocol_for("v2", True).variant == "quick"
     with pytest.raises(ParameterError, match="--protocol"):
-        protocol_for("v2")
+        protocol_for("v3")
     json.dumps(full_protocol_v1().to_dict())
 
 

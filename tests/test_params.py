@@ -74,7 +74,12 @@ def test_json_round_trip_gives_an_equal_system(tmp_path):
     path.write_text(json.dumps(system.to_dict()))
     again = load_system(str(path))
     assert again == system
-    assert set(system.to_dict()) == set(ALL_FIELDS) | {"name"}
+    # drive_mode is written only when it is not the default (older files stay the same).
+    assert set(system.to_dict()) == set(ALL_FIELDS) - {"drive_mode"} | {"name"}
+    voltage = system.replace(drive_mode="voltage")
+    assert set(voltage.to_dict()) == set(ALL_FIELDS) | {"name"}
+    path.write_text(json.dumps(voltage.to_dict()))
+    assert load_system(str(path)) == voltage
 
 
 def test_set_overrides_apply_after_the_file(tmp_path):

@@ -31,7 +31,8 @@ from .policy import (BatchPolicy, MotorKnowledge, Policy, PolicyContext, ScalarP
                      ZeroAction, policy_context, policy_env_options, resolve_estimate)
 from .protocol import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, REFERENCE_POLICY,
                        SUITES, TRAINING_SEED_LIMIT, Protocol, full_protocol, quick_protocol)
-from .protocol_v1 import (SPLITS, ProtocolV1, full_protocol_v1, load_motors_file, protocol_for,
+from .protocol_v1 import (SPLITS, ProtocolV1, ProtocolV2, full_protocol_v2, quick_protocol_v2,
+                          full_protocol_v1, load_motors_file, protocol_for,
                           quick_protocol_v1)
 from .registry import (PolicySource, default_policy_names, register_loader, register_policy,
                        registered_policies, resolve_policy)
@@ -51,6 +52,7 @@ __all__ = [
     "write_outputs", "EpisodeResult", "run_episode", "make_entry", "reference_index",
     "score_runs", "iqm", "stratified_bootstrap_ci", "summary", "SPLITS", "ProtocolV1",
     "full_protocol_v1", "quick_protocol_v1", "load_motors_file", "protocol_for",
+    "ProtocolV2", "full_protocol_v2", "quick_protocol_v2",
     "probability_of_improvement", "two_level_bootstrap", "BatchPolicy", "ScalarPolicies",
     "EpisodeSpec", "run_episodes",
 ]

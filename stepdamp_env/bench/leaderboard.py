@@ -39,7 +39,7 @@ from ..simulation import RunSettings, SpeedProfile, simulate
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
-from .protocol import REFERENCE_POLICY, Protocol
+from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
 from .protocol_v1 import ProtocolV1
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
@@ -163,19 +163,22 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     protocol: Protocol = _WORKER["protocol"]
     motors: Sequence[ProtocolMotor] = _WORKER["motors"]
     specs = []
+    mode = SUITE_MODE[batch.suite]
     for i, seed, j in batch.runs:
-        motor = motors[i]
-        specs.append(EpisodeSpec(_WORKER["knowledge"][(i, seed)], motor.system,
-                                 motor.speeds(batch.suite)[0][j], seed,
+        motor = motors[i].for_suite(batch.suite)
+        knowledge = _WORKER["knowledge"][(i, seed)]
+        if motor is not motors[i]:          # the suite's drive mode (v2's mid-band)
+            knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
+        specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite)[0][j], seed,
                                  motor.settle_s(batch.suite)))
     if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
         results = [run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
-                               mode=batch.suite, speed_rps=e.speed_rps, seed=e.seed,
+                               mode=mode, speed_rps=e.speed_rps, seed=e.seed,
                                accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
                                settle_s=e.settle_s) for e in specs]
     else:
         results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
-                               mode=batch.suite, accel_rps2=protocol.accel_rps2,
+                               mode=mode, accel_rps2=protocol.accel_rps2,
                                window_s=protocol.window_s)
     records = []
     for (i, seed, j), spec, result in zip(batch.runs, specs, results):

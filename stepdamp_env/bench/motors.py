@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
+from ..analysis import midband
 from ..params import ParameterError, SystemParams
 from ..presets import get_preset
 from ..simulation import RunSettings, SpeedProfile, simulate
-from .protocol import PHASE_FIELDS, SUITES, Protocol
-from .protocol_v1 import ProtocolV1, Shift
+from .protocol import PHASE_FIELDS, SUITE_DRIVE_MODE, SUITES, Protocol
+from .protocol_v1 import ProtocolV1, ProtocolV2, Shift
 
 __all__ = ["ProtocolMotor", "protocol_motors", "protocol_v1_motors", "speed_grid",
-           "servo_grid", "settle_times", "with_sensors", "holds_its_load",
+           "servo_grid", "midband_grid", "settle_times", "with_sensors", "holds_its_load",
            "in_training_distribution"]
 
 
@@ -45,6 +47,15 @@ class ProtocolMotor:
     def settle_s(self, suite: str) -> float | None:
         """Settling before the window (s); None: the core's default (v0)."""
         return dict(self.settle).get(suite)
+
+    def for_suite(self, suite: str) -> "ProtocolMotor":
+        """This motor as a suite runs it: the plant and the nominal model with the
+        suite's ``drive_mode`` (the drive knows its own mode)."""
+        mode = SUITE_DRIVE_MODE[suite]
+        if self.system.drive.drive_mode == mode:
+            return self
+        return dataclasses.replace(self, system=self.system.replace(drive_mode=mode),
+                                   nominal=self.nominal.replace(drive_mode=mode))
 
     def to_dict(self) -> dict[str, Any]:
         out = {"name": self.name, "nominal": self.nominal.name,
@@ -142,6 +153,19 @@ def servo_grid(system: SystemParams, protocol: ProtocolV1) -> tuple[tuple[float,
             tuple(f"s{f:g}" for f in protocol.servo_factors))
 
 
+def midband_grid(system: SystemParams, protocol: ProtocolV2
+                 ) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """v2's mid-band speeds (rev/s), labelled ``m<factor>``: log-spaced through the
+    predicted unstable band of ``system`` in voltage mode (see :class:`ProtocolV2`)."""
+    band = midband(system.replace(drive_mode="voltage"))
+    if band.unstable_rps is not None:
+        lo, hi = band.unstable_rps
+    else:
+        lo, hi = band.at_rps / 1.5, band.at_rps * 1.5
+    return (tuple(float(lo * (hi / lo) ** f) for f in protocol.midband_factors),
+            tuple(f"m{f:g}" for f in protocol.midband_factors))
+
+
 def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]:
     """v1's settling per suite (s): open loop ``settle_open_loop_decays`` decay
     times 1/(zeta*wn) = 2J/D of the undamped resonance; servo
@@ -159,8 +183,11 @@ def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]
     if not math.isfinite(servo):
         raise ParameterError(f"motor {system.name!r}: its servo gains (Kp_vel, Kp_pos, "
                              "Ki_pos) leave the servo loop unstable")
-    return {"open-loop": max(ol, protocol.settle_min_s),
-            "servo": max(servo, protocol.settle_min_s)}
+    out = {"open-loop": max(ol, protocol.settle_min_s),
+           "servo": max(servo, protocol.settle_min_s)}
+    if "mid-band" in protocol.suites:       # v2: the open-loop rule, for the voltage drive
+        out["mid-band"] = out["open-loop"]
+    return out
 
 
 def holds_its_load(system: SystemParams, margin: float) -> bool:
@@ -224,9 +251,12 @@ def _v1_motor(name: str, system: SystemParams, nominal: SystemParams, protocol: 
     ol = speed_grid(system, protocol)           # v1 keeps v0's open-loop grid rule
     sv = servo_grid(system, protocol)
     settle = settle_times(system, protocol)
+    grids: tuple[Any, ...] = (("open-loop", *ol), ("servo", *sv))
+    if isinstance(protocol, ProtocolV2):
+        grids += (("mid-band", *midband_grid(system, protocol)),)
     return ProtocolMotor(name, system, nominal, ol[0], ol[1], attempts, split=split,
-                         family=family, grids=(("open-loop", *ol), ("servo", *sv)),
-                         settle=tuple((s, settle[s]) for s in SUITES))
+                         family=family, grids=grids,
+                         settle=tuple((s, settle[s]) for s in settle))
 
 
 def protocol_v1_motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:

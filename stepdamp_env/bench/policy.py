@@ -21,7 +21,7 @@ from ..env.options import BASE_CONTROLLERS, ESTIMATES, EnvOptions, default_actio
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
 from ..env.registration import ENV_ID, ENV_ID_V1
-from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, SUITES
+from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, ALL_SUITES
 
 __all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
            "ZeroAction", "reference_policy", "KNOWLEDGE_ESTIMATES", "ORACLE_OPTIONS",
@@ -84,7 +84,7 @@ class PolicyCard:
     model: str
     calibration: str = ""
     oracle: bool = False
-    suites: tuple[str, ...] = SUITES
+    suites: tuple[str, ...] = ALL_SUITES
     not_in_suites: str = ""
     learned: bool = False
 

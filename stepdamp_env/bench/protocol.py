@@ -102,6 +102,9 @@ __all__ = [
     "POLICY_OPTIONS",
     "POLICY_OPTIONS_V1",
     "SUITES",
+    "ALL_SUITES",
+    "SUITE_MODE",
+    "SUITE_DRIVE_MODE",
     "FAILURE_RATIO",
     "REFERENCE_POLICY",
     "PHASE_FIELDS",
@@ -115,6 +118,11 @@ PROTOCOL_NAME = "stepdamp-bench"
 PROTOCOL_VERSION = "v0"
 TRAINING_SEED_LIMIT = 1_000_000
 SUITES = ("open-loop", "servo")
+#: Every suite of any protocol: v2 adds the voltage-mode drive's mid-band.
+ALL_SUITES = ("open-loop", "servo", "mid-band")
+#: The env mode a suite runs in, and its drive_mode.
+SUITE_MODE = {"open-loop": "open-loop", "servo": "servo", "mid-band": "open-loop"}
+SUITE_DRIVE_MODE = {"open-loop": "current", "servo": "current", "mid-band": "voltage"}
 # A failed run (step loss, termination) counts as this many times the undamped ripple.
 FAILURE_RATIO = 10.0
 
@@ -147,11 +155,13 @@ _V0_PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-2
 _V0_OFF_RESONANCE = ((4, 0.6), (4, math.sqrt(2.0)), (2, math.sqrt(2.0)), (1, 1.3))
 
 
-def check_suites_and_seeds(suites: Sequence[str], eval_seeds: Sequence[int]) -> None:
-    """A protocol's suites are known ones and its evaluation seeds are never training seeds."""
-    bad = [s for s in suites if s not in SUITES]
+def check_suites_and_seeds(suites: Sequence[str], eval_seeds: Sequence[int],
+                           known: Sequence[str] = SUITES) -> None:
+    """A protocol's suites are ``known`` ones and its evaluation seeds are never
+    training seeds."""
+    bad = [s for s in suites if s not in known]
     if bad or not suites:
-        raise ParameterError(f"suites={suites!r}: each must be one of {list(SUITES)}")
+        raise ParameterError(f"suites={suites!r}: each must be one of {list(known)}")
     if any(s < TRAINING_SEED_LIMIT for s in eval_seeds) or not eval_seeds:
         raise ParameterError(f"eval_seeds={eval_seeds!r}: each must be >= "
                              f"{TRAINING_SEED_LIMIT} (training seeds are below it)")

@@ -150,14 +150,15 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system, read_json_file
-from .protocol import (FAILURE_RATIO, PHASE_FIELDS, POLICY_OPTIONS, PROTOCOL_NAME, SUITES,
-                       TRAINING_SEED_LIMIT, check_suites_and_seeds)
+from .protocol import (ALL_SUITES, FAILURE_RATIO, PHASE_FIELDS, POLICY_OPTIONS, PROTOCOL_NAME,
+                       SUITES, TRAINING_SEED_LIMIT, check_suites_and_seeds)
 
-__all__ = ["PROTOCOL_V1", "SPLITS", "MIN_TRAINING_SEEDS", "Shift", "SHIFTS", "ProtocolV1",
-           "full_protocol_v1",
-           "quick_protocol_v1", "load_motors_file", "protocol_for"]
+__all__ = ["PROTOCOL_V1", "PROTOCOL_V2", "SPLITS", "MIN_TRAINING_SEEDS", "Shift", "SHIFTS",
+           "ProtocolV1", "ProtocolV2", "full_protocol_v1", "quick_protocol_v1",
+           "full_protocol_v2", "quick_protocol_v2", "load_motors_file", "protocol_for"]
 
 PROTOCOL_V1 = "v1"
+PROTOCOL_V2 = "v2"
 SPLITS = ("interpolation", "extrapolation", "custom")
 # Training seeds a learned entry must pool for a claim (fewer are marked in the report).
 MIN_TRAINING_SEEDS = 5
@@ -236,7 +237,8 @@ class ProtocolV1:
     confidence: float = 0.95
 
     def __post_init__(self) -> None:
-        check_suites_and_seeds(self.suites, self.eval_seeds)
+        check_suites_and_seeds(self.suites, self.eval_seeds,
+                               ALL_SUITES if self.version == PROTOCOL_V2 else SUITES)
         bad = [s for s in self.splits if s not in SPLITS]
         if bad or not self.splits:
             raise ParameterError(f"splits={self.splits!r}: each must be one of {list(SPLITS)}")
@@ -302,6 +304,49 @@ class ProtocolV1:
         return dataclasses.replace(self, splits=("custom",), custom_motors=tuple(systems))
 
 
+@dataclass(frozen=True)
+class ProtocolV2(ProtocolV1):
+    """Every setting of ``stepdamp-bench v2``: v1 unchanged plus the ``mid-band``
+    suite (the voltage-mode drive, docs/protocol_v2.md).
+
+    ``midband_factors``: the suite's speeds, log-spaced through each motor's
+    predicted unstable band [f_lo, f_hi] (:func:`stepdamp_env.analysis.midband`
+    of the motor with ``drive_mode="voltage"``): f_lo*(f_hi/f_lo)**k for k in
+    the factors. A motor without an unstable band uses
+    [f_min/1.5, 1.5*f_min] around its least damped speed f_min.
+    """
+
+    version: str = PROTOCOL_V2
+    suites: tuple[str, ...] = ALL_SUITES
+    midband_factors: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.midband_factors or not all(0.0 <= f <= 1.0 for f in self.midband_factors):
+            raise ParameterError(f"midband_factors={self.midband_factors!r}: each must be in "
+                                 "[0, 1]")
+
+    def to_dict(self) -> dict[str, Any]:
+        out = super().to_dict()
+        out["headline"] += ("; mid-band: the voltage-mode drive (drive_mode='voltage') at "
+                            "speeds through its predicted unstable band, all headline")
+        return out
+
+
+def full_protocol_v2() -> ProtocolV2:
+    """``stepdamp-bench v2``, the full protocol."""
+    return ProtocolV2()
+
+
+def quick_protocol_v2() -> ProtocolV2:
+    """v2's CI variant: v1's quick variant plus two mid-band speeds."""
+    return ProtocolV2(variant="quick", interpolation_per_preset=1,
+                      extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"),
+                                           (2, "load-torque"), (3, "low-bus")),
+                      off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1,
+                      bootstrap_resamples=500, midband_factors=(0.3, 0.7))
+
+
 def full_protocol_v1() -> ProtocolV1:
     """``stepdamp-bench v1``, the full protocol."""
     return ProtocolV1()
@@ -320,7 +365,8 @@ def protocol_for(version: str, quick: bool = False) -> Any:
     """The protocol of ``--protocol VERSION`` (``--quick``: its CI variant)."""
     from .protocol import full_protocol, quick_protocol
 
-    table = {"v0": (full_protocol, quick_protocol), "v1": (full_protocol_v1, quick_protocol_v1)}
+    table = {"v0": (full_protocol, quick_protocol), "v1": (full_protocol_v1, quick_protocol_v1),
+             "v2": (full_protocol_v2, quick_protocol_v2)}
     if version not in table:
         raise ParameterError(f"--protocol {version!r}: allowed {sorted(table)}")
     return table[version][1 if quick else 0]()

@@ -26,7 +26,7 @@ from ..plots import (POLICY_COLOURS, POLICY_MARKERS, finish_ripple_axes, legend_
 from .motors import ProtocolMotor, protocol_motors
 from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
-from .protocol import REFERENCE_POLICY, Protocol
+from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
 from .protocol_v1 import MIN_TRAINING_SEEDS, ProtocolV1
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
@@ -414,7 +414,8 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
 
     start, length = episode_window(motor.system, speed_rps, protocol.accel_rps2,
                                    protocol.window_s, motor.settle_s(suite))
-    result = run_episode(resolve_policy(spec).make(), knowledge, motor.system, mode=suite,
+    result = run_episode(resolve_policy(spec).make(), knowledge, motor.system,
+                         mode=SUITE_MODE[suite],
                          speed_rps=speed_rps, seed=seed, accel_rps2=protocol.accel_rps2,
                          window_s=protocol.window_s, settle_s=motor.settle_s(suite),
                          until_s=None if span_s is None else start + span_s,
@@ -429,6 +430,8 @@ def _speed_title(label: str) -> str:
     """A v1 speed label as a panel title: "h4" -> "h = 4 resonance", "s0.1" -> "0.1 x f4"."""
     if label.startswith("h"):
         return f"h = {label[1:]} resonance"
+    if label.startswith("m"):
+        return f"{label[1:]} through the predicted mid-band"
     return f"{label[1:]} x f4"
 
 
@@ -443,7 +446,7 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     best = next((e for e in rows if e["spec"] != REFERENCE_POLICY and not e.get("oracle")), None)
     shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
     styles = policy_styles([e["name"] for e in rows])
-    motor = protocol_motors(protocol)[0]
+    motor = protocol_motors(protocol)[0].for_suite(suite)
     seed = protocol.eval_seeds[0]
     knowledge = _knowledge(board, motor, seed, protocol)
     if motor.split is None:                 # v0: the three resonances, in both suites
@@ -458,16 +461,17 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     for ax, (title, v) in zip(axes[:, 0], points):
         for e in shown:
             t, err = trace_run(e["spec"], motor, knowledge, suite, v, seed, protocol)
-            rms = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
+            what = f"RMS {float(np.sqrt(np.mean(err ** 2))):.3g} rad/s" if err.size else \
+                "lost steps before the window"
             ax.plot(t * 1e3, err, lw=0.7, color=styles[e["name"]][0],
-                    label=f"{e['name']} (RMS {rms:.3g} rad/s)")
+                    label=f"{e['name']} ({what})")
         ax.set_ylabel("w_cmd - w (rad/s)", fontsize=8)
         ax.set_title(f"{title}: {v:.3g} rev/s", fontsize=9, loc="left")
         ax.grid(True, alpha=0.3)
         legend_outside(ax, fontsize=7)
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
     what = "the resonances" if suite == "open-loop" or motor.split is None else \
-        "the low-speed grid"
+        {"servo": "the low-speed grid", "mid-band": "the mid-band (voltage mode)"}[suite]
     fig.suptitle(f"Velocity error at {what}: {motor.name}, {suite}, seed {seed}", fontsize=10)
     save_figure(fig, path)
 
