@@ -150,13 +150,7 @@ def operating_point(system: SystemParams, speed_rps: float) -> OperatingPoint:
     scale = np.array([1.0, d.holding_current, d.holding_current] + [d.Vdc] * (n - 4))
     for _ in range(60):
         f = residual(x)
-        jac = np.empty((len(x), len(x)))
-        for k in range(len(x)):
-            h = 1e-7 * scale[k]
-            xp, xm = x.copy(), x.copy()
-            xp[k] += h
-            xm[k] -= h
-            jac[:, k] = (residual(xp) - residual(xm)) / (2 * h)
+        jac = _central_differences(residual, x, 1e-7 * scale)
         try:
             step = np.linalg.solve(jac, -f)
         except np.linalg.LinAlgError:
@@ -186,7 +180,7 @@ def jacobian(system: SystemParams, speed_rps: float) -> np.ndarray:
     """d(z')/dz at the steady state of ``speed_rps`` (rev/s), central differences."""
     op = operating_point(system, speed_rps)
     w_c = TWO_PI * speed_rps
-    m, d = system.motor, system.drive
+    d = system.drive
     z0 = np.zeros(_state_size(system))
     z0[0], z0[2], z0[3] = op.eps_rad, op.i_d_a, op.i_q_a
     if len(z0) == 6:
@@ -195,15 +189,18 @@ def jacobian(system: SystemParams, speed_rps: float) -> np.ndarray:
         z0[5] = op.v_q_v - kp * (0.0 - op.i_q_a)
     scale = np.array([1.0, max(abs(w_c), 1.0), d.holding_current, d.holding_current]
                      + [d.Vdc] * (len(z0) - 4))
-    jac = np.empty((len(z0), len(z0)))
-    for k in range(len(z0)):
-        h = 1e-6 * scale[k]
-        zp, zm = z0.copy(), z0.copy()
-        zp[k] += h
-        zm[k] -= h
-        jac[:, k] = (_rhs(system, w_c, zp) - _rhs(system, w_c, zm)) / (2 * h)
-    del m
-    return jac
+    return _central_differences(lambda z: _rhs(system, w_c, z), z0, 1e-6 * scale)
+
+
+def _central_differences(f: Any, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """The Jacobian of ``f`` at ``x``, column k from steps of +-``steps[k]``."""
+    cols = []
+    for k in range(len(x)):
+        xp, xm = x.copy(), x.copy()
+        xp[k] += steps[k]
+        xm[k] -= steps[k]
+        cols.append((f(xp) - f(xm)) / (2 * steps[k]))
+    return np.column_stack(cols)
 
 
 def rotor_damping(system: SystemParams, speed_rps: float) -> tuple[float, complex]:

@@ -340,11 +340,7 @@ def full_protocol_v2() -> ProtocolV2:
 
 def quick_protocol_v2() -> ProtocolV2:
     """v2's CI variant: v1's quick variant plus two mid-band speeds."""
-    return ProtocolV2(variant="quick", interpolation_per_preset=1,
-                      extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"),
-                                           (2, "load-torque"), (3, "low-bus")),
-                      off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1,
-                      bootstrap_resamples=500, midband_factors=(0.3, 0.7))
+    return ProtocolV2(**_QUICK, midband_factors=(0.3, 0.7))
 
 
 def full_protocol_v1() -> ProtocolV1:
@@ -354,11 +350,14 @@ def full_protocol_v1() -> ProtocolV1:
 
 def quick_protocol_v1() -> ProtocolV1:
     """The reduced CI variant (see the module docstring)."""
-    return ProtocolV1(variant="quick", interpolation_per_preset=1,
-                      extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"),
-                                           (2, "load-torque"), (3, "low-bus")),
-                      off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1,
-                      bootstrap_resamples=500)
+    return ProtocolV1(**_QUICK)
+
+
+# The reduced CI variant's settings (v1's; v2 adds its mid-band speeds).
+_QUICK: dict[str, Any] = dict(
+    variant="quick", interpolation_per_preset=1,
+    extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"), (2, "load-torque"), (3, "low-bus")),
+    off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1, bootstrap_resamples=500)
 
 
 def protocol_for(version: str, quick: bool = False) -> Any:
