@@ -223,6 +223,16 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     add("presets with a stray argument", "presets", "extra")
     add("presets with an option it does not take", "presets", "--motor", "patent")
     add("simulate without --speed", "simulate")
+    add("analyse with an unknown motor", "analyse", "--motor", "nosuch")
+    add("analyse with a bad drive_mode", "analyse", "--set", "drive_mode=fast")
+    add("analyse with a numeric drive_mode", "analyse", "--set", "drive_mode=1")
+    add("analyse with an out-of-range field", "analyse", "--set", "L=-1")
+    add("analyse with a stray argument", "analyse", "extra")
+    add("simulate with a bad drive_mode", "simulate", "--speed", "1", "--set",
+        "drive_mode=chopper")
+    add("mid-band suite on v1", "leaderboard", "--quick", "--suite", "mid-band", "--out",
+        os.path.join(tmp, "mb"))
+    add("unknown protocol", "leaderboard", "--protocol", "v3", "--out", os.path.join(tmp, "p3"))
     add("sweep without --out", "sweep", "--speeds", "0.5:0.5:0.1", "--no-progress")
     add("identify without --out", "identify", "--method", "least-squares")
     add("leaderboard without --out", "leaderboard", "--quick", "--no-plots")
