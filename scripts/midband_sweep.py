@@ -34,6 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=os.path.join("docs", "results", "midband"))
     ap.add_argument("--step", type=float, default=0.25, help="speed step of the curves (rev/s)")
     args = ap.parse_args(argv)
+    if not 0.01 <= args.step <= 14.0:
+        ap.error(f"--step {args.step:g} is outside its allowed range [0.01, 14] rev/s")
     speeds = np.arange(GRID_RPS[0], GRID_RPS[1] + 1e-9, args.step)
     plt = pyplot()
     names = preset_names()

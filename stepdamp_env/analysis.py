@@ -161,8 +161,13 @@ def operating_point(system: SystemParams, speed_rps: float) -> OperatingPoint:
         if np.all(np.abs(step) <= 1e-13 * scale):
             break
     z[free] = x
-    if not (np.all(np.isfinite(residual(x))) and
-            np.all(np.abs(residual(x)) <= 1e-6 * np.abs(_rhs(system, w_c, z)).max() + 1e-6)
+    # The residual in N*m over the holding torque, and in V over the bus voltage
+    # (integrator rows: in A over the holding current).
+    ki = system.current_gains()[1] if n == 6 else 0.0
+    weights = np.array([m.J / (m.Km * d.holding_current), m.L / d.Vdc, m.L / d.Vdc]
+                       + [1.0 / (ki * d.holding_current) if ki > 0 else 0.0] * (n - 4))
+    scaled = residual(x) * weights
+    if not (np.all(np.isfinite(scaled)) and np.all(np.abs(scaled) <= 1e-9)
             and abs(x[0]) < math.pi / 2):
         raise ParameterError(f"motor {system.name!r} at {speed_rps:g} rev/s: no steady state "
                              "(the drive cannot hold that speed)")
@@ -205,15 +210,17 @@ def _central_differences(f: Any, x: np.ndarray, steps: np.ndarray) -> np.ndarray
 
 def rotor_damping(system: SystemParams, speed_rps: float) -> tuple[float, complex]:
     """(damping ratio, eigenvalue in 1/s) of the rotor's oscillatory mode at
-    ``speed_rps``: the complex pair nearest the open-loop resonance
-    wn = sqrt(Km*holding_current*Nr/J). Negative: the oscillation grows."""
+    ``speed_rps``: the least damped complex pair. Negative: the oscillation grows."""
     lam = np.linalg.eigvals(jacobian(system, speed_rps))
     wn = system.natural_frequency()
     osc = [x for x in lam if x.imag > 1e-9 * wn]
     if not osc:                                   # overdamped: the slowest real pole
         x = max(lam, key=lambda v: v.real)
         return (1.0 if x.real < 0 else -1.0), complex(x)
-    x = min(osc, key=lambda v: abs(abs(v) - wn))
+    # The least damped oscillatory pair: the rotor's (the windings' and the current
+    # loops' pairs are damped by R and the PI); nearest-to-wn would miss it where
+    # the voltage-fed winding stiffens the rotor well above wn.
+    x = min(osc, key=lambda v: -v.real / abs(v))
     return float(-x.real / abs(x)), complex(x)
 
 
@@ -234,7 +241,8 @@ class MidBand:
     """The predicted mid-band of one motor and drive mode.
 
     ``unstable_rps``: (low, high) edges in rev/s of the speeds where the rotor
-    mode's damping ratio is negative, or None; ``min_damping``, ``at_rps``: the
+    mode's damping ratio is negative, or None (a high edge equal to the scan's
+    end: the band reaches past it); ``min_damping_ratio``, ``at_rps``: the
     least damping ratio over the scan and its speed; ``bridge_limit_rps``: see
     :func:`bridge_limit_rps`; ``stall_rps``: the lowest scanned speed without a
     steady state (None: every speed has one)."""
@@ -242,7 +250,7 @@ class MidBand:
     motor: str
     drive_mode: str
     unstable_rps: tuple[float, float] | None
-    min_damping: float
+    min_damping_ratio: float
     at_rps: float
     bridge_limit_rps: float
     stall_rps: float | None
@@ -250,7 +258,7 @@ class MidBand:
     def to_dict(self) -> dict[str, Any]:
         return {"motor": self.motor, "drive_mode": self.drive_mode,
                 "unstable_rps": list(self.unstable_rps) if self.unstable_rps else None,
-                "min_damping_ratio": self.min_damping, "at_rps": self.at_rps,
+                "min_damping_ratio": self.min_damping_ratio, "at_rps": self.at_rps,
                 "bridge_limit_rps": self.bridge_limit_rps, "stall_rps": self.stall_rps}
 
 

@@ -286,9 +286,12 @@ def _cmd_analyse(args: argparse.Namespace) -> int:
     from .analysis import midband
 
     motors = args.motor or list(preset_names())
+    overrides = parse_set_overrides(args.overrides)
+    if "drive_mode" in overrides:
+        raise ParameterError("--set drive_mode: analyse prints both drive modes; leave it out")
     rows = []
     for spec in motors:
-        base = load_system(spec, parse_set_overrides(args.overrides))
+        base = load_system(spec, overrides)
         for mode in ("current", "voltage"):
             rows.append(midband(base.replace(drive_mode=mode)))
     if args.json:
@@ -302,7 +305,7 @@ def _cmd_analyse(args: argparse.Namespace) -> int:
                 if r.unstable_rps else "no unstable band")
         stall = f", no steady state from {r.stall_rps:.2f}" if r.stall_rps else ""
         print(f"{r.motor:24s} {r.drive_mode:8s} {band:30s} least damping ratio "
-              f"{r.min_damping:+.4f} at {r.at_rps:.2f} rev/s; bridge circle at "
+              f"{r.min_damping_ratio:+.4f} at {r.at_rps:.2f} rev/s; bridge circle at "
               f"{r.bridge_limit_rps:.2f} rev/s{stall}")
     return 0
 
@@ -476,7 +479,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "splits), v2 (v1 plus the voltage-mode drive's mid-band suite) or "
                         "the frozen v0 of the published numbers")
     p.add_argument("--quick", action="store_true",
-                   help="the protocol's reduced CI variant (v1: 8 motors, resonant speeds, "
+                   help="the protocol's reduced CI variant (v1 and v2: 8 motors, resonant speeds, "
                         "two servo speeds, 0.1 s window; v0: presets, one seed)")
     p.add_argument("--motors", metavar="FILE.json", default=None,
                    help="v1 on your own motors (split 'custom'): a JSON list of preset names "

@@ -149,8 +149,10 @@ def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     failed (the drive then falls back to its nominal model, see protocol_v1)."""
     motor_index, seed = args
     protocol = _WORKER["protocol"]
-    model = identify_cached(_WORKER["motors"][motor_index].system,
-                            protocol.identification_method, seed)
+    system = _WORKER["motors"][motor_index].system
+    if system.drive.drive_mode != "current":    # a drive commissions with its current loop
+        system = system.replace(drive_mode="current")
+    model = identify_cached(system, protocol.identification_method, seed)
     if isinstance(model, str) and not isinstance(protocol, ProtocolV1):
         raise ParameterError(f"identification of motor "
                              f"{_WORKER['motors'][motor_index].name!r} (seed {seed}) failed: "
