@@ -185,7 +185,7 @@ def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]
                              "Ki_pos) leave the servo loop unstable")
     out = {"open-loop": max(ol, protocol.settle_min_s),
            "servo": max(servo, protocol.settle_min_s)}
-    if "mid-band" in protocol.suites:       # v2: the open-loop rule, for the voltage drive
+    if isinstance(protocol, ProtocolV2):    # the open-loop rule, for the voltage drive
         out["mid-band"] = out["open-loop"]
     return out
 
