@@ -380,7 +380,7 @@ def train(args: Args) -> dict[str, Any]:
     from stable_baselines3.common.logger import configure
 
     from .per_step import ALGOS, SameEpisodes, StepAgent, make_training_env
-    from .policy import ResidualAgent, forget_model
+    from .policy import ResidualAgent
     from .residual import make_residual_vec_env
 
     check_args(args)
@@ -443,7 +443,6 @@ def train(args: Args) -> dict[str, Any]:
     def evaluate(tag: str) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
-        forget_model(path)
         agent = StepAgent(path) if v1 else ResidualAgent(path)
         res = validator.score(lambda: agent)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)

@@ -15,6 +15,7 @@ import ctypes
 import ctypes.util
 import errno
 import fnmatch
+import hashlib
 import json
 import os
 import shutil
@@ -25,7 +26,8 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 __all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writable",
-           "check_output_dir", "staged_directory", "cache_dir", "read_json_or_none"]
+           "check_output_dir", "staged_directory", "cache_dir", "read_json_or_none",
+           "file_digest", "tree_digest", "related_files"]
 
 
 @contextmanager
@@ -112,6 +114,51 @@ def cache_dir(kind: str) -> str | None:
     except OSError:
         return None
     return path if os.access(path, os.W_OK) else None
+
+
+def file_digest(path: str | os.PathLike[str]) -> str:
+    """sha256 of a file's bytes, read now (never cached: a key must see the file
+    as it is when the result it keys is used)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def tree_digest(root: str | os.PathLike[str], suffixes: tuple[str, ...] = (),
+                exclude: Sequence[str | os.PathLike[str]] = ()) -> str:
+    """sha256 of the files under ``root`` (their paths relative to it and their
+    bytes, read now), those ending in ``suffixes`` if given. Skipped: hidden
+    names (resume batches, staging directories, temporary files of
+    :func:`atomic_path`), ``__pycache__`` and the ``exclude`` paths (a result
+    directory inside the tree must not change the key of its own results)."""
+    root = os.path.abspath(os.fspath(root))
+    skip = {os.path.abspath(os.fspath(e)) for e in exclude}
+    h = hashlib.sha256()
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != "__pycache__"
+                         and os.path.join(d, x) not in skip)
+        for f in sorted(files):
+            path = os.path.join(d, f)
+            if f.startswith(".") or path in skip or (suffixes and not f.endswith(suffixes)):
+                continue
+            h.update(os.path.relpath(path, root).encode("utf-8", "surrogateescape") + b"\0")
+            h.update(file_digest(path).encode())
+    return h.hexdigest()
+
+
+def related_files(path: str | os.PathLike[str]) -> list[str]:
+    """A file and its side files: the files beside it whose name starts with its
+    name less the extension, and a dot (``model.zip``: ``model.json``,
+    ``model.agent.json``), sorted. Only the file's own name is split, never
+    the directories above it."""
+    path = os.path.abspath(os.fspath(path))
+    folder, name = os.path.split(path)
+    stem = os.path.splitext(name)[0] + "."
+    return sorted(os.path.join(folder, f) for f in os.listdir(folder)
+                  if f == name or (f.startswith(stem) and not f.startswith(".")
+                                   and os.path.isfile(os.path.join(folder, f))))
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> None:

@@ -1,24 +1,56 @@
-"""Where numba keeps its compiled cache: a per-user directory, never the package."""
+"""Where numba keeps its compiled cache: a per-user directory, never the package,
+one sub-directory per version of this package's code.
+
+numba re-checks a cached function against its own source file only (modified
+time and size), not against the files it calls into: ``env/compiled.py``
+inlines ``kernel.py``, so a changed kernel would leave its compiled steps
+stale. The sub-directory is named by a hash of every Python source of the
+package and the numba and llvmlite versions (:func:`code_key`), so changed
+code never meets an old cache.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
 import os
 import sys
 
-__all__ = ["use_user_cache_dir", "user_cache_dir"]
+__all__ = ["use_user_cache_dir", "user_cache_dir", "code_key"]
+
+
+def code_key(root: str | None = None) -> str:
+    """16 hex digits of sha256 over the ``.py`` files under ``root`` (default:
+    this package; names and bytes, read now) and the numba and llvmlite versions."""
+    here = root or os.path.dirname(os.path.abspath(__file__))
+    h = hashlib.sha256()
+    for d, dirs, files in os.walk(here):
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != "__pycache__")
+        for f in sorted(x for x in files if x.endswith(".py")):
+            h.update(os.path.relpath(os.path.join(d, f), here).encode() + b"\0")
+            with open(os.path.join(d, f), "rb") as fh:
+                h.update(hashlib.sha256(fh.read()).digest())
+    for dist in ("numba", "llvmlite"):
+        try:
+            h.update(importlib.metadata.version(dist).encode() + b"\0")
+        except importlib.metadata.PackageNotFoundError:
+            h.update(b"-\0")
+    return h.hexdigest()[:16]
 
 
 def user_cache_dir() -> str:
-    """``$NUMBA_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/stepdamp/numba``
-    (``~/.cache/stepdamp/numba``; ``%LOCALAPPDATA%`` on Windows)."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
+    """``$NUMBA_CACHE_DIR`` if the user set it (used as it is), else
+    ``$XDG_CACHE_HOME/stepdamp/numba/<code_key>`` (``~/.cache/...``;
+    ``%LOCALAPPDATA%`` on Windows)."""
+    chosen = os.environ.get("NUMBA_CACHE_DIR")
+    if chosen and chosen != os.environ.get("_STEPDAMP_NUMBA_CACHE_DIR"):
         return os.environ["NUMBA_CACHE_DIR"]
     if sys.platform == "win32":
         base = os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
     else:
         base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
                                                                  ".cache")
-    return os.path.join(base, "stepdamp", "numba")
+    return os.path.join(base, "stepdamp", "numba", code_key())
 
 
 def use_user_cache_dir() -> str:
@@ -26,6 +58,8 @@ def use_user_cache_dir() -> str:
     path = user_cache_dir()
     if os.environ.get("NUMBA_CACHE_DIR") != path:
         os.environ["NUMBA_CACHE_DIR"] = path
+        # Ours, not the user's: a child process computes its own (its code may differ).
+        os.environ["_STEPDAMP_NUMBA_CACHE_DIR"] = path
         config = sys.modules.get("numba.core.config")
         if config is not None:           # numba was imported first: re-read its settings
             config.reload_config()

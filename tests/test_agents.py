@@ -10,7 +10,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from stepdamp_agents.policy import ResidualAgent, forget_model, load_model  # noqa: E402
+from stepdamp_agents.policy import ResidualAgent, clear_model_cache, load_model  # noqa: E402
 from stepdamp_agents.residual import (ALGOS, ResidualSAC, ResidualTD3, ResidualWrapper,  # noqa: E402
                              context_features, make_residual_vec_env)
 from stepdamp_agents.train import Args, load_hyperparams, split_hyperparams, train  # noqa: E402
@@ -161,7 +161,7 @@ def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     system = get_preset(MOTOR).replace(Kd4=1.1 * get_preset(MOTOR).motor.Kd4)
     speed = system.predicted_resonances_rps()[4]
     a, s_a = _trajectory(ResidualAgent(path), system, speed, steps=100)
-    forget_model(path)                               # reload from disk
+    clear_model_cache()                              # reload from disk
     b, s_b = _trajectory(ResidualAgent(path), system, speed, steps=100)
     assert np.array_equal(a, b) and np.array_equal(s_a, s_b)
     assert load_model(path).policy.actor.mu.weight.abs().sum() > 0     # it did learn
@@ -259,7 +259,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
     assert obs_s[-1] > 0 and len(set(gains)) == decisions      # the gain really changed
     state_training = scalar.unwrapped.drive_state
 
-    forget_model(path)
+    clear_model_cache()
     agent = ResidualAgent(path)
     system = get_preset(MOTOR).replace(current_noise_a=0.01)
     exact = FeedforwardModel.from_motor(system.motor)

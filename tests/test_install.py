@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+from stepdamp_env.numba_cache import code_key
+
 
 def _run(code: str, env: dict) -> str:
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, check=True,
@@ -27,7 +29,7 @@ def test_numba_cache_goes_to_the_user_cache_dir(tmp_path):
         assert cached_mod.f(1) == 2
         print(numba.config.CACHE_DIR)
         """, env)
-    cache = tmp_path / "xdg" / "stepdamp" / "numba"
+    cache = tmp_path / "xdg" / "stepdamp" / "numba" / code_key()
     assert printed == str(cache)
     written = [f for _, _, files in os.walk(cache) for f in files]
     assert any(f.endswith(".nbi") for f in written)
@@ -45,7 +47,34 @@ def test_numba_imported_first_still_uses_the_user_cache_dir(tmp_path):
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg")}
     env.pop("NUMBA_CACHE_DIR", None)
     assert _run("import numba, stepdamp_env; print(numba.config.CACHE_DIR)", env) == \
-        str(tmp_path / "xdg" / "stepdamp" / "numba")
+        str(tmp_path / "xdg" / "stepdamp" / "numba" / code_key())
+
+
+def test_numba_cache_is_keyed_on_every_source_of_the_package(tmp_path):
+    """numba re-checks a cached function against its own file only; env/compiled.py
+    inlines kernel.py, so the cache directory must change with any source file."""
+    import shutil
+
+    import stepdamp_env
+
+    copy = tmp_path / "pkg"
+    shutil.copytree(os.path.dirname(stepdamp_env.__file__), copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    assert code_key(str(copy)) == code_key()
+    kernel = copy / "kernel.py"
+    data = bytearray(kernel.read_bytes())
+    data[len(data) // 2] ^= 1
+    kernel.write_bytes(bytes(data))
+    assert code_key(str(copy)) != code_key()
+
+
+def test_a_child_process_computes_its_own_cache_dir(tmp_path):
+    """The directory this process chose is passed on in the environment; a child
+    (perhaps of another checkout) still keys its own, unlike a user's choice."""
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg"),
+           "NUMBA_CACHE_DIR": str(tmp_path / "old"), "_STEPDAMP_NUMBA_CACHE_DIR": str(tmp_path / "old")}
+    assert _run("import stepdamp_env, numba; print(numba.config.CACHE_DIR)", env) == \
+        str(tmp_path / "xdg" / "stepdamp" / "numba" / code_key())
 
 
 def test_pytest_runs_from_any_directory(tmp_path):

@@ -21,6 +21,7 @@ A policy spec (``stepdamp leaderboard --policy SPEC``) is one of:
 from __future__ import annotations
 
 import copy
+import hashlib
 import importlib
 import importlib.metadata
 import importlib.util
@@ -28,10 +29,11 @@ import json
 import os
 import sys
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..io import file_digest, related_files, tree_digest
 from ..params import ParameterError
 from ..ray_backend import BY_VALUE
 from .policy import (MotorKnowledge, Policy, PolicyContext, check_policy, reference_policy,
@@ -77,6 +79,41 @@ class PolicySource:
         if pooled and self.training_seeds:
             return dict(sorted(self.training_seeds.items()))
         return {None: self.make}
+
+    def fingerprint(self, exclude: Sequence[str] = ()) -> str:
+        """sha256 of what this entry stands for, read now: its spec, the files
+        the spec names (a model with its side files, a directory of models, a
+        policy file with its side files) and the code its factories come from
+        (a package's whole tree: code and committed models; a single-module
+        file alone). ``exclude``: paths left out of directory trees (the
+        leaderboard's own output directory). No part is cached, so a file
+        changed since the last call changes the key."""
+        h = hashlib.sha256(self.spec.encode())
+        files: set[str] = set()
+        trees: set[str] = set()
+        path = self.spec.rpartition(":")[0] if ":" in self.spec and \
+            not os.path.exists(self.spec) else self.spec
+        if os.path.isfile(path):
+            files.update(related_files(path))
+        elif os.path.isdir(path):
+            trees.add(os.path.abspath(path))
+        factories = [self.make, *(self.training_seeds or {}).values()]
+        for module in {getattr(f, "__module__", None) for f in factories} - {None}:
+            top = sys.modules.get(str(module).split(".")[0])
+            where = getattr(top, "__file__", None)
+            if not where:
+                continue
+            if hasattr(top, "__path__"):       # a package: its whole folder
+                trees.add(os.path.dirname(os.path.abspath(where)))
+            else:                              # a module file (a policy file): itself
+                files.update(related_files(where))
+        for root in sorted(trees):
+            h.update(b"tree\0" + root.encode("utf-8", "surrogateescape") + b"\0")
+            h.update(tree_digest(root, exclude=exclude).encode())
+        for f in sorted(files):
+            h.update(b"file\0" + f.encode("utf-8", "surrogateescape") + b"\0")
+            h.update(file_digest(f).encode())
+        return h.hexdigest()
 
 
 _REGISTRY: dict[str, RegisteredPolicy] = {}
