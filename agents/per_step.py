@@ -214,16 +214,14 @@ class StepAgent:
         pass
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        a, _ = self.model.predict(np.asarray(observation, dtype=np.float32)[None],
-                                  deterministic=True)
-        return np.clip(np.asarray(a, dtype=np.float32)[0], -1.0, 1.0)
+        return self.act_batch(np.asarray(observation, dtype=np.float32)[None], np.zeros(1))[0]
 
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy).
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        self.model.policy.set_training_mode(False)
+        pass
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         from .policy import predict_rows
 
-        return np.clip(np.asarray(predict_rows(self.model, observations, eval_mode=False),
-                                  dtype=np.float32), -1.0, 1.0)
+        return np.clip(np.asarray(predict_rows(self.model, observations), dtype=np.float32),
+                       -1.0, 1.0)

@@ -15,12 +15,12 @@ measures it). All models are the nominal ones (datasheet), except the oracle's.
 
 from __future__ import annotations
 
-import cmath
 import math
 from typing import Any, Sequence
 
 import numpy as np
 
+from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        estimate_model)
 from stepdamp_env.env.layout import OBS, observation_names
@@ -52,20 +52,20 @@ def hold_response(w: float, pwm_hz: float, agent_hz: float) -> complex:
     exp(-j*w*m*dt), m = 1..n (n PWM periods per agent step)."""
     n = int(round(pwm_hz / agent_hz))
     dt = 1.0 / pwm_hz
-    return sum(cmath.exp(-1j * w * m * dt) for m in range(1, n + 1)) / n
+    return sum(fm.cexp(-1j * w * m * dt) for m in range(1, n + 1)) / n
 
 
 def design_gains(target: complex, e_response: complex, f_response: complex
                  ) -> tuple[float, float]:
     """Real gains (a, b) with a*e_response + b*f_response = target."""
     m = np.array([[e_response.real, f_response.real], [e_response.imag, f_response.imag]])
-    a, b = np.linalg.solve(m, np.array([target.real, target.imag]))
+    a, b = fm.solve(m, np.array([target.real, target.imag]))
     return float(a), float(b)
 
 
 def _lowpass(w: float, alpha: float, dt: float) -> complex:
     """First-order low-pass y += alpha*(x - y), run every dt, at w."""
-    return alpha / (1.0 - (1.0 - alpha) * cmath.exp(-1j * w * dt))
+    return alpha / (1.0 - (1.0 - alpha) * fm.cexp(-1j * w * dt))
 
 
 def _law_target(system: SystemParams, mode: str, agent_hz: float, zeta_add: float,
@@ -169,8 +169,8 @@ class VelocityFeedback(_FeedbackOnFF):
         self._start(context, nominal)
         wn = nominal.natural_frequency()
         dt_a = 1.0 / context.agent_hz
-        self._hp_alpha = 1.0 - math.exp(-wn / 5.0 * dt_a)
-        self._beta = 1.0 - math.exp(-2.0 * math.pi * self.filter_hz * dt_a)
+        self._hp_alpha = 1.0 - fm.exp(-wn / 5.0 * dt_a)
+        self._beta = 1.0 - fm.exp(-2.0 * math.pi * self.filter_hz * dt_a)
         hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
         lp = _lowpass(wn, self._beta, dt_a)
         target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
@@ -254,13 +254,13 @@ class SensorlessDamping(_FeedbackOnFF):
         self._start(context, nominal)
         wn = nominal.natural_frequency()
         dt = 1.0 / nominal.drive.pwm_hz
-        alpha = 1.0 - math.exp(-2.0 * math.pi * nominal.servo.velocity_cutoff_hz * dt)
+        alpha = 1.0 - fm.exp(-2.0 * math.pi * nominal.servo.velocity_cutoff_hz * dt)
         dt_a = 1.0 / context.agent_hz
-        self._beta = 1.0 - math.exp(-2.0 * math.pi * self.filter_hz * dt_a)
+        self._beta = 1.0 - fm.exp(-2.0 * math.pi * self.filter_hz * dt_a)
         # The back-EMF is that of the period before the sample: half a period late.
-        est = (_lowpass(wn, alpha, dt) * cmath.exp(-0.5j * wn * dt)
+        est = (_lowpass(wn, alpha, dt) * fm.cexp(-0.5j * wn * dt)
                * _lowpass(wn, self._beta, dt_a))
-        diff = est * (1.0 - cmath.exp(-1j * wn * dt_a))
+        diff = est * (1.0 - fm.cexp(-1j * wn * dt_a))
         target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
         self.gains = design_gains(target, est, diff)
         self._prev = None
@@ -328,7 +328,7 @@ class OracleFloor(_FeedbackOnFF):
         self._i_theta = names.index("true_position_error")
         wn = plant.natural_frequency()
         dt_a = 1.0 / context.agent_hz
-        self._hp_alpha = 1.0 - math.exp(-wn / 5.0 * dt_a)
+        self._hp_alpha = 1.0 - fm.exp(-wn / 5.0 * dt_a)
         hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
         zeta = self.zeta_add if context.mode == "open-loop" else 0.0
         target = _law_target(plant, context.mode, context.agent_hz, zeta, wn)

@@ -19,6 +19,7 @@ import numpy as np
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_model,
                                        resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
+from stepdamp_env.fixedmath import random_walk_kalman_update
 from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
@@ -121,7 +122,7 @@ class AdaptiveFF(_HarmonicResidual):
 
     Two parts, per harmonic h = 1, 2, 4 at h*Nr*speed:
 
-    * a Kalman filter (filterpy) tracks the phasors R_h of the velocity error
+    * a Kalman filter tracks the phasors R_h of the velocity error
       e = Im(sum_h R_h*exp(j*h*x)) from the filtered velocity error and the
       electrical angle x of each observation (six random-walk states, so the
       ripple's change after each correction is followed);
@@ -171,8 +172,6 @@ class AdaptiveFF(_HarmonicResidual):
         self._action = np.zeros(6, dtype=np.float32)
 
     def reset(self, context: PolicyContext) -> None:
-        from filterpy.kalman import KalmanFilter
-
         system = context.knowledge.nominal
         model = estimate_model(self.estimate, context.knowledge)
         self._base = phasors(model)
@@ -184,13 +183,12 @@ class AdaptiveFF(_HarmonicResidual):
         self._inverse_path = 1.0 / (g * h)
         self._w_ref = w
         self._scale = context.action_scale
-        kf = KalmanFilter(dim_x=6, dim_z=1)
-        kf.x = np.zeros((6, 1))
-        kf.P = np.eye(6) * (0.1 * w + 1.0) ** 2
-        kf.Q = np.eye(6) * self.ripple_drift_rad_s ** 2
-        kf.R = np.array([[self.noise_rad_s ** 2]])
-        kf.F = np.eye(6)
-        self._kf = kf
+        # The filter (fixedmath.random_walk_kalman_update: filterpy's recursion in
+        # a fixed order, the same for one row and for many).
+        self._x = np.zeros(6)
+        self._p = np.eye(6) * ((0.1 * w + 1.0) * (0.1 * w + 1.0))
+        self._q = self.ripple_drift_rad_s * self.ripple_drift_rad_s
+        self._r = self.noise_rad_s * self.noise_rad_s
         self._row = np.zeros((1, 6))
         self._action = harmonic_actions(self._base / g, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
@@ -208,12 +206,12 @@ class AdaptiveFF(_HarmonicResidual):
         row = self._row
         row[0, 0::2] = observation[HARMONIC_SIN]      # sin x, sin 2x, sin 4x
         row[0, 1::2] = observation[HARMONIC_COS]      # cos x, cos 2x, cos 4x
-        kf = self._kf
-        kf.predict()
-        kf.update(np.array([[float(observation[OBS.velocity_error]) * self._w_ref]]), H=row)
-        ripple = kf.x[0::2, 0] + 1j * kf.x[1::2, 0]
-        power = np.abs(ripple) ** 2
-        variance = kf.P[0::2, 0::2].diagonal() + kf.P[1::2, 1::2].diagonal()
+        x, p = self._x[None], self._p[None]           # views: updated in place
+        random_walk_kalman_update(x, p, row, np.array(
+            [float(observation[OBS.velocity_error]) * self._w_ref]), self._q, self._r)
+        ripple = self._x[0::2] + 1j * self._x[1::2]
+        power = self._x[0::2] * self._x[0::2] + self._x[1::2] * self._x[1::2]
+        variance = self._p[0::2, 0::2].diagonal() + self._p[1::2, 1::2].diagonal()
         if self._step <= self._adapt_step:          # probing the unadapted ripple
             self._reference_power = power
             return self._action
@@ -233,19 +231,18 @@ class AdaptiveFF(_HarmonicResidual):
         return self._action
 
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
-    # arithmetic on a stack of rows. filterpy's 2-D dot products become stacked
-    # matmuls, which call the same BLAS routine per row (tests/test_scale.py
-    # checks the result bit for bit against the scalar runs).
+    # arithmetic on a stack of rows, the filter the same function as act's
+    # (tests/test_scale.py checks the result bit for bit against the scalar runs).
     _ROW_SETTINGS = ("_base", "_inverse_path", "_w_ref", "_scale", "_action", "_applied",
                      "_initial", "_start_step", "_adapt_step")
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         self._rows = gather_rows(self, contexts, lambda: {
-            **{k: getattr(self, k) for k in self._ROW_SETTINGS}, "x": self._kf.x, "P": self._kf.P})
+            **{k: getattr(self, k) for k in self._ROW_SETTINGS}, "x": self._x, "P": self._p})
         n = len(contexts)
         self._rows["_reference_power"] = np.zeros((n, 3))
         self._rows["_active"] = np.ones((n, 3), dtype=bool)
-        self._rows_kf = (self._kf.F, self._kf.Q, self._kf.R, np.eye(6))
+        self._rows_kf = (self._q, self._r)
         self._rows_step = 0
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -258,26 +255,16 @@ class AdaptiveFF(_HarmonicResidual):
 
     def _adapt_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
         r = self._rows
-        f, q, noise, eye = self._rows_kf
-        h = np.zeros((len(idx), 1, 6))
-        h[:, 0, 0::2] = observations[:, HARMONIC_SIN]
-        h[:, 0, 1::2] = observations[:, HARMONIC_COS]
+        q, noise = self._rows_kf
+        h = np.zeros((len(idx), 6))
+        h[:, 0::2] = observations[:, HARMONIC_SIN]
+        h[:, 1::2] = observations[:, HARMONIC_COS]
         z = (observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][idx])
-        z = z[:, None, None]
         x, p = r["x"][idx], r["P"][idx]
-        # filterpy's predict (F = I, alpha = 1) and update, row by row.
-        x = np.matmul(f, x)
-        p = np.matmul(np.matmul(f, p), f.T) + q
-        y = z - np.matmul(h, x)
-        pht = np.matmul(p, np.swapaxes(h, 1, 2))
-        gain = np.matmul(pht, np.linalg.inv(np.matmul(h, pht) + noise))
-        x = x + np.matmul(gain, y)
-        i_kh = eye - np.matmul(gain, h)
-        p = (np.matmul(np.matmul(i_kh, p), np.swapaxes(i_kh, 1, 2))
-             + np.matmul(np.matmul(gain, noise), np.swapaxes(gain, 1, 2)))
+        random_walk_kalman_update(x, p, h, z, q, noise)
         r["x"][idx], r["P"][idx] = x, p
-        ripple = x[:, 0::2, 0] + 1j * x[:, 1::2, 0]
-        power = np.abs(ripple) ** 2
+        ripple = x[:, 0::2] + 1j * x[:, 1::2]
+        power = x[:, 0::2] * x[:, 0::2] + x[:, 1::2] * x[:, 1::2]
         variance = (np.diagonal(p[:, 0::2, 0::2], axis1=1, axis2=2)
                     + np.diagonal(p[:, 1::2, 1::2], axis1=1, axis2=2))
         probing = self._rows_step <= r["_adapt_step"][idx]

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, estimate_model
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS
@@ -57,6 +58,12 @@ def golden_section(f, low: float, high: float, iterations: int,
 # once); deterministic, so a cache per process changes no number.
 _TABLES: dict[tuple, tuple[np.ndarray, float]] = {}
 
+
+
+def _magnitude(z):
+    """|z| in real arithmetic (abs of a complex goes through the C library's hypot,
+    whose last bit depends on the CPU)."""
+    return np.sqrt(np.real(z) * np.real(z) + np.imag(z) * np.imag(z))
 
 class CalibratedTable(DelayCompensatedFF):
     """``calibrated-table``: a feedforward table found by measurement before the run.
@@ -131,12 +138,12 @@ class CalibratedTable(DelayCompensatedFF):
             phase, mag = 0.0, 1.0
             for width_phase, width_mag in ((math.pi / 3.0, 0.5), (math.pi / 12.0, 0.125)):
                 phase = golden_section(
-                    lambda p: ripple(start * mag * complex(math.cos(p), math.sin(p))),
+                    lambda p: ripple(start * mag * complex(fm.cos(p), fm.sin(p))),
                     phase - width_phase, phase + width_phase, self.iterations, start=phase)
-                rot = start * complex(math.cos(phase), math.sin(phase))
+                rot = start * complex(fm.cos(phase), fm.sin(phase))
                 mag = golden_section(lambda m: ripple(rot * m), max(0.0, mag - width_mag),
                                      mag + width_mag, self.iterations, start=mag)
-            table[i] = start * mag * complex(math.cos(phase), math.sin(phase))
+            table[i] = start * mag * complex(fm.cos(phase), fm.sin(phase))
         # Stored as the detent torque it cancels (times G at the calibration
         # speed), so each run speed gets it through its own current path.
         paths = np.array([torque_paths(nominal, mode, resonances[h], model)[i]
@@ -211,7 +218,7 @@ class RepetitiveControl(DelayCompensatedFF):
         # whose true resonance sits on the harmonic must not see a loop gain
         # above ``learning_gain``.
         spread = np.geomspace(0.7, 1.4, 29)
-        peak = np.array([max(abs(plant(h, f * h * nr * w)) for f in spread)
+        peak = np.array([max(_magnitude(plant(h, f * h * nr * w)) for f in spread)
                          for h in DETENT_HARMONICS])
         cycle_steps = np.array([context.agent_hz / max(h * nr * abs(context.speed_rps), 1e-12)
                                 for h in DETENT_HARMONICS])
@@ -236,7 +243,7 @@ class RepetitiveControl(DelayCompensatedFF):
         s = observation[HARMONIC_SIN].astype(float)
         c = observation[HARMONIC_COS].astype(float)
         e = float(observation[OBS.velocity_error]) * self._w_ref
-        angle = math.atan2(s[0], c[0])
+        angle = fm.atan2(s[0], c[0])
         if self._angle is not None:
             self._turned += (angle - self._angle + math.pi) % (2.0 * math.pi) - math.pi
         self._angle = angle
@@ -244,7 +251,7 @@ class RepetitiveControl(DelayCompensatedFF):
         self._count += 1
         if abs(self._turned) >= 2.0 * math.pi:          # one electrical period done
             ripple = 2.0 * self._sums / self._count
-            size = np.abs(ripple)
+            size = _magnitude(ripple)
             # A model whose phase is off by more than 90 degrees (near a shifted
             # resonance) makes learning diverge: a harmonic whose ripple grows
             # past guard_ratio times the least seen goes back to its start and
@@ -297,7 +304,7 @@ class RepetitiveControl(DelayCompensatedFF):
         c = observations[:, HARMONIC_COS].astype(float)
         e = observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][idx]
         first = self._rows_step == r["_wait"][idx] + 1       # act's "_angle is None"
-        angle = [math.atan2(a, b) for a, b in zip(s[:, 0].tolist(), c[:, 0].tolist())]
+        angle = [fm.atan2(a, b) for a, b in zip(s[:, 0].tolist(), c[:, 0].tolist())]
         turned = r["_turned"][idx]
         for j, (a, prev) in enumerate(zip(angle, r["_angle"][idx].tolist())):
             if not first[j]:
@@ -311,7 +318,7 @@ class RepetitiveControl(DelayCompensatedFF):
             return
         idx = idx[done]
         ripple = 2.0 * r["_sums"][idx] / r["_count"][idx][:, None]
-        size = np.abs(ripple)
+        size = _magnitude(ripple)
         reference = np.where(r["_seen"][idx][:, None], np.minimum(r["_reference"][idx], size),
                              size)
         active = r["_active"][idx]

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from . import fixedmath as fm
 from .params import ParameterError, SystemParams
 
 __all__ = ["OperatingPoint", "MidBand", "operating_point", "jacobian", "rotor_damping",
@@ -67,6 +68,7 @@ class OperatingPoint:
 
 
 _ANGLES = np.linspace(0.0, TWO_PI, 720, endpoint=False)
+_COS, _SIN = fm.cos_array(_ANGLES), fm.sin_array(_ANGLES)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -75,14 +77,16 @@ def bridge_gain(amplitude_v: float, vdc: float) -> complex:
     winding-voltage vector of ``amplitude_v`` turning a full circle: the SVPWM
     legs of the kernel (common-mode centred, each clamped to [0, Vdc]), averaged
     over the turn (a describing function; 1 up to Vdc/sqrt(2))."""
-    va, vb = amplitude_v * np.cos(_ANGLES), amplitude_v * np.sin(_ANGLES)
+    va, vb = amplitude_v * _COS, amplitude_v * _SIN
     vmax = np.maximum(np.maximum(va, vb), 0.0)
     vmin = np.minimum(np.minimum(va, vb), 0.0)
     v0 = 0.5 * vdc - 0.5 * (vmax + vmin)
     gamma = np.clip(v0, 0.0, vdc)
     a = np.clip(va + v0, 0.0, vdc) - gamma
     b = np.clip(vb + v0, 0.0, vdc) - gamma
-    return complex(np.mean((a + 1j * b) * np.exp(-1j * _ANGLES))) / amplitude_v
+    # (a + jb) e^{-j angle} in real arithmetic (numpy's complex loops may fuse).
+    return complex(float(np.mean(a * _COS + b * _SIN)),
+                   float(np.mean(b * _COS - a * _SIN))) / amplitude_v
 
 
 def _voltage_mode_voltages(system: SystemParams, w_c: float) -> tuple[float, float, bool]:
@@ -92,7 +96,7 @@ def _voltage_mode_voltages(system: SystemParams, w_c: float) -> tuple[float, flo
     w_e = m.Nr * w_c
     vd = m.R * d.holding_current
     vq = w_e * m.L * d.holding_current + m.Km * w_c
-    mag = math.hypot(vd, vq)
+    mag = fm.hypot(vd, vq)
     if mag > d.Vdc / math.sqrt(2.0):
         g = complex(vd, vq) * bridge_gain(mag, d.Vdc)
         return g.real, g.imag, True
@@ -105,7 +109,7 @@ def _rhs(system: SystemParams, w_c: float, z: np.ndarray) -> np.ndarray:
     eps, nu, i_d, i_q = z[0], z[1], z[2], z[3]
     w = w_c + nu
     w_e = m.Nr * w_c
-    s, c = math.sin(eps), math.cos(eps)
+    s, c = fm.sin(eps), fm.cos(eps)
     if d.drive_mode == "voltage":
         vd, vq, _ = _voltage_mode_voltages(system, w_c)
         extra: list[float] = []
@@ -151,9 +155,8 @@ def operating_point(system: SystemParams, speed_rps: float) -> OperatingPoint:
     for _ in range(60):
         f = residual(x)
         jac = _central_differences(residual, x, 1e-7 * scale)
-        try:
-            step = np.linalg.solve(jac, -f)
-        except np.linalg.LinAlgError:
+        step = fm.solve(jac, -f)
+        if not np.all(np.isfinite(step)):        # singular
             break
         # Damped: the load angle must stay on the stable branch (|eps| < pi/2).
         step *= min(1.0, 0.3 / max(abs(step[0]), 1e-300))
@@ -175,7 +178,7 @@ def operating_point(system: SystemParams, speed_rps: float) -> OperatingPoint:
         kp, _ = system.current_gains()
         vd = kp * (d.holding_current - z[2]) + z[4]
         vq = kp * (0.0 - z[3]) + z[5]
-        sat = math.hypot(vd, vq) > d.Vdc / math.sqrt(2.0)
+        sat = fm.hypot(vd, vq) > d.Vdc / math.sqrt(2.0)
     else:
         vd, vq, sat = _voltage_mode_voltages(system, w_c)
     return OperatingPoint(speed_rps, float(z[0]), float(z[2]), float(z[3]), vd, vq, sat)
@@ -233,7 +236,7 @@ def bridge_limit_rps(system: SystemParams) -> float:
     vr = m.R * d.holding_current
     if vr >= vmax:
         return 0.0
-    return math.sqrt(vmax ** 2 - vr ** 2) / (m.Nr * m.L * d.holding_current + m.Km) / TWO_PI
+    return math.sqrt(vmax * vmax - vr * vr) / (m.Nr * m.L * d.holding_current + m.Km) / TWO_PI
 
 
 @dataclass(frozen=True)

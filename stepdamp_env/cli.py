@@ -379,6 +379,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
     except (ValueError, KeyError, TypeError, AttributeError, OSError) as exc:
         raise ParameterError(f"DIR {args.dir!r}: not a readable leaderboard ({type(exc).__name__}: "
                              f"{exc})") from None
+    if args.check:
+        return _check_report(board, args.dir, args.sample)
     if args.full:
         print(render_markdown(board), end="")
         return 0
@@ -387,6 +389,23 @@ def _cmd_report(args: argparse.Namespace) -> int:
         return 0
     print(render_results(board, args.suite), end="")
     return 0
+
+
+def _check_report(board: dict, directory: str, sample: int) -> int:
+    """``report --check``: re-run a sample of the board's cells; 1 if any differs."""
+    from .bench.check import check_board
+
+    env = board.get("environment", {})
+    print(f"{directory}: computed on {env.get('cpu', {}).get('model', 'an unrecorded CPU')} "
+          f"({' '.join(env.get('cpu', {}).get('flags', []))}), re-run here on "
+          f"{sample} cells", flush=True)
+    results = check_board(board, sample=sample)
+    for r in results:
+        print(f"{'reproduces' if r['reproduces'] else 'DIFFERS   '}  {r['what']}"
+              + (f"  ({r['detail']})" if r["detail"] else ""))
+    bad = sum(not r["reproduces"] for r in results)
+    print(f"{len(results) - bad} of {len(results)} checks reproduce")
+    return 1 if bad else 0
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -510,6 +529,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
+    p.add_argument("--check", action="store_true",
+                   help="re-run a sample of the board's cells here and say, per cell, whether "
+                        "it reproduces bit for bit (exit status 1 if any does not)")
+    p.add_argument("--sample", type=_number(int, 1, 100000), default=12, metavar="N",
+                   help="cells --check re-runs, spread over every entry, suite and split")
     p.set_defaults(func=_cmd_report)
 
     p = command("train", "train residual RL agents (ARS, PPO, SAC, TD3) on StepperDamp-v1 "

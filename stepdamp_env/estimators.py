@@ -1,18 +1,24 @@
-"""Design of the servo's Kalman velocity estimator (with filterpy).
+"""Design of the servo's Kalman velocity estimator.
 
 The drive runs the steady-state filter: a constant-velocity model
 x = (theta, omega), driven by white acceleration noise of standard deviation
 ``accel_std`` (rad/s^2) per control period, measuring the centre of the encoder
-count with the quantisation's variance q^2/12. filterpy's covariance recursion
-is iterated until its gain stops changing; the kernel then applies that fixed
-gain at 20 kHz (a steady-state Kalman filter is an alpha-beta filter).
+count with the quantisation's variance q^2/12. The covariance recursion of
+filterpy's ``KalmanFilter`` (predict, then update in Joseph form) is iterated
+until its gain stops changing, written out for 2 x 2 in a fixed order (filterpy
+multiplies through BLAS, whose last bits depend on the CPU); the kernel then
+applies that fixed gain at 20 kHz (a steady-state Kalman filter is an
+alpha-beta filter). :func:`kalman_velocity_filter` is the filterpy filter of
+the same model, the reference of the tests.
 """
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
 __all__ = ["kalman_velocity_gains", "kalman_velocity_filter", "min_kalman_accel_std",
            "MIN_TRACKING_INDEX"]
@@ -40,7 +46,46 @@ MIN_TRACKING_INDEX = 1e-6
 
 def min_kalman_accel_std(dt: float, count_rad: float) -> float:
     """The smallest ``kalman_accel_std`` (rad/s^2) allowed for this period and encoder."""
-    return MIN_TRACKING_INDEX * (count_rad / np.sqrt(12.0)) / dt ** 2
+    return MIN_TRACKING_INDEX * (count_rad / math.sqrt(12.0)) / (dt * dt)
+
+
+@njit(cache=True, error_model="numpy")
+def _riccati_gains(dt, r, q_var, p00, p11, steps):
+    """(k_theta, k_omega, converged) of the recursion above, from P = diag(p00, p11)."""
+    q00 = q_var * dt * dt * dt * dt / 4.0
+    q01 = q_var * dt * dt * dt / 2.0
+    q11 = q_var * dt * dt
+    p01 = 0.0
+    p10 = 0.0
+    k0_old = math.inf
+    k1_old = math.inf
+    for _ in range(steps):
+        # Predict: P = F P F' + Q, F = [[1, dt], [0, 1]].
+        a00 = p00 + dt * p10
+        a01 = p01 + dt * p11
+        p00 = (a00 + a01 * dt) + q00
+        p01 = a01 + q01
+        p10 = (p10 + p11 * dt) + q01
+        p11 = p11 + q11
+        # Update (Joseph form): K = P H' / (H P H' + R), P = (I - K H) P (I - K H)' + K R K'.
+        s = p00 + r
+        k0 = p00 / s
+        k1 = p10 / s
+        m00 = 1.0 - k0
+        b00 = m00 * p00
+        b01 = m00 * p01
+        b10 = -k1 * p00 + p10
+        b11 = -k1 * p01 + p11
+        n00 = b00 * m00 + k0 * r * k0
+        n01 = -b00 * k1 + b01 + k0 * r * k1
+        n10 = b10 * m00 + k1 * r * k0
+        n11 = -b10 * k1 + b11 + k1 * r * k1
+        p00, p01, p10, p11 = n00, n01, n10, n11
+        if abs(k0 - k0_old) <= 1e-13 * max(abs(k0), 1e-300) and \
+                abs(k1 - k1_old) <= 1e-13 * max(abs(k1), 1e-300):
+            return k0, k1, True
+        k0_old, k1_old = k0, k1
+    return k0, k1, False
 
 
 @lru_cache(maxsize=256)
@@ -54,16 +99,9 @@ def kalman_velocity_gains(dt: float, count_rad: float, accel_std: float) -> tupl
             f"kalman_accel_std={accel_std!r} is outside its allowed range [{low:.3g}, 1e9] "
             f"rad/s^2 for this encoder and pwm_hz: a slower Kalman velocity filter would "
             "average over seconds")
-    kf = kalman_velocity_filter(dt, count_rad, accel_std)
-    previous = np.full(2, np.inf)
-    for _ in range(200_000):
-        kf.predict()
-        kf.update(np.array([0.0]))
-        gain = kf.K[:, 0].copy()
-        if np.all(np.abs(gain - previous) <= 1e-13 * np.maximum(np.abs(gain), 1e-300)):
-            break
-        previous = gain
-    else:  # pragma: no cover - the tracking-index bound keeps this out of reach
+    k0, k1, converged = _riccati_gains(dt, count_rad * count_rad / 12.0, accel_std * accel_std,
+                                       count_rad * count_rad, 1e4, 200_000)
+    if not converged:  # pragma: no cover - the tracking-index bound keeps this out of reach
         raise ParameterError(f"kalman_accel_std={accel_std!r}: the Kalman gain did not "
                              "converge")
-    return float(gain[0]), float(gain[1])
+    return float(k0), float(k1)

@@ -37,6 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from . import fixedmath as fm
 from . import kernel as K
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams, load_system
 from .response import servo_loop
@@ -136,14 +137,19 @@ def _regress(system: SystemParams, speed_rps: float, theta: np.ndarray, effort: 
     x = nr * (theta + 0.5 * q)
     cols = [np.ones_like(x)]
     for h in HARMONICS:
-        cols += [np.sin(h * x), np.cos(h * x)]
+        cols += [fm.sin_array(h * x), fm.cos_array(h * x)]
     a = np.column_stack(cols)
-    sol, *_ = np.linalg.lstsq(a, effort, rcond=None)
-    harmonic_rms = float(np.sqrt(np.mean((a[:, 1:] @ sol[1:]) ** 2)))
+    # Fixed-order QR, not LAPACK: the model must not depend on the CPU (fixedmath).
+    sol = fm.lstsq(a, effort)
+    if not np.all(np.isfinite(sol)):
+        raise RuntimeError(f"identification run at {speed_rps} rev/s: the regressors are "
+                           "rank deficient")
+    fitted = fm.weighted_rows(np.ascontiguousarray(a[:, 1:]), np.ascontiguousarray(sol[1:]))
+    harmonic_rms = float(np.sqrt(np.mean(fitted * fitted)))
     coef = sol[1:].copy()
     for i, h in enumerate(HARMONICS):
         arg = 0.5 * h * nr * q
-        phasor = complex(coef[2 * i], coef[2 * i + 1]) / (math.sin(arg) / arg)
+        phasor = complex(coef[2 * i], coef[2 * i + 1]) / (fm.sin(arg) / arg)
         if correct_rejection:
             phasor /= effort_response(system, h * nr * 2.0 * math.pi * speed_rps)
         coef[2 * i], coef[2 * i + 1] = phasor.real, phasor.imag
@@ -152,9 +158,9 @@ def _regress(system: SystemParams, speed_rps: float, theta: np.ndarray, effort: 
 
 def _model_from(system: SystemParams, coef: np.ndarray, fs: float) -> FeedforwardModel:
     s1, c1, s2, c2, s4, c4 = coef
-    kd4 = math.hypot(s4, c4) * (1.0 if s4 >= 0 else -1.0)
-    return FeedforwardModel(Km=system.motor.Km, Kd1=math.hypot(s1, c1), Kd2=math.hypot(s2, c2),
-                            Kd4=max(kd4, 0.0), phi1=math.atan2(c1, s1), phi2=math.atan2(c2, s2),
+    kd4 = fm.hypot(s4, c4) * (1.0 if s4 >= 0 else -1.0)
+    return FeedforwardModel(Km=system.motor.Km, Kd1=fm.hypot(s1, c1), Kd2=fm.hypot(s2, c2),
+                            Kd4=max(kd4, 0.0), phi1=fm.atan2(c1, s1), phi2=fm.atan2(c2, s2),
                             Fs=max(fs, 0.0))
 
 
@@ -164,7 +170,8 @@ def _friction(speeds_rps: Sequence[float], intercepts: np.ndarray,
     else Fs with the datasheet D."""
     w = 2.0 * math.pi * np.asarray(speeds_rps, dtype=float)
     if len(w) >= 2 and np.ptp(w) > 0:
-        d, fs = np.polyfit(w, intercepts, 1)
+        fs, d = fm.lstsq(np.column_stack([np.ones_like(w), w]),
+                         np.asarray(intercepts, dtype=float))
         return float(fs), float(d)
     return float(intercepts[0] - nominal_damping * w[0]), nominal_damping
 

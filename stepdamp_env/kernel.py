@@ -30,12 +30,17 @@ import math
 import numpy as np
 from numba import njit
 
+from .fixedmath import log, sincos, sincos_shifted
+
 # No Python error checks on division: the inputs are validated before they get here.
-_jit = njit(cache=True, error_model="numpy", fastmath={"contract"})
+# No fastmath, not even contraction: a fused multiply-add rounds once where a CPU
+# without FMA rounds twice, and the result must not depend on the CPU
+# (:mod:`.fixedmath`).
+_jit = njit(cache=True, error_model="numpy")
 # The pieces of the hot loop are inlined at numba-IR level: LLVM's own inliner
 # leaves many as calls that return tuples through memory (measured with
 # benchmarks/bench_sim.py: about 10 % of the loop's time).
-_jit_inline = njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+_jit_inline = njit(cache=True, error_model="numpy", inline="always")
 
 # ---------------------------------------------------------------------------
 # Configuration vector (per drive, float64). Plant truth, drive, controller.
@@ -441,65 +446,6 @@ def driving_torque(theta, omega, ia, ib, p):
             - p[P_LOAD])
 
 
-# Cody-Waite split of pi/2 for the argument reduction of sincos.
-_TWO_OVER_PI = 0.63661977236758134308
-_PIO2_HI = 1.5707963267341256e+00
-_PIO2_MID = 6.0771005065061922e-11
-_PIO2_LO = 2.0222662487959506e-21
-# Taylor coefficients (-1)^k/(2k+1)! and (-1)^k/(2k)!, enough for |r| <= pi/4 to 1e-17.
-_S3, _S5, _S7, _S9 = -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0
-_S11, _S13, _S15 = -1.0 / 39916800.0, 1.0 / 6227020800.0, -1.0 / 1307674368000.0
-_C2, _C4, _C6, _C8 = -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0
-_C10, _C12, _C14 = -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0
-_C16 = 1.0 / 20922789888000.0
-
-
-@_jit_inline
-def sincos(x):
-    """(sin x, cos x) in one call, within a few ulp of libm for |x| < 1e6.
-
-    The plant and controller need both at one angle several times per PWM
-    period; one reduction to [-pi/4, pi/4] and two short polynomials cost a
-    fraction of two libm calls. Beyond 1e6 rad it falls back to libm.
-    """
-    if not abs(x) < 1e6:
-        return math.sin(x), math.cos(x)
-    k = math.floor(x * _TWO_OVER_PI + 0.5)
-    r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
-    r2 = r * r
-    sp = r + r * r2 * (_S3 + r2 * (_S5 + r2 * (_S7 + r2 * (_S9 + r2 * (_S11 + r2 * (
-        _S13 + r2 * _S15))))))
-    cp = 1.0 + r2 * (_C2 + r2 * (_C4 + r2 * (_C6 + r2 * (_C8 + r2 * (_C10 + r2 * (
-        _C12 + r2 * (_C14 + r2 * _C16)))))))
-    quadrant = int(k) & 3
-    if quadrant == 0:
-        return sp, cp
-    if quadrant == 1:
-        return cp, -sp
-    if quadrant == 2:
-        return -sp, -cp
-    return -cp, sp
-
-
-@_jit_inline
-def sincos_shifted(x0, s0, c0, delta):
-    """sin and cos of x0 + delta given those of x0, to a few ulp.
-
-    For the small shifts of the RK4 stages a rotation by delta with its
-    sin/cos from Taylor series (truncation error below 3e-18 for |delta| <= 1/8)
-    replaces two libm calls; larger shifts call libm.
-    """
-    if abs(delta) > 0.125:
-        return sincos(x0 + delta)
-    d2 = delta * delta
-    d4 = d2 * d2
-    d8 = d4 * d4
-    # Estrin's scheme: the terms evaluate in parallel, shortening the chain.
-    sd = delta * ((1.0 + _S3 * d2) + d4 * (_S5 + _S7 * d2) + d8 * _S9)
-    cd = (1.0 + _C2 * d2) + d4 * (_C4 + _C6 * d2) + d8 * (_C8 + _C10 * d2)
-    return s0 * cd + c0 * sd, c0 * cd - s0 * sd
-
-
 @_jit_inline
 def motor_derivative_sc(sin_x, cos_x, omega, ia, ib, va, vb, p):
     """:func:`motor_derivative` given sin and cos of x = Nr*theta."""
@@ -638,7 +584,7 @@ def gaussian_pair(seed, counter):
     c2 = np.uint64(counter) * np.uint64(2)
     u1 = (float(splitmix64(key ^ c2) >> np.uint64(11)) + 1.0) * _TWO_M53      # (0, 1]
     u2 = float(splitmix64(key ^ (c2 + np.uint64(1))) >> np.uint64(11)) * _TWO_M53
-    r = math.sqrt(-2.0 * math.log(u1))
+    r = math.sqrt(-2.0 * log(u1))
     s, c = sincos(2.0 * math.pi * u2)
     return r * c, r * s
 

@@ -44,6 +44,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from . import fixedmath as fm
+
 __all__ = [
     "MotorParams",
     "DriveParams",
@@ -384,7 +386,7 @@ class SystemParams:
         g = delayed_loop_gain(self.drive.current_bandwidth_hz * dt)
         x = self.motor.R * dt / self.motor.L
         # 1 - exp(-x) as v0 computed it; expm1 only where that cancels to 0.
-        one_minus_pole = 1.0 - math.exp(-x) if x > 1e-8 else -math.expm1(-x)
+        one_minus_pole = 1.0 - fm.exp(-x) if x > 1e-8 else -fm.expm1(-x)
         if one_minus_pole > 0.0:
             kp = g * self.motor.R / one_minus_pole
             ki = kp * one_minus_pole / dt
@@ -401,8 +403,8 @@ class SystemParams:
         ws = 2.0 * math.pi * self.servo.velocity_cutoff_hz / 5.0
         J = self.motor.J
         kv = self.servo.Kp_vel if self.servo.Kp_vel is not None else 3.0 * J * ws
-        kp = self.servo.Kp_pos if self.servo.Kp_pos is not None else 3.0 * J * ws ** 2
-        ki = self.servo.Ki_pos if self.servo.Ki_pos is not None else J * ws ** 3
+        kp = self.servo.Kp_pos if self.servo.Kp_pos is not None else 3.0 * J * ws * ws
+        ki = self.servo.Ki_pos if self.servo.Ki_pos is not None else J * ws * ws * ws
         return kv, kp, ki
 
     def natural_frequency(self) -> float:
@@ -426,8 +428,8 @@ def current_loop_radius(system: SystemParams) -> float:
     m = system.motor
     dt = 1.0 / system.drive.pwm_hz
     x = m.R * dt / m.L
-    a = math.exp(-x)
-    b = -math.expm1(-x) / m.R if x > 0 else dt / m.L
+    a = fm.exp(-x)
+    b = -fm.expm1(-x) / m.R if x > 0 else dt / m.L
     kp, ki = system.current_gains()
     if not (math.isfinite(kp) and math.isfinite(ki)):
         return math.inf
@@ -495,9 +497,10 @@ def delayed_loop_gain(bandwidth_per_sample: float) -> float:
     g^2 - 2 Re(A) g - |A|^2 = 0.
     """
     theta = 2.0 * math.pi * bandwidth_per_sample
-    a = complex(math.cos(2 * theta), math.sin(2 * theta)) - complex(math.cos(theta),
-                                                                    math.sin(theta))
-    return a.real + math.sqrt(a.real ** 2 + abs(a) ** 2)
+    a = complex(fm.cos(2 * theta), fm.sin(2 * theta)) - complex(fm.cos(theta),
+                                                                    fm.sin(theta))
+    # |A|^2 written out: abs() and ** go through the C library's hypot and pow.
+    return a.real + math.sqrt(2.0 * a.real * a.real + a.imag * a.imag)
 
 
 # Detent harmonics of the model, in the order of its sin/cos coefficients.
@@ -548,8 +551,8 @@ class FeedforwardModel:
         Kd_h*sin(h*x + phi_h) = Kd_h*cos(phi_h)*sin(h*x) + Kd_h*sin(phi_h)*cos(h*x);
         returned as (s1, c1, s2, c2, s4, c4) with phi4 = 0.
         """
-        return (self.Kd1 * math.cos(self.phi1), self.Kd1 * math.sin(self.phi1),
-                self.Kd2 * math.cos(self.phi2), self.Kd2 * math.sin(self.phi2),
+        return (self.Kd1 * fm.cos(self.phi1), self.Kd1 * fm.sin(self.phi1),
+                self.Kd2 * fm.cos(self.phi2), self.Kd2 * fm.sin(self.phi2),
                 self.Kd4, 0.0)
 
 

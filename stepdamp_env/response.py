@@ -8,11 +8,11 @@ in time, and return a complex gain. They serve the model-based baselines
 
 from __future__ import annotations
 
-import cmath
 import math
 
 import numpy as np
 
+from . import fixedmath as fm
 from .params import DETENT_HARMONICS, FeedforwardModel, SystemParams
 
 __all__ = ["current_path", "velocity_filter", "servo_loop", "torque_to_velocity", "phasors",
@@ -21,7 +21,7 @@ __all__ = ["current_path", "velocity_filter", "servo_loop", "torque_to_velocity"
 
 def _z(system: SystemParams, w: float) -> tuple[complex, float]:
     dt = 1.0 / system.drive.pwm_hz
-    return complex(math.cos(w * dt), math.sin(w * dt)), dt
+    return complex(fm.cos(w * dt), fm.sin(w * dt)), dt
 
 
 def current_path(system: SystemParams, w: float) -> complex:
@@ -39,19 +39,19 @@ def current_path(system: SystemParams, w: float) -> complex:
         m = system.motor
         delay = w * dt / 2.0
         return (m.R / complex(m.R, w * m.L) / z
-                * complex(math.cos(delay), -math.sin(delay)))
+                * complex(fm.cos(delay), -fm.sin(delay)))
     kp, _ = system.current_gains()
-    pole = math.exp(-system.motor.R * dt / system.motor.L)
+    pole = fm.exp(-system.motor.R * dt / system.motor.L)
     g = kp * (1.0 - pole) / system.motor.R
     delay = w * dt / 2.0
-    return g / (z * z - z + g) * complex(math.cos(delay), -math.sin(delay))
+    return g / (z * z - z + g) * complex(fm.cos(delay), -fm.sin(delay))
 
 
 def velocity_filter(system: SystemParams, w: float) -> complex:
     """Differenced encoder angle through the first-order low-pass, per rad/s of speed."""
     z, dt = _z(system, w)
     zi = 1.0 / z
-    alpha = 1.0 - math.exp(-2.0 * math.pi * system.servo.velocity_cutoff_hz * dt)
+    alpha = 1.0 - fm.exp(-2.0 * math.pi * system.servo.velocity_cutoff_hz * dt)
     # The backward difference (1 - z^-1)/dt of the angle, over j*w: the
     # difference's own half-sample lag, relative to the true speed.
     diff = (1.0 - zi) / dt / complex(0.0, w) if w != 0 else 1.0
@@ -106,5 +106,5 @@ def torque_paths(system: SystemParams, mode: str, speed_rps: float,
         lag = (fs + m.D * w) / (m.Km * system.drive.holding_current * m.Nr)
     out = np.zeros(3, dtype=complex)
     for i, h in enumerate(DETENT_HARMONICS):
-        out[i] = current_path(system, h * m.Nr * w) * cmath.exp(1j * h * m.Nr * lag)
+        out[i] = current_path(system, h * m.Nr * w) * fm.cexp(1j * h * m.Nr * lag)
     return out

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from . import fixedmath as fm
 from . import kernel as K
 from .estimators import kalman_velocity_gains
 from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, SystemParams,
@@ -222,7 +223,7 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     c[K.C_KP_I] = kp_i
     c[K.C_KI_I] = ki_i
     c[K.C_ENCODER] = TWO_PI / sv.encoder_cpr
-    c[K.C_VEL_ALPHA] = 1.0 - math.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
+    c[K.C_VEL_ALPHA] = 1.0 - fm.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
     c[K.C_KP_VEL], c[K.C_KP_POS], c[K.C_KI_POS] = system.servo_gains()
     c[K.C_MODE] = MODES[settings.mode]
     c[K.C_FF_ON] = 1.0 if settings.damping == "patent-ff" else 0.0
@@ -252,8 +253,8 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     # The winding's R and L as the drive's standstill measurement gives them (the
     # current loop's tuning uses the same values).
     x = m.R * dt / m.L
-    c[K.C_BEMF_G1] = m.L / dt * (x / -math.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
-    c[K.C_BEMF_G2] = c[K.C_BEMF_G1] * math.exp(-x)
+    c[K.C_BEMF_G1] = m.L / dt * (x / -fm.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
+    c[K.C_BEMF_G2] = c[K.C_BEMF_G1] * fm.exp(-x)
     # Voltage mode: the winding model from the same standstill measurement.
     c[K.C_DRIVE_MODE] = DRIVE_MODE_CODES[d.drive_mode]
     c[K.C_R_EST] = m.R
@@ -407,7 +408,7 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
     amps = {}
     for h, (i_s, i_c) in ((1, (K.A_H1_S, K.A_H1_C)), (2, (K.A_H2_S, K.A_H2_C)),
                           (4, (K.A_H4_S, K.A_H4_C))):
-        amps[h] = 2.0 / n * math.hypot(acc[i_s], acc[i_c])
+        amps[h] = 2.0 / n * fm.hypot(acc[i_s], acc[i_c])
     step = system.motor.full_step_rad
     lag = float(acc[K.A_MAX_LAG])
     return RunMetrics(

@@ -112,19 +112,22 @@ def test_settling_follows_the_decay_time_without_a_clip():
 
 @pytest.mark.parametrize("suite", ["open-loop", "servo"])
 def test_the_window_opens_in_steady_state(suite):
-    """Undamped, the slowest-settling motor's ripple in the window equals that of a
-    window one second later (the transient has died; no clip left it inside)."""
+    """Undamped, the slowest-settling motor's ripple in the window equals the steady
+    state's: the mean of windows 1, 2 and 3 s later (the transient has died; no
+    clip left it inside). One later window alone is no reference: in servo at the
+    lowest speeds the encoder's counts beat, and 0.3 s windows a second apart
+    differ by more than 6 % by themselves."""
     motors = {m.name: m for m in protocol_v1_motors(full_protocol_v1())}
     m = motors["qsh5718-56-28-126~x-inertia"]
     speeds, labels = m.speeds(suite)
     for v in speeds[:3]:
         rms = []
-        for extra in (0.0, 1.0):
+        for extra in (0.0, 1.0, 2.0, 3.0):
             res = simulate(m.system, profile=SpeedProfile(speed_rps=v, accel_rps2=50.0),
                            settings=RunSettings(mode=suite, damping="none", window_s=0.3,
                                                 settle_s=m.settle_s(suite) + extra))
             rms.append(res.metrics.rms_velocity_error_rad_s)
-        assert rms[0] == pytest.approx(rms[1], rel=0.06), (suite, v, rms)
+        assert rms[0] == pytest.approx(np.mean(rms[1:]), rel=0.06), (suite, v, rms)
 
 
 # ---------------------------------------------------------------------------

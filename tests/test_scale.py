@@ -134,16 +134,24 @@ def test_batch_refuses_envs_of_two_layouts():
         StepperDampBatch([a, b])
 
 
-def test_predict_rows_equals_sb3_predict():
-    from stepdamp_agents.policy import load_model, predict_rows
+def test_predict_rows_is_sb3_predict_to_float32_and_the_same_for_any_batch():
+    """The learned entries are evaluated by the fixed-order network (fixedmath.mlp_forward):
+    it agrees with SB3's torch predict to float32 rounding, and its rows do not
+    depend on how they are batched."""
+    from stepdamp_agents.policy import load_model, policy_network, predict_rows
     from stepdamp_agents import reference_seeds
 
     for name in reference_names():
         model = load_model(reference_seeds(name)[1])
+        assert policy_network(model.policy) is not None, name
         d = model.observation_space.shape[0]
         x = np.random.default_rng(0).normal(size=(40, d)).astype(np.float32)
-        one_by_one = np.stack([model.predict(row, deterministic=True)[0] for row in x])
-        assert np.array_equal(predict_rows(model, x), one_by_one), name
+        torch_rows = np.stack([model.predict(row, deterministic=True)[0] for row in x])
+        rows = predict_rows(model, x)
+        assert rows.dtype == np.float32 and rows.shape == torch_rows.shape, name
+        np.testing.assert_allclose(rows, torch_rows, rtol=0, atol=2e-6, err_msg=name)
+        one_by_one = np.concatenate([predict_rows(model, x[k:k + 1]) for k in range(len(x))])
+        assert np.array_equal(rows, one_by_one), name
 
 
 # -- resume -------------------------------------------------------------------------

@@ -14,13 +14,10 @@ again with the same arguments picks up where it stopped.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
-import importlib.metadata
 import json
 import math
 import os
-import platform
 import sys
 import time
 from dataclasses import dataclass
@@ -32,7 +29,7 @@ from ..env.options import EnvOptions
 from ..env.scalar import StepperDampBatch, StepperDampEnv
 from ..env.v1 import StepperDampV1Batch, StepperDampV1Env
 from ..identify import identify
-from ..io import cache_dir, read_json_or_none, write_json
+from ..io import cache_dir, read_json_or_none, tree_digest, write_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
@@ -40,14 +37,16 @@ from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
+from .provenance import board_fingerprint, environment, package_versions
 from .protocol_v1 import ProtocolV1
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
 from .scoring import (add_probability_of_improvement, make_entry, make_entry_v1,
                       reference_index)
 
-__all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "package_versions",
-           "protocol_knowledge", "identify_cached", "code_fingerprint", "BATCH_RUNS",
+__all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
+           "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
+           "BATCH_RUNS",
            "RESUME_DIR"]
 
 # Runs of one entry, model and suite stepped together (and kept together on resume).
@@ -144,15 +143,28 @@ def identify_cached(system: SystemParams, method: str, seed: int) -> Feedforward
     return model
 
 
+def identify_motor(protocol: Protocol | ProtocolV1, motor: ProtocolMotor, seed: int,
+                   cached: bool = True) -> FeedforwardModel | str:
+    """The model a protocol's drive identifies on ``motor`` with noise ``seed``, or
+    the failure as a string. ``cached``: read and keep it in the identification
+    cache (:func:`identify_cached`); False computes it here and now."""
+    system = motor.system
+    if system.drive.drive_mode != "current":    # a drive commissions with its current loop
+        system = system.replace(drive_mode="current")
+    if cached:
+        return identify_cached(system, protocol.identification_method, seed)
+    try:
+        return identify(system, method=protocol.identification_method, noise_seed=seed).model
+    except (RuntimeError, ParameterError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+
+
 def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     """The identified model; under v1 the reason as a string if identification
     failed (the drive then falls back to its nominal model, see protocol_v1)."""
     motor_index, seed = args
     protocol = _WORKER["protocol"]
-    system = _WORKER["motors"][motor_index].system
-    if system.drive.drive_mode != "current":    # a drive commissions with its current loop
-        system = system.replace(drive_mode="current")
-    model = identify_cached(system, protocol.identification_method, seed)
+    model = identify_motor(protocol, _WORKER["motors"][motor_index], seed)
     if isinstance(model, str) and not isinstance(protocol, ProtocolV1):
         raise ParameterError(f"identification of motor "
                              f"{_WORKER['motors'][motor_index].name!r} (seed {seed}) failed: "
@@ -190,59 +202,12 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     return records
 
 
-@functools.lru_cache(maxsize=None)
-def _tree_hash(root: str, suffixes: tuple[str, ...] = ()) -> str:
-    """sha256 of the files under ``root`` (those ending in ``suffixes``, if given)."""
-    h = hashlib.sha256()
-    for d, dirs, files in sorted(os.walk(root)):
-        dirs[:] = sorted(x for x in dirs if x != "__pycache__")
-        for f in sorted(files):
-            if suffixes and not f.endswith(suffixes):
-                continue
-            path = os.path.join(d, f)
-            h.update(os.path.relpath(path, root).encode())
-            with open(path, "rb") as fh:
-                h.update(fh.read())
-    return h.hexdigest()
-
-
-@functools.lru_cache(maxsize=1)
 def code_fingerprint() -> str:
-    """This package's sources and the versions of its numerical dependencies: a
-    result kept on disk is reused only by the same code."""
+    """This package's Python sources (read now) and the versions of its numerical
+    dependencies: a result kept on disk is reused only by the same code."""
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return hashlib.sha256(json.dumps([_tree_hash(here, (".py",)), package_versions()],
+    return hashlib.sha256(json.dumps([tree_digest(here, (".py",)), package_versions()],
                                      sort_keys=True).encode()).hexdigest()
-
-
-def _fingerprint(source: PolicySource) -> str:
-    """What a policy stands for: its spec, the files it names (a model with its
-    side files, a directory of models, a policy file) and the package its
-    factories come from (registered baselines and agents: code and models)."""
-    spec = source.spec
-    h = hashlib.sha256(spec.encode())
-    roots: list[str] = []
-    path = spec.rpartition(":")[0] if ":" in spec and not os.path.exists(spec) else spec
-    if os.path.isfile(path):
-        stem = os.path.splitext(os.path.abspath(path))[0].split(".")[0]
-        folder = os.path.dirname(stem)
-        roots += sorted(os.path.join(folder, f) for f in os.listdir(folder)
-                        if os.path.join(folder, f).startswith(stem + "."))
-    elif os.path.isdir(path):
-        roots.append(os.path.abspath(path))
-    factories = [source.make, *(source.training_seeds or {}).values()]
-    for module in {getattr(f, "__module__", None) for f in factories} - {None}:
-        top = sys.modules.get(str(module).split(".")[0])
-        if top is not None and getattr(top, "__file__", None):
-            roots.append(os.path.dirname(os.path.abspath(top.__file__)))
-    for root in sorted(set(roots)):
-        h.update(root.encode())
-        if os.path.isdir(root):
-            h.update(_tree_hash(root).encode())
-        else:
-            with open(root, "rb") as fh:
-                h.update(fh.read())
-    return h.hexdigest()
 
 
 def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
@@ -292,20 +257,6 @@ def _warm_up(system: SystemParams) -> None:
         kind = StepperDampV1Batch if isinstance(env, StepperDampV1Env) else StepperDampBatch
         batch = kind([env])
         batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
-
-
-def package_versions() -> dict[str, str]:
-    """Versions of this package, Python and the numerical dependencies."""
-    from ..version import __version__
-
-    out = {"package": __version__, "python": platform.python_version()}
-    for dist, key in (("numpy", "numpy"), ("numba", "numba"), ("gymnasium", "gymnasium"),
-                      ("stable-baselines3", "stable-baselines3"), ("torch", "torch")):
-        try:
-            out[key] = importlib.metadata.version(dist)
-        except importlib.metadata.PackageNotFoundError:
-            out[key] = "not installed"
-    return out
 
 
 def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
@@ -432,7 +383,9 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
         header = {"version": __version__, "protocol": protocol.to_dict(),
                   "motors": [m.to_dict() for m in motors],
                   "code": code_fingerprint(),
-                  "policies": {spec: _fingerprint(sources[spec]) for spec in specs}}
+                  "policies": {spec: sources[spec].fingerprint(
+                      exclude=(os.path.dirname(os.path.abspath(resume_dir)),))
+                      for spec in specs}}
         paths = list(_resume_paths(resume_dir, batches, header))
     # Batches an interrupted run of this very board finished are read, not run.
     done: list[Any] = [read_json_or_none(p) if p is not None else None for p in paths]
@@ -493,7 +446,26 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
     out["simulated_seconds_detail"] = {
         "episodes": run_s, "calibration_rig": calib,
         "note": "identification runs are not counted"}
+    out["environment"] = environment()
+    out["fingerprint"] = board_fingerprint(out)
     return out
+
+
+def run_cells(protocol: Protocol | ProtocolV1, jobs: Sequence[LeaderboardJob],
+              identified: dict[tuple[int, int], FeedforwardModel | None]) -> list[dict[str, Any]]:
+    """The records of single leaderboard runs, in this process, exactly as
+    :func:`run_leaderboard` computes them (a run does not depend on the batch it
+    is stepped in). ``identified``: the drive's model per (motor index, seed)
+    of the jobs; ``stepdamp report --check`` re-runs a board's cells with it."""
+    motors = protocol_motors(protocol)
+    specs = sorted({job.spec for job in jobs})
+    sources = {spec: resolve_policy(spec) for spec in specs}
+    knowledge = {pair: protocol_knowledge(motors[pair[0]], pair[1], model, protocol)
+                 for pair, model in identified.items()}
+    _init_worker(motors, knowledge, protocol, sources)
+    return [_run_batch(LeaderboardBatch(job.spec, job.suite, job.training_seed,
+                                        ((job.motor_index, job.seed, job.speed_index),)))[0]
+            for job in jobs]
 
 
 def _calibration_seconds(jobs: Sequence[LeaderboardJob], results: Sequence[dict]) -> float:

@@ -9,6 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .. import fixedmath as fm
 from ..analysis import midband
 from ..params import ParameterError, SystemParams
 from ..presets import get_preset
@@ -162,7 +163,7 @@ def midband_grid(system: SystemParams, protocol: ProtocolV2
         lo, hi = band.unstable_rps
     else:
         lo, hi = band.at_rps / 1.5, band.at_rps * 1.5
-    return (tuple(float(lo * (hi / lo) ** f) for f in protocol.midband_factors),
+    return (tuple(float(lo * fm.exp(f * fm.log(hi / lo))) for f in protocol.midband_factors),
             tuple(f"m{f:g}" for f in protocol.midband_factors))
 
 

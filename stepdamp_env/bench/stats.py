@@ -8,6 +8,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .. import fixedmath as fm
+
 __all__ = ["iqm", "stratified_bootstrap_ci", "summary", "two_level_bootstrap",
            "probability_of_improvement", "cell_summary"]
 
@@ -25,7 +27,7 @@ def iqm(values: Iterable[float]) -> float:
     x = np.sort(np.asarray(list(values), dtype=float))
     if x.size == 0:
         return math.nan
-    return float(x @ _iqm_weights(x.size))
+    return float(fm.dot(x, _iqm_weights(x.size)))
 
 
 def stratified_bootstrap_ci(values: Sequence[float], strata: Sequence[Any], *,
@@ -54,7 +56,7 @@ def stratified_bootstrap_ci(values: Sequence[float], strata: Sequence[Any], *,
         idx = np.asarray(groups[k])
         parts.append(x[idx[rng.integers(0, idx.size, size=(resamples, idx.size))]])
     sample = np.sort(np.concatenate(parts, axis=1), axis=1)
-    stats = sample @ _iqm_weights(sample.shape[1])
+    stats = fm.weighted_rows(np.ascontiguousarray(sample), _iqm_weights(sample.shape[1]))
     alpha = (1.0 - confidence) / 2.0
     low, high = np.quantile(stats, [alpha, 1.0 - alpha])
     return (float(low), float(high))
@@ -138,7 +140,7 @@ def two_level_bootstrap(values: Sequence[float], motors: Sequence[Any],
     valid = np.arange(table.shape[1])[None, None, :] < counts[m_idx][..., None]
     if np.all(counts == counts[0]):                         # equal cells: one sort
         sample = np.sort(drawn[valid].reshape(resamples, -1), axis=1)
-        stats = sample @ _iqm_weights(sample.shape[1])
+        stats = fm.weighted_rows(np.ascontiguousarray(sample), _iqm_weights(sample.shape[1]))
     else:
         stats = np.array([iqm(drawn[r][valid[r]]) for r in range(resamples)])
     alpha = (1.0 - confidence) / 2.0

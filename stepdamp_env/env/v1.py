@@ -17,6 +17,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .. import fixedmath as fm
 from .. import kernel as K
 from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..response import phasors, torque_paths
@@ -64,7 +65,7 @@ class TaskV1:
         m = self.nominal.motor
         drive = self.nominal.drive
         kv = 2.0 * o.damping_ratio_scale * m.J * u.wn_rad_s / m.Km
-        kr = o.resonant_rate_scale * m.J * u.wn_rad_s ** 2 / m.Km
+        kr = o.resonant_rate_scale * m.J * u.wn_rad_s * u.wn_rad_s / m.Km
         harmonic, current = self.draws.harmonic_scale_nm, self.draws.current_scale_a
         if o.nominal is not None:
             default_harmonic, default_current = default_action_scales(self.nominal)
@@ -83,7 +84,7 @@ class TaskV1:
                                                            K.U_DS1)
         self.action_scales = tuple(float(x) for x in scales)
         # The high-pass of the position error: corner wn/4 (13 degrees of lead at wn).
-        self.law_hp_alpha = 1.0 - math.exp(-0.25 * u.wn_rad_s / drive.pwm_hz)
+        self.law_hp_alpha = 1.0 - fm.exp(-0.25 * u.wn_rad_s / drive.pwm_hz)
         self.law_limit_a = o.law_limit_factor * drive.holding_current
         self.n_context = V.N_CONTEXT if o.context == "visible" else 0
         self.obs_dim = (V.N_BASE_OBS + self.act_dim + V.N_HISTORY_SIGNALS * o.history

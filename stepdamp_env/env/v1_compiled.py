@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from .. import kernel as K
+from ..fixedmath import sincos
 from . import compiled as C
 
 __all__ = ["N_BASE_OBS", "N_CONTEXT", "N_PRIVILEGED", "N_HISTORY_SIGNALS", "N_PAR", "N_OUT",
@@ -135,7 +136,7 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
         theta_fb, omega_fb = s[i, ix[IX_THETA_FB]], s[i, ix[IX_OMEGA_FB]]
         theta_cmd, omega_cmd = s[i, ix[IX_THETA_CMD]], s[i, ix[IX_OMEGA_CMD]]
         angle = s[i, ix[IX_PARK_ANGLE]]
-        s1, c1 = math.sin(angle), math.cos(angle)
+        s1, c1 = sincos(angle)
         s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
         s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
         vals = (

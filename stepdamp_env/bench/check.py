@@ -1,0 +1,113 @@
+"""``stepdamp report DIR --check``: does a results directory reproduce here?
+
+The board's protocol is rebuilt from what ``leaderboard.json`` records (the
+built-in protocols, their quick variants, a suite subset, custom motors); its
+motors must come out the same; then a sample of its cells (runs, spread evenly
+over every entry, suite and split) is run again, with each sampled motor and
+seed identified again, and each record compared bit for bit with the board's.
+The board's own fingerprint is checked against its files too (an edited file
+is told apart from a run that does not reproduce).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from .leaderboard import LeaderboardJob, identify_motor, run_cells
+from .motors import protocol_motors
+from .protocol_v1 import protocol_for
+from .provenance import board_fingerprint
+
+__all__ = ["protocol_of_board", "check_board"]
+
+
+def _same(a: Any, b: Any) -> bool:
+    return json.dumps(a, sort_keys=True, allow_nan=True) == \
+        json.dumps(b, sort_keys=True, allow_nan=True)
+
+
+def protocol_of_board(board: Mapping[str, Any]) -> Any:
+    """The protocol a board was run under, rebuilt from its record; a one-line
+    ``ParameterError`` if no built-in protocol gives that record."""
+    recorded = {k: v for k, v in board["protocol"].items() if k != "motors"}
+    version = recorded.get("version")
+    for quick in (False, True):
+        try:
+            protocol = protocol_for(str(version), quick)
+        except ParameterError:
+            break
+        if tuple(recorded.get("suites", ())) != tuple(protocol.suites):
+            protocol = protocol.with_suites(tuple(recorded.get("suites", ())))
+        if tuple(recorded.get("splits", ())) == ("custom",):
+            protocol = protocol.with_custom_motors(
+                [SystemParams.from_dict(m["parameters"]) for m in board["protocol"]["motors"]])
+        if _same(protocol.to_dict(), recorded):
+            return protocol
+    raise ParameterError(f"the board's protocol (version {version!r}) is none of the built-in "
+                         "protocols or their quick variants; it cannot be re-run from the "
+                         "command line")
+
+
+def _sample(board: Mapping[str, Any], size: int) -> list[tuple[Mapping, Mapping]]:
+    """``size`` (entry, run) pairs spread evenly over the board's runs in order."""
+    runs = [(e, r) for e in board["entries"] for r in e["runs"]]
+    if not runs:
+        return []
+    picks = np.unique(np.linspace(0, len(runs) - 1, min(size, len(runs))).round().astype(int))
+    return [runs[k] for k in picks]
+
+
+def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, Any]]:
+    """Per checked item (the file fingerprint, the motors, each sampled cell and
+    its identification) a dict: ``what``, ``reproduces`` (bool) and ``detail``."""
+    out: list[dict[str, Any]] = []
+    recorded = board.get("fingerprint")
+    now = board_fingerprint(board)
+    out.append({"what": "board fingerprint (the files)",
+                "reproduces": recorded is None or recorded == now,
+                "detail": "not recorded (a board of an earlier version)" if recorded is None
+                else ("" if recorded == now else f"recorded {recorded[:16]}, files {now[:16]}")})
+    protocol = protocol_of_board(board)
+    motors = protocol_motors(protocol)
+    same_motors = _same([m.to_dict() for m in motors], board["protocol"]["motors"])
+    out.append({"what": f"motors ({len(motors)})", "reproduces": same_motors,
+                "detail": "" if same_motors else "the protocol's motors differ from the board's"})
+    if not same_motors:
+        return out
+    index = {m.name: i for i, m in enumerate(motors)}
+    recorded_models = {(x["motor"], x["seed"]): x.get("model") for x in board["identification"]}
+    picked = _sample(board, sample)
+    identified: dict[tuple[int, int], FeedforwardModel | None] = {}
+    for e, r in picked:
+        key = (r["motor"], r["seed"])
+        pair = (index[r["motor"]], r["seed"])
+        if pair in identified:
+            continue
+        model = identify_motor(protocol, motors[pair[0]], r["seed"], cached=False)
+        if isinstance(model, str):              # failed: the drive keeps its nominal model
+            model = FeedforwardModel.from_motor(motors[pair[0]].nominal.motor)
+        identified[pair] = model
+        ok = _same(dataclasses.asdict(model), recorded_models.get(key))
+        out.append({"what": f"identification {r['motor']} seed {r['seed']}", "reproduces": ok,
+                    "detail": "" if ok else "the identified model differs"})
+    jobs = [LeaderboardJob(e["spec"], e["suite"], index[r["motor"]], r["seed"],
+                           list(motors[index[r["motor"]]].speeds(e["suite"])[1]).index(
+                               r["speed_label"]), r.get("training_seed"))
+            for e, r in picked]
+    for (e, r), got in zip(picked, run_cells(protocol, jobs, identified)):
+        ok = _same(got, r)
+        where = (f"{e['name']} | {e['suite']}{' | ' + e['split'] if 'split' in e else ''} | "
+                 f"{r['motor']} seed {r['seed']} {r['speed_label']}"
+                 + (f" model {r['training_seed']}" if "training_seed" in r else ""))
+        detail = ""
+        if not ok:
+            a = (r.get("metrics") or {}).get("rms_velocity_error_rad_s")
+            b = (got.get("metrics") or {}).get("rms_velocity_error_rad_s")
+            detail = f"RMS ripple recorded {a!r}, now {b!r}"
+        out.append({"what": where, "reproduces": ok, "detail": detail})
+    return out

@@ -1,0 +1,141 @@
+"""The quick boards under emulated CPUs: the same numbers on every x86-64 CPU.
+
+Each variant runs the quick boards of v0, v1 and v2 (every default entry: the
+identification, estimators, adaptive laws, learned networks and statistics
+all run) in a fresh process whose environment makes the libraries take the
+code paths of another CPU:
+
+* ``OPENBLAS_CORETYPE``: OpenBLAS's kernels for an older or newer core;
+* ``NPY_DISABLE_CPU_FEATURES``: numpy's loops without AVX2/FMA or AVX-512;
+* ``ATEN_CPU_CAPABILITY``: torch's kernels without AVX2 or AVX-512;
+* ``NUMBA_CPU_NAME=generic``: numba/LLVM code for a generic x86-64 (no FMA);
+* ``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``: the C library's plain
+  ``exp``/``log``/``sin``/``pow`` instead of its FMA variants (what a CPU
+  without FMA runs);
+* 1 or 2 worker processes (and threads).
+
+Every variant must give the stored fingerprints (``tests/data/quick_boards.json``),
+which the native run gives too (``tests/test_cpu_determinism.py``). The full
+boards: ``python benchmarks/bench_determinism.py``. To store the quick boards'
+fingerprints again (only at a re-baseline, which CHANGELOG must state):
+
+    python tests/cpu_variants.py --store
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from typing import Any, Sequence
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+STORED = os.path.join(HERE, "data", "quick_boards.json")
+PROTOCOLS = ("v0", "v1", "v2")
+_ABOVE_V2 = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
+_ABOVE_V3 = "X86_V4 AVX512_ICL AVX512_SPR"
+_NO_FMA_LIBC = "glibc.cpu.hwcaps=-AVX2,-FMA"
+
+#: name -> (environment, workers). "x86-64-v2" is the oldest CPU the package supports.
+VARIANTS: dict[str, tuple[dict[str, str], int]] = {
+    "native": ({}, 2),
+    "x86-64-v2": ({"OPENBLAS_CORETYPE": "Prescott", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V2,
+                   "ATEN_CPU_CAPABILITY": "default", "NUMBA_CPU_NAME": "generic",
+                   "GLIBC_TUNABLES": _NO_FMA_LIBC}, 1),
+    "avx2": ({"OPENBLAS_CORETYPE": "Haswell", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V3,
+              "ATEN_CPU_CAPABILITY": "avx2"}, 1),
+    "sandybridge": ({"OPENBLAS_CORETYPE": "Sandybridge", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V2,
+                     "ATEN_CPU_CAPABILITY": "default"}, 2),
+    "skylakex": ({"OPENBLAS_CORETYPE": "SkylakeX"}, 1),
+    "numba-generic": ({"NUMBA_CPU_NAME": "generic"}, 2),
+    "libc-no-fma": ({"GLIBC_TUNABLES": _NO_FMA_LIBC}, 2),
+    "numpy-x86-64-v2": ({"NPY_DISABLE_CPU_FEATURES": _ABOVE_V2}, 2),
+}
+
+
+def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
+                 full: bool = False) -> dict[str, Any]:
+    """Board fingerprint and per-entry fingerprints of each protocol's quick board
+    (every default entry), computed in this process."""
+    from stepdamp_env.bench import (full_protocol, full_protocol_v1, full_protocol_v2,
+                                    quick_protocol, quick_protocol_v1, quick_protocol_v2,
+                                    run_leaderboard)
+    from stepdamp_env.bench.provenance import entry_fingerprints
+
+    make = {"v0": (quick_protocol, full_protocol), "v1": (quick_protocol_v1, full_protocol_v1),
+            "v2": (quick_protocol_v2, full_protocol_v2)}
+    out = {}
+    for name in protocols:
+        board = run_leaderboard(make[name][full](), workers=workers, progress=False)
+        out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
+    return out
+
+
+def run_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False,
+                timeout_s: float = 3600.0) -> dict[str, Any]:
+    """:func:`quick_boards` in a fresh process under the variant's environment
+    (no identification cache: every variant identifies for itself)."""
+    env_vars, workers = VARIANTS[name]
+    env = {k: v for k, v in os.environ.items() if k not in env_vars}
+    env.update(env_vars)
+    env.update(STEPDAMP_CACHE_DIR="off", OMP_NUM_THREADS=str(workers),
+               OPENBLAS_NUM_THREADS=str(workers), MKL_NUM_THREADS=str(workers),
+               MPLBACKEND="Agg")
+    code = (f"import sys, json; sys.path.insert(0, {HERE!r}); import cpu_variants as V; "
+            f"print(json.dumps(V.quick_boards({list(protocols)!r}, {workers}, {full!r})))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=timeout_s)
+    if out.returncode != 0:
+        raise RuntimeError(f"variant {name} failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """The protocol|entry keys whose fingerprints differ between two results."""
+    keys = []
+    for proto in sorted(set(a) | set(b)):
+        ea, eb = a.get(proto, {}).get("entries", {}), b.get(proto, {}).get("entries", {})
+        keys += [f"{proto}: {k}" for k in sorted(set(ea) | set(eb)) if ea.get(k) != eb.get(k)]
+        if not keys and a.get(proto, {}).get("fingerprint") != b.get(proto, {}).get("fingerprint"):
+            keys.append(f"{proto}: board")
+    return keys
+
+
+def stored() -> dict[str, Any]:
+    with open(STORED, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--variant", action="append", choices=sorted(VARIANTS),
+                   help="variants to run (default: all)")
+    p.add_argument("--protocol", action="append", choices=PROTOCOLS)
+    p.add_argument("--store", action="store_true",
+                   help="store the native quick boards' fingerprints (a re-baseline)")
+    args = p.parse_args(argv)
+    protocols = tuple(args.protocol or PROTOCOLS)
+    if args.store:
+        data = run_variant("native", PROTOCOLS)
+        with open(STORED, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, sort_keys=True)
+            fh.write("\n")
+        print(f"stored {STORED}")
+        return 0
+    reference = stored()
+    failed = 0
+    for name in args.variant or sorted(VARIANTS):
+        t0 = time.perf_counter()
+        got = run_variant(name, protocols)
+        diff = differences({k: reference[k] for k in protocols}, got)
+        failed += bool(diff)
+        print(f"{name:16s} {time.perf_counter() - t0:6.1f} s  "
+              f"{'identical' if not diff else f'{len(diff)} differ: {diff[:8]}'}", flush=True)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""The same numbers on every x86-64 CPU, from x86-64-v2 to AVX-512, and any thread count.
+
+The quick boards of v0, v1 and v2 (every default entry) give the fingerprints
+stored in ``tests/data/quick_boards.json``: here, and in fresh processes under
+emulated older CPUs (``tests/cpu_variants.py`` says what each variant changes).
+The cells are chosen to cover every dispatch axis with few runs: the oldest
+CPU (every library on its x86-64-v2 path, numba generic, the C library without
+FMA, one worker), an AVX2 machine without AVX-512 (one worker), and this
+machine with OpenBLAS's AVX-512 kernels (two workers). The other variants, and
+the full boards: ``python benchmarks/bench_determinism.py``.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import cpu_variants as V
+
+
+def test_the_quick_boards_here_are_the_stored_ones():
+    got = V.quick_boards(workers=2)
+    assert V.differences(V.stored(), got) == []
+
+
+@pytest.mark.parametrize("variant", ["x86-64-v2", "avx2", "skylakex"])
+def test_the_quick_boards_on_an_emulated_cpu_are_the_stored_ones(variant):
+    assert V.differences(V.stored(), V.run_variant(variant)) == []
+
+
+def test_report_check_reruns_a_boards_cells_and_finds_an_edited_file(tmp_path):
+    import gzip
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from stepdamp_env.bench import protocol_motors, quick_protocol_v1
+
+    motors = tmp_path / "motors.json"
+    motors.write_text(json.dumps([protocol_motors(quick_protocol_v1())[0].system.to_dict()]))
+    out = tmp_path / "board"
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+
+    def stepdamp(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "stepdamp_env.cli", *args], env=env,
+                              capture_output=True, text=True)
+
+    made = stepdamp("leaderboard", "--quick", "--motors", str(motors), "--suite", "open-loop",
+                    "--entries", "ff-delay-comp", "adaptive-ff", "--out", str(out), "--no-plots",
+                    "--no-progress", "--workers", "1")
+    assert made.returncode == 0, made.stderr[-2000:]
+    check = stepdamp("report", str(out), "--check", "--sample", "4")
+    assert check.returncode == 0, check.stdout + check.stderr[-2000:]
+    lines = check.stdout.splitlines()
+    assert sum(line.startswith("reproduces") for line in lines) >= 6     # files, motors, ident, 4 cells
+    assert lines[-1].endswith("checks reproduce") and "DIFFERS" not in check.stdout
+    runs = out / "leaderboard_runs.json.gz"
+    raw = json.loads(gzip.open(runs).read())
+    raw["entries"][0]["runs"][0]["metrics"]["rms_velocity_error_rad_s"] *= 1.0 + 1e-15
+    with gzip.open(runs, "wt") as fh:
+        json.dump(raw, fh)
+    check = stepdamp("report", str(out), "--check", "--sample", "1")
+    assert check.returncode == 1
+    assert "DIFFERS     board fingerprint (the files)" in check.stdout
