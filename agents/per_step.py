@@ -221,7 +221,7 @@ class StepAgent:
         pass
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        from .policy import predict_rows
+        from stepdamp_env.bench.network import predict_rows
 
         return np.clip(np.asarray(predict_rows(self.model, observations), dtype=np.float32),
                        -1.0, 1.0)

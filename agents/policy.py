@@ -20,16 +20,16 @@ import io
 import json
 import math
 import os
-import weakref
 from collections import OrderedDict
 from typing import Any, Sequence
 
 import numpy as np
 
+from stepdamp_env.bench.network import predict_rows
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
 __all__ = ["ResidualAgent", "load_agent_config", "load_model", "clear_model_cache",
-           "agent_config_path", "predict_rows", "policy_network", "PolicyNetwork"]
+           "agent_config_path"]
 
 # Loaded models by the sha256 of their file's bytes (never by path: a file
 # rewritten in place is loaded again), the most recent last.
@@ -75,154 +75,6 @@ def load_model(path: str) -> Any:
 def clear_model_cache() -> None:
     """Forget every loaded model (the next :func:`load_model` reads and builds anew)."""
     _MODELS.clear()
-
-
-class PolicyNetwork:
-    """The deterministic action network of an SB3 policy, evaluated by
-    :func:`stepdamp_env.fixedmath.mlp_forward`: the same bits on every CPU and for
-    any batch size (torch picks its matrix kernels by instruction set and batch
-    shape). Read through public modules: ``nn.Linear`` layers with ReLU or tanh
-    between them, for PPO/A2C (the Gaussian's mean), TD3, SAC (tanh of the mean)
-    and ARS policies on a flat Box observation; :func:`policy_network` says None
-    for anything else."""
-
-    def __init__(self, layers: Sequence[Any], final_tanh: bool) -> None:
-        import torch.nn as nn
-
-        from stepdamp_env.fixedmath import IDENTITY, RELU, TANH
-
-        weights, biases, sizes, acts = [], [], [], []
-        for module in layers:
-            if isinstance(module, nn.Linear):
-                w = module.weight.detach().cpu().numpy().astype(np.float64)
-                b = (module.bias.detach().cpu().numpy().astype(np.float64)
-                     if module.bias is not None else np.zeros(w.shape[0]))
-                if not sizes:
-                    sizes.append(w.shape[1])
-                elif sizes[-1] != w.shape[1]:
-                    raise ValueError("layer sizes do not chain")
-                weights.append(w.ravel())
-                biases.append(b)
-                sizes.append(w.shape[0])
-                acts.append(IDENTITY)
-            elif isinstance(module, (nn.ReLU, nn.Tanh)) and acts and acts[-1] == IDENTITY:
-                acts[-1] = RELU if isinstance(module, nn.ReLU) else TANH
-            elif not isinstance(module, (nn.Identity, nn.Flatten)):
-                raise ValueError(f"unsupported layer {type(module).__name__}")
-        if not acts:
-            raise ValueError("no layer")
-        if final_tanh:
-            if acts[-1] != IDENTITY:
-                raise ValueError("tanh after an activation")
-            acts[-1] = TANH
-        self.weights = np.concatenate(weights)
-        self.biases = np.concatenate(biases)
-        self.sizes = np.array(sizes, dtype=np.int64)
-        self.activations = np.array(acts, dtype=np.int64)
-
-    def __call__(self, observations: np.ndarray) -> np.ndarray:
-        """Raw actions (float32, n x action dim) of float32 observation rows."""
-        from stepdamp_env.fixedmath import mlp_forward
-
-        x = np.ascontiguousarray(observations, dtype=np.float32)
-        return mlp_forward(x, self.weights, self.biases, self.sizes,
-                           self.activations).astype(np.float32)
-
-
-# Networks by policy object (a model's network is read once).
-_NETWORKS: "weakref.WeakKeyDictionary[Any, PolicyNetwork | None]" = weakref.WeakKeyDictionary()
-
-
-def policy_network(policy: Any) -> PolicyNetwork | None:
-    """The :class:`PolicyNetwork` of an SB3 policy, or None where its deterministic
-    action is not a plain network of linear layers on a flat observation."""
-    if policy in _NETWORKS:
-        return _NETWORKS[policy]
-    from gymnasium import spaces
-    from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from stable_baselines3.common.policies import ActorCriticPolicy
-    from stable_baselines3.common.torch_layers import FlattenExtractor
-    from stable_baselines3.sac.policies import SACPolicy
-    from stable_baselines3.td3.policies import TD3Policy
-
-    def flat(extractor: Any) -> bool:
-        return isinstance(extractor, FlattenExtractor)
-
-    layers, final_tanh = None, False
-    if isinstance(policy.observation_space, spaces.Box) and \
-            len(policy.observation_space.shape) == 1 and \
-            isinstance(policy.action_space, spaces.Box):
-        if isinstance(policy, ActorCriticPolicy):
-            if isinstance(policy.action_dist, DiagGaussianDistribution) and \
-                    type(policy).get_distribution is ActorCriticPolicy.get_distribution and \
-                    flat(policy.pi_features_extractor):
-                layers = [*policy.mlp_extractor.policy_net, policy.action_net]
-        elif isinstance(policy, TD3Policy):
-            if flat(policy.actor.features_extractor):
-                layers = [*policy.actor.mu]
-        elif isinstance(policy, SACPolicy):
-            if flat(policy.actor.features_extractor) and not policy.actor.use_sde:
-                layers, final_tanh = [*policy.actor.latent_pi, policy.actor.mu], True
-        elif type(policy).__name__ in ("ARSPolicy", "ARSLinearPolicy") and \
-                flat(policy.features_extractor):
-            layers = [*policy.action_net]
-    network = None
-    if layers is not None:
-        try:
-            network = PolicyNetwork(layers, final_tanh)
-        except ValueError:
-            network = None
-    _NETWORKS[policy] = network
-    return network
-
-
-def _torch_action(policy: Any) -> Any:
-    """The deterministic action through torch (for networks :func:`policy_network`
-    cannot read; their last bits may depend on the CPU)."""
-    from stable_baselines3.common.policies import ActorCriticPolicy
-    from stable_baselines3.sac.policies import SACPolicy
-
-    if isinstance(policy, ActorCriticPolicy):
-        return lambda obs: policy.get_distribution(obs).get_actions(deterministic=True)
-    if isinstance(policy, SACPolicy):
-        return lambda obs: policy.actor(obs, deterministic=True)
-    return policy.actor if hasattr(policy, "actor") else policy
-
-
-def predict_rows(model: Any, observations: np.ndarray) -> np.ndarray:
-    """``model.predict(x, deterministic=True)`` of float32 observation rows, each
-    row alone: through :class:`PolicyNetwork` (fixed summation order, the same
-    bits on any CPU and batch size) where the policy is a plain network, else
-    row by row through torch with a warning. Then ``predict``'s clipping to
-    the action space, or its unscaling of a squashed output."""
-    from gymnasium import spaces
-
-    policy = model.policy
-    obs = np.asarray(observations, dtype=np.float32).reshape(
-        (-1, *policy.observation_space.shape))
-    network = policy_network(policy)
-    if network is not None:
-        actions = network(obs)
-    else:
-        import warnings
-
-        import torch
-
-        warnings.warn(f"{type(policy).__name__}: not a plain network; its actions go through "
-                      "torch and may differ in the last bits between CPUs", RuntimeWarning,
-                      stacklevel=2)
-        policy.set_training_mode(False)
-        act = _torch_action(policy)
-        x = torch.as_tensor(obs)
-        with torch.no_grad():
-            actions = torch.cat([act(x[k:k + 1]) for k in range(len(x))]).cpu().numpy()
-    actions = actions.reshape((-1, *policy.action_space.shape))
-    if isinstance(policy.action_space, spaces.Box):
-        if policy.squash_output:
-            actions = policy.unscale_action(actions)
-        else:
-            actions = np.clip(actions, policy.action_space.low, policy.action_space.high)
-    return actions
 
 
 class ResidualAgent:

@@ -19,7 +19,7 @@ import numpy as np
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_model,
                                        resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
-from stepdamp_env.fixedmath import random_walk_kalman_update
+from stepdamp_env.fixedmath import cmul, random_walk_kalman_update
 from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
@@ -180,7 +180,7 @@ class AdaptiveFF(_HarmonicResidual):
         nr = system.motor.Nr
         h = np.array([torque_to_velocity(system, k * nr * w, context.mode)
                       * velocity_filter(system, k * nr * w) for k in HARMONICS])
-        self._inverse_path = 1.0 / (g * h)
+        self._inverse_path = 1.0 / cmul(g, h)
         self._w_ref = w
         self._scale = context.action_scale
         # The filter (fixedmath.random_walk_kalman_update: filterpy's recursion in
@@ -225,7 +225,7 @@ class AdaptiveFF(_HarmonicResidual):
         # encoder noise does not walk the feedforward around.
         weight = self._active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300),
                                         0.0, 1.0)
-        target = self._applied + self.step_gain * weight * ripple * self._inverse_path
+        target = self._applied + self.step_gain * weight * cmul(ripple, self._inverse_path)
         self._action = harmonic_actions(target, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
         return self._action
@@ -279,7 +279,7 @@ class AdaptiveFF(_HarmonicResidual):
         active &= ~diverged
         applied = np.where(diverged, r["_initial"][idx], applied)
         weight = active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300), 0.0, 1.0)
-        target = applied + self.step_gain * weight * ripple * r["_inverse_path"][idx]
+        target = applied + self.step_gain * weight * cmul(ripple, r["_inverse_path"][idx])
         r["_action"][idx], r["_applied"][idx] = harmonic_action_rows(target, r["_base"][idx],
                                                                      r["_scale"][idx])
         r["_active"][idx] = active

@@ -59,11 +59,11 @@ def golden_section(f, low: float, high: float, iterations: int,
 _TABLES: dict[tuple, tuple[np.ndarray, float]] = {}
 
 
-
 def _magnitude(z):
     """|z| in real arithmetic (abs of a complex goes through the C library's hypot,
     whose last bit depends on the CPU)."""
     return np.sqrt(np.real(z) * np.real(z) + np.imag(z) * np.imag(z))
+
 
 class CalibratedTable(DelayCompensatedFF):
     """``calibrated-table``: a feedforward table found by measurement before the run.
@@ -148,7 +148,7 @@ class CalibratedTable(DelayCompensatedFF):
         # speed), so each run speed gets it through its own current path.
         paths = np.array([torque_paths(nominal, mode, resonances[h], model)[i]
                           for i, h in enumerate(DETENT_HARMONICS)])
-        return table * paths, seconds
+        return fm.cmul(table, paths), seconds
 
 
 class RepetitiveControl(DelayCompensatedFF):
@@ -217,7 +217,7 @@ class RepetitiveControl(DelayCompensatedFF):
         # resonances a motor of this type may have (wn x 0.7..1.4): a motor
         # whose true resonance sits on the harmonic must not see a loop gain
         # above ``learning_gain``.
-        spread = np.geomspace(0.7, 1.4, 29)
+        spread = 0.7 * fm.exp_array(np.arange(29) / 28.0 * fm.log(2.0))   # 0.7 .. 1.4, log-spaced
         peak = np.array([max(_magnitude(plant(h, f * h * nr * w)) for f in spread)
                          for h in DETENT_HARMONICS])
         cycle_steps = np.array([context.agent_hz / max(h * nr * abs(context.speed_rps), 1e-12)
@@ -262,7 +262,7 @@ class RepetitiveControl(DelayCompensatedFF):
             self._active &= ~diverged
             self._table = np.where(diverged, self._start, self._table)
             self._table = (self._start + self.leak * (self._table - self._start)
-                           + self._active * self._learn * ripple)
+                           + self._active * fm.cmul(self._learn, ripple))
             self._action = harmonic_actions(self._table, self._base, self._scale)
             self._table = self._base + self._scale * (
                 self._action[0::2].astype(float) + 1j * self._action[1::2].astype(float))
@@ -272,7 +272,7 @@ class RepetitiveControl(DelayCompensatedFF):
         return self._action
 
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
-    # arithmetic on a stack of rows; the angles go through math.atan2 and Python's %
+    # arithmetic on a stack of rows; the angles go through fixedmath.atan2 and Python's %
     # row by row (numpy's SIMD arctan2 differs from libm's in the last bit).
     _ROW_SETTINGS = ("_base", "_start", "_learn", "_w_ref", "_scale", "_action", "_table",
                      "_wait")
@@ -326,7 +326,7 @@ class RepetitiveControl(DelayCompensatedFF):
         active &= ~diverged
         start = r["_start"][idx]
         table = np.where(diverged, start, r["_table"][idx])
-        table = start + self.leak * (table - start) + active * r["_learn"][idx] * ripple
+        table = start + self.leak * (table - start) + active * fm.cmul(r["_learn"][idx], ripple)
         r["_action"][idx], r["_table"][idx] = harmonic_action_rows(table, r["_base"][idx],
                                                                    r["_scale"][idx])
         r["_reference"][idx] = reference

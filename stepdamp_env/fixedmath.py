@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "atan", "atan2", "hypot", "tanh",
-           "cexp", "exp_array", "sin_array", "cos_array", "dot", "weighted_rows",
+           "cexp", "cmul", "exp_array", "sin_array", "cos_array", "dot", "weighted_rows",
            "lstsq", "solve", "random_walk_kalman_update", "mlp_forward",
            "IDENTITY", "RELU", "TANH"]
 
@@ -110,9 +110,12 @@ def log(x):
 
 # --- sin, cos (Cody-Waite reduction to [-pi/4, pi/4], Taylor polynomials) ----
 _TWO_OVER_PI = 0.63661977236758134308
-_PIO2_HI = 1.5707963267341256e+00
-_PIO2_MID = 6.0771005065061922e-11
-_PIO2_LO = 2.0222662487959506e-21
+# fdlibm's pio2_1, pio2_2 (33 bits each: k * them is exact for |k| < 2**20) and
+# pio2_2t, the rest of pi/2 after them. (Up to 0.9.0 the kernel took pio2_1t, the
+# rest after pio2_1 alone, for the middle part, counting the last part twice.)
+_PIO2_HI = 1.57079632673412561417e+00
+_PIO2_MID = 6.07710050630396597660e-11
+_PIO2_LO = 2.02226624879595063154e-21
 _TWO_PI = 6.283185307179586
 _S3, _S5, _S7, _S9 = -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0
 _S11, _S13, _S15 = -1.0 / 39916800.0, 1.0 / 6227020800.0, -1.0 / 1307674368000.0
@@ -130,6 +133,8 @@ def sincos(x):
         if x != x or abs(x) == math.inf:
             return math.nan, math.nan
         x = np.fmod(x, _TWO_PI)
+    if x == 0.0:                         # sin(-0) = -0
+        return x, 1.0
     k = math.floor(x * _TWO_OVER_PI + 0.5)
     r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
     r2 = r * r
@@ -275,16 +280,18 @@ def hypot(x, y):
 
 @_inline
 def tanh(x):
-    """Hyperbolic tangent."""
-    if x != x:
+    """Hyperbolic tangent (fdlibm's s_tanh.c)."""
+    if x != x or x == 0.0:
         return x
     ax = abs(x)
-    if ax > 22.0:
+    if ax >= 22.0:
         t = 1.0
+    elif ax >= 1.0:
+        t = 1.0 - 2.0 / (expm1(2.0 * ax) + 2.0)
     else:
-        e = expm1(2.0 * ax)
-        t = e / (e + 2.0)
-    return t if x >= 0.0 else -t
+        e = expm1(-2.0 * ax)
+        t = -e / (e + 2.0)
+    return math.copysign(t, x)
 
 
 @_inline
@@ -296,6 +303,18 @@ def cexp(z):
 
 
 # --- arrays -----------------------------------------------------------------
+def cmul(a, b):
+    """a * b of complex arrays (broadcast) in real arithmetic: numpy's complex
+    product fuses multiply-adds on CPUs with FMA and rounds twice on others."""
+    a = np.asarray(a, dtype=complex)
+    b = np.asarray(b, dtype=complex)
+    out = np.empty(np.broadcast(a, b).shape, dtype=complex)
+    out.real = a.real * b.real - a.imag * b.imag
+    out.imag = a.real * b.imag + a.imag * b.real
+    return out
+
+
+
 @_jit
 def exp_array(x):
     """:func:`exp` of each element (a new float64 array of x's shape)."""

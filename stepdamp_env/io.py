@@ -129,19 +129,28 @@ def file_digest(path: str | os.PathLike[str]) -> str:
 def tree_digest(root: str | os.PathLike[str], suffixes: tuple[str, ...] = (),
                 exclude: Sequence[str | os.PathLike[str]] = ()) -> str:
     """sha256 of the files under ``root`` (their paths relative to it and their
-    bytes, read now), those ending in ``suffixes`` if given. Skipped: hidden
-    names (resume batches, staging directories, temporary files of
-    :func:`atomic_path`), ``__pycache__`` and the ``exclude`` paths (a result
-    directory inside the tree must not change the key of its own results)."""
+    bytes, read now), those ending in ``suffixes`` if given; symbolic links are
+    followed (once each). Skipped: hidden names (resume batches, staging
+    directories, temporary files of :func:`atomic_path`), ``__pycache__`` and
+    the ``exclude`` paths, compared as real paths (a result directory inside
+    the tree must not change the key of its own results)."""
     root = os.path.abspath(os.fspath(root))
-    skip = {os.path.abspath(os.fspath(e)) for e in exclude}
+    skip = {os.path.realpath(os.fspath(e)) for e in exclude}
+    seen = {os.path.realpath(root)}
     h = hashlib.sha256()
-    for d, dirs, files in os.walk(root):
-        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != "__pycache__"
-                         and os.path.join(d, x) not in skip)
+    for d, dirs, files in os.walk(root, followlinks=True):
+        keep = []
+        for x in sorted(dirs):
+            real = os.path.realpath(os.path.join(d, x))
+            if x.startswith(".") or x == "__pycache__" or real in skip or real in seen:
+                continue                        # hidden, excluded, or a link cycle
+            seen.add(real)
+            keep.append(x)
+        dirs[:] = keep
         for f in sorted(files):
             path = os.path.join(d, f)
-            if f.startswith(".") or path in skip or (suffixes and not f.endswith(suffixes)):
+            if f.startswith(".") or os.path.realpath(path) in skip or \
+                    (suffixes and not f.endswith(suffixes)):
                 continue
             h.update(os.path.relpath(path, root).encode("utf-8", "surrogateescape") + b"\0")
             h.update(file_digest(path).encode())

@@ -39,27 +39,39 @@ def code_key(root: str | None = None) -> str:
 
 
 def user_cache_dir() -> str:
-    """``$NUMBA_CACHE_DIR`` if the user set it (used as it is), else
-    ``$XDG_CACHE_HOME/stepdamp/numba/<code_key>`` (``~/.cache/...``;
-    ``%LOCALAPPDATA%`` on Windows)."""
-    chosen = os.environ.get("NUMBA_CACHE_DIR")
-    if chosen and chosen != os.environ.get("_STEPDAMP_NUMBA_CACHE_DIR"):
-        return os.environ["NUMBA_CACHE_DIR"]
+    """``$XDG_CACHE_HOME/stepdamp/numba/<code_key>`` (``~/.cache/...``;
+    ``%LOCALAPPDATA%`` on Windows); under a ``$NUMBA_CACHE_DIR`` the user chose,
+    ``$NUMBA_CACHE_DIR/stepdamp-<code_key>`` (the process's other numba code
+    caches there too: numba has one cache directory per process)."""
+    base = _user_base()
+    if base:
+        return os.path.join(base, f"stepdamp-{code_key()}")
     if sys.platform == "win32":
-        base = os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
+        root = os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
     else:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
+        root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
                                                                  ".cache")
-    return os.path.join(base, "stepdamp", "numba", code_key())
+    return os.path.join(root, "stepdamp", "numba", code_key())
+
+
+def _user_base() -> str:
+    """The user's own ``$NUMBA_CACHE_DIR``, or "" (one this package set, passed on
+    to a child process, is not the user's: the user's is kept beside it)."""
+    chosen = os.environ.get("NUMBA_CACHE_DIR", "")
+    if chosen and chosen != os.environ.get("_STEPDAMP_NUMBA_CACHE_DIR"):
+        return chosen
+    return os.environ.get("_STEPDAMP_NUMBA_CACHE_BASE", "") if chosen else ""
 
 
 def use_user_cache_dir() -> str:
-    """Point numba's cache at :func:`user_cache_dir` (a no-op if the user chose one)."""
+    """Point numba's cache at :func:`user_cache_dir`."""
+    base = _user_base()
     path = user_cache_dir()
     if os.environ.get("NUMBA_CACHE_DIR") != path:
         os.environ["NUMBA_CACHE_DIR"] = path
         # Ours, not the user's: a child process computes its own (its code may differ).
         os.environ["_STEPDAMP_NUMBA_CACHE_DIR"] = path
+        os.environ["_STEPDAMP_NUMBA_CACHE_BASE"] = base
         config = sys.modules.get("numba.core.config")
         if config is not None:           # numba was imported first: re-read its settings
             config.reload_config()

@@ -32,6 +32,8 @@ RNG = np.random.default_rng(7733051)
     ("log near 1", fm.log, math.log, RNG.uniform(0.9, 1.1, 4000), 1),
     ("cos", fm.cos, math.cos, RNG.uniform(-10, 10, 4000), 1),
     ("sin", fm.sin, math.sin, RNG.uniform(-1.5, 1.5, 4000), 1),
+    ("sin of large x", fm.sin, math.sin, RNG.uniform(-1e5, 1e5, 4000), 2),
+    ("cos of large x", fm.cos, math.cos, RNG.uniform(-1e5, 1e5, 4000), 2),
     ("atan", fm.atan, math.atan, RNG.uniform(-50, 50, 4000) * RNG.uniform(0, 1, 4000) ** 4, 1),
     ("tanh", fm.tanh, math.tanh, RNG.uniform(-5, 5, 4000), 3),
 ])
@@ -73,6 +75,8 @@ def test_special_values():
     assert fm.log(5e-324) == math.log(5e-324)
     assert fm.expm1(0.0) == 0.0 and fm.tanh(30.0) == 1.0 and fm.tanh(-30.0) == -1.0
     assert all(math.isnan(v) for v in fm.sincos(math.nan))
+    for f in (fm.sin, fm.tanh, fm.atan, fm.expm1):
+        assert math.copysign(1.0, f(-0.0)) == -1.0, f
 
 
 def test_least_squares_and_solve_agree_with_lapack():

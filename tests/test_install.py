@@ -39,8 +39,13 @@ def test_numba_cache_goes_to_the_user_cache_dir(tmp_path):
 
 def test_numba_cache_dir_can_be_chosen(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "mine")}
-    assert _run("import stepdamp_env, numba; print(numba.config.CACHE_DIR)", env) == \
-        str(tmp_path / "mine")
+    for k in ("_STEPDAMP_NUMBA_CACHE_DIR", "_STEPDAMP_NUMBA_CACHE_BASE"):
+        env.pop(k, None)
+    code = ("import os, subprocess, sys, stepdamp_env, numba; print(numba.config.CACHE_DIR); "
+            "sys.stdout.flush(); subprocess.run([sys.executable, '-c', 'import stepdamp_env, "
+            "numba; print(numba.config.CACHE_DIR)'])")
+    mine = str(tmp_path / "mine" / f"stepdamp-{code_key()}")
+    assert _run(code, env).splitlines() == [mine, mine]     # a child keeps the user's choice
 
 
 def test_numba_imported_first_still_uses_the_user_cache_dir(tmp_path):

@@ -138,7 +138,8 @@ def test_predict_rows_is_sb3_predict_to_float32_and_the_same_for_any_batch():
     """The learned entries are evaluated by the fixed-order network (fixedmath.mlp_forward):
     it agrees with SB3's torch predict to float32 rounding, and its rows do not
     depend on how they are batched."""
-    from stepdamp_agents.policy import load_model, policy_network, predict_rows
+    from stepdamp_agents.policy import load_model
+    from stepdamp_env.bench.network import policy_network, predict_rows
     from stepdamp_agents import reference_seeds
 
     for name in reference_names():

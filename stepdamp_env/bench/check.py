@@ -80,7 +80,12 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
     if not same_motors:
         return out
     index = {m.name: i for i, m in enumerate(motors)}
+    unknown = sorted({r["motor"] for e in board["entries"] for r in e["runs"]} - set(index))
+    if unknown:
+        raise ParameterError(f"the board has runs on motors its protocol does not have: {unknown}")
     recorded_models = {(x["motor"], x["seed"]): x.get("model") for x in board["identification"]}
+    recorded_failures = {(x["motor"], x["seed"]): x.get("failed")
+                         for x in board["identification"]}
     picked = _sample(board, sample)
     identified: dict[tuple[int, int], FeedforwardModel | None] = {}
     for e, r in picked:
@@ -89,16 +94,22 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
         if pair in identified:
             continue
         model = identify_motor(protocol, motors[pair[0]], r["seed"], cached=False)
-        if isinstance(model, str):              # failed: the drive keeps its nominal model
+        failed = model if isinstance(model, str) else None
+        if failed is not None:                  # v1: the drive keeps its nominal model
             model = FeedforwardModel.from_motor(motors[pair[0]].nominal.motor)
         identified[pair] = model
-        ok = _same(dataclasses.asdict(model), recorded_models.get(key))
+        ok = _same(dataclasses.asdict(model), recorded_models.get(key)) and \
+            _same(failed, recorded_failures.get(key))
         out.append({"what": f"identification {r['motor']} seed {r['seed']}", "reproduces": ok,
                     "detail": "" if ok else "the identified model differs"})
-    jobs = [LeaderboardJob(e["spec"], e["suite"], index[r["motor"]], r["seed"],
-                           list(motors[index[r["motor"]]].speeds(e["suite"])[1]).index(
-                               r["speed_label"]), r.get("training_seed"))
-            for e, r in picked]
+    jobs = []
+    for e, r in picked:
+        labels = list(motors[index[r["motor"]]].speeds(e["suite"])[1])
+        if r["speed_label"] not in labels:
+            raise ParameterError(f"the board's run at {r['speed_label']!r} on {r['motor']!r} "
+                                 f"is not on the protocol's {e['suite']} grid {labels}")
+        jobs.append(LeaderboardJob(e["spec"], e["suite"], index[r["motor"]], r["seed"],
+                                   labels.index(r["speed_label"]), r.get("training_seed")))
     for (e, r), got in zip(picked, run_cells(protocol, jobs, identified)):
         ok = _same(got, r)
         where = (f"{e['name']} | {e['suite']}{' | ' + e['split'] if 'split' in e else ''} | "

@@ -167,6 +167,35 @@ def midband_grid(system: SystemParams, protocol: ProtocolV2
             tuple(f"m{f:g}" for f in protocol.midband_factors))
 
 
+def slowest_decay_rate(a: float, b: float, c: float, d: float) -> float:
+    """min(-Re(root)) of a s^3 + b s^2 + c s + d (1/s; <= 0 if a root is not in the
+    left half-plane), in plain float arithmetic (LAPACK's eigenvalues, which
+    ``np.roots`` uses, depend on the CPU in their last bits): the real root by
+    bisection, then the quadratic left after dividing it out."""
+    if not (a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
+        return -math.inf if not (a > 0.0 and d >= 0.0) else 0.0
+    f = lambda s: ((a * s + b) * s + c) * s + d           # noqa: E731
+    lo, hi = -(1.0 + max(b, c, d) / a), 0.0              # f(lo) < 0 < f(0) = d
+    for _ in range(2000):
+        mid = 0.5 * (lo + hi)
+        if mid == lo or mid == hi:
+            break
+        if f(mid) > 0.0:
+            hi = mid
+        else:
+            lo = mid
+    r = 0.5 * (lo + hi)
+    # a s^3 + ... = (s - r)(a s^2 + p s + q)
+    p = b + a * r
+    q = c + p * r
+    disc = p * p - 4.0 * a * q
+    if disc < 0.0:
+        rest = p / (2.0 * a)                               # -Re of the complex pair
+    else:
+        rest = (p - math.sqrt(disc)) / (2.0 * a)           # -(the larger root)
+    return min(-r, rest)
+
+
 def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]:
     """v1's settling per suite (s): open loop ``settle_open_loop_decays`` decay
     times 1/(zeta*wn) = 2J/D of the undamped resonance; servo
@@ -176,7 +205,7 @@ def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]
     decay_rate = m.D / (2.0 * m.J)
     ol = protocol.settle_open_loop_decays / decay_rate if decay_rate > 0 else math.inf
     kv, kp, ki = system.servo_gains()
-    slowest = float(np.min(-np.roots([m.J, kv, kp, ki]).real))   # the servo loop's decay rate
+    slowest = slowest_decay_rate(m.J, kv, kp, ki)      # the servo loop's
     servo = protocol.settle_servo_time_constants / slowest if slowest > 0 else math.inf
     if not math.isfinite(ol):
         raise ParameterError(f"motor {system.name!r}: D = 0 leaves its resonance undamped; "

@@ -44,13 +44,22 @@ def _canonical(value: Any) -> bytes:
                       default=_plain).encode()
 
 
+def _numbers(board: Mapping[str, Any]) -> dict[str, Any]:
+    """The board without what describes the run: wall time, versions, environment,
+    and each entry's ``spec`` (a policy file's path differs between machines)."""
+    out = {k: v for k, v in board.items() if k not in _NOT_NUMBERS}
+    if "entries" in out:
+        out["entries"] = [{k: v for k, v in e.items() if k != "spec"} for e in out["entries"]]
+    return out
+
+
 def board_fingerprint(board: Mapping[str, Any]) -> str:
     """sha256 of every number of a board (protocol, motors, identification, every
-    entry with its per-run records), without its wall time, versions or
-    environment. ``board`` as :func:`.leaderboard.run_leaderboard` returns it
-    or :func:`.report.load_leaderboard` reads it back."""
-    return hashlib.sha256(_canonical({k: v for k, v in board.items()
-                                      if k not in _NOT_NUMBERS})).hexdigest()
+    entry with its per-run records), without its wall time, versions,
+    environment or the entries' specs. ``board`` as
+    :func:`.leaderboard.run_leaderboard` returns it or
+    :func:`.report.load_leaderboard` reads it back."""
+    return hashlib.sha256(_canonical(_numbers(board))).hexdigest()
 
 
 def entry_fingerprints(board: Mapping[str, Any]) -> dict[str, str]:
@@ -60,7 +69,8 @@ def entry_fingerprints(board: Mapping[str, Any]) -> dict[str, str]:
            "identification": hashlib.sha256(_canonical(board.get("identification"))).hexdigest()}
     for e in board.get("entries", ()):
         key = f"{e['name']}|{e['suite']}|{e.get('split', '')}"
-        out[key] = hashlib.sha256(_canonical(e)).hexdigest()
+        out[key] = hashlib.sha256(_canonical({k: v for k, v in e.items()
+                                              if k != "spec"})).hexdigest()
     return out
 
 

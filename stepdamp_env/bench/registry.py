@@ -36,6 +36,7 @@ import numpy as np
 from ..io import file_digest, related_files, tree_digest
 from ..params import ParameterError
 from ..ray_backend import BY_VALUE
+from .network import predict_rows
 from .policy import (MotorKnowledge, Policy, PolicyContext, check_policy, reference_policy,
                      resolve_estimate)
 from .protocol import REFERENCE_POLICY
@@ -72,6 +73,7 @@ class PolicySource:
     name: str
     make: Callable[[], Any]
     training_seeds: Mapping[int, Callable[[], Any]] | None = None
+    origin: str | None = None          # the module a policy instance's class comes from
 
     def factories(self, pooled: bool) -> dict[int | None, Callable[[], Any]]:
         """Training seed -> factory: every seed if ``pooled`` and known, else
@@ -98,7 +100,8 @@ class PolicySource:
         elif os.path.isdir(path):
             trees.add(os.path.abspath(path))
         factories = [self.make, *(self.training_seeds or {}).values()]
-        for module in {getattr(f, "__module__", None) for f in factories} - {None}:
+        modules = {getattr(f, "__module__", None) for f in factories} | {self.origin}
+        for module in sorted(modules - {None}):
             top = sys.modules.get(str(module).split(".")[0])
             where = getattr(top, "__file__", None)
             if not where:
@@ -200,8 +203,9 @@ class SB3Policy:
         pass
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        action, _ = self.model.predict(observation, deterministic=True)
-        return np.asarray(action, dtype=np.float32)
+        # SB3's deterministic predict, through the CPU-independent network.
+        return np.asarray(predict_rows(self.model, np.asarray(observation, dtype=np.float32)[None])
+                          [0], dtype=np.float32)
 
 
 def _sb3_algo_class(path: str) -> list[Any]:
@@ -306,7 +310,8 @@ def _resolve(spec: str) -> PolicySource:
             check_policy(probe, spec)
             return PolicySource(spec, str(probe.name), obj)
         check_policy(obj, spec)
-        return PolicySource(spec, str(obj.name), lambda: copy.deepcopy(obj))
+        return PolicySource(spec, str(obj.name), lambda: copy.deepcopy(obj),
+                            origin=type(obj).__module__)
     raise ParameterError(f"policy {spec!r} is not a registered policy {list(registry)}, "
                          "a 'package.module:attr' or 'file.py:attr' path or a model file")
 
