@@ -68,7 +68,7 @@ class OperatingPoint:
 
 
 _ANGLES = np.linspace(0.0, TWO_PI, 720, endpoint=False)
-_COS, _SIN = fm.cos_array(_ANGLES), fm.sin_array(_ANGLES)
+_SIN, _COS = fm.sincos_array(_ANGLES)
 
 
 @functools.lru_cache(maxsize=4096)

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "atan", "atan2", "hypot", "tanh",
-           "cexp", "cmul", "exp_array", "sin_array", "cos_array", "dot", "weighted_rows",
+           "cexp", "cmul", "exp_array", "sincos_array", "dot", "weighted_rows",
            "lstsq", "solve", "random_walk_kalman_update", "mlp_forward",
            "IDENTITY", "RELU", "TANH"]
 
@@ -326,23 +326,14 @@ def exp_array(x):
 
 
 @_jit
-def sin_array(x):
-    """:func:`sin` of each element."""
+def sincos_array(x):
+    """(:func:`sin`, :func:`cos`) of each element (two arrays of x's shape)."""
     flat = np.ascontiguousarray(x).ravel()
-    out = np.empty(flat.size)
+    s = np.empty(flat.size)
+    c = np.empty(flat.size)
     for i in range(flat.size):
-        out[i] = sincos(flat[i])[0]
-    return out.reshape(x.shape)
-
-
-@_jit
-def cos_array(x):
-    """:func:`cos` of each element."""
-    flat = np.ascontiguousarray(x).ravel()
-    out = np.empty(flat.size)
-    for i in range(flat.size):
-        out[i] = sincos(flat[i])[1]
-    return out.reshape(x.shape)
+        s[i], c[i] = sincos(flat[i])
+    return s.reshape(x.shape), c.reshape(x.shape)
 
 
 @_jit
@@ -367,6 +358,18 @@ def weighted_rows(a, w):
 
 
 # --- linear algebra ----------------------------------------------------------
+@_inline
+def _back_substitute(u, y, m):
+    """x with u[:m, :m] x = y[:m] for an upper triangular u, sums in index order."""
+    x = np.empty(m)
+    for j in range(m - 1, -1, -1):
+        s = y[j]
+        for k in range(j + 1, m):
+            s -= u[j, k] * x[k]
+        x[j] = s / u[j, j]
+    return x
+
+
 @_jit
 def lstsq(a, b):
     """The least-squares solution x of a x = b (a: n x m, n >= m, full column
@@ -407,13 +410,7 @@ def lstsq(a, b):
         f = 2.0 * s / vnorm2
         for i in range(j, n):
             y[i] -= f * v[i]
-    x = np.empty(m)
-    for j in range(m - 1, -1, -1):
-        s = y[j]
-        for k in range(j + 1, m):
-            s -= r[j, k] * x[k]
-        x[j] = s / r[j, j]
-    return x
+    return _back_substitute(r, y, m)
 
 
 @_jit
@@ -439,12 +436,7 @@ def solve(a, b):
             for k in range(j, n):
                 m[i, k] -= f * m[j, k]
             x[i] -= f * x[j]
-    for j in range(n - 1, -1, -1):
-        s = x[j]
-        for k in range(j + 1, n):
-            s -= m[j, k] * x[k]
-        x[j] = s / m[j, j]
-    return x
+    return _back_substitute(m, x, n)
 
 
 @_jit

@@ -137,7 +137,7 @@ def _regress(system: SystemParams, speed_rps: float, theta: np.ndarray, effort: 
     x = nr * (theta + 0.5 * q)
     cols = [np.ones_like(x)]
     for h in HARMONICS:
-        cols += [fm.sin_array(h * x), fm.cos_array(h * x)]
+        cols += list(fm.sincos_array(h * x))
     a = np.column_stack(cols)
     # Fixed-order QR, not LAPACK: the model must not depend on the CPU (fixedmath).
     sol = fm.lstsq(a, effort)
