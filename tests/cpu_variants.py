@@ -47,8 +47,9 @@ VARIANTS: dict[str, tuple[dict[str, str], int]] = {
                    "GLIBC_TUNABLES": _NO_FMA_LIBC}, 1),
     "avx2": ({"OPENBLAS_CORETYPE": "Haswell", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V3,
               "ATEN_CPU_CAPABILITY": "avx2"}, 1),
+    # The combination the reproducibility issue names.
     "sandybridge": ({"OPENBLAS_CORETYPE": "Sandybridge", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V2,
-                     "ATEN_CPU_CAPABILITY": "default"}, 2),
+                     "ATEN_CPU_CAPABILITY": "default", "NUMBA_CPU_NAME": "generic"}, 2),
     "skylakex": ({"OPENBLAS_CORETYPE": "SkylakeX"}, 1),
     "numba-generic": ({"NUMBA_CPU_NAME": "generic"}, 2),
     "libc-no-fma": ({"GLIBC_TUNABLES": _NO_FMA_LIBC}, 2),
