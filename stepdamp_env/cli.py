@@ -130,11 +130,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .plots import plot_sweep, plot_velocity_error_traces, trace_speeds
     from .sweep import parse_speed_range, run_sweep
 
-    check_output_dir(args.out, "--out")
+    speeds = parse_speed_range(args.speeds)     # the arguments first, then the disk
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     dampings = list(dict.fromkeys(args.damping))
     settings = [_settings(args, d) for d in dampings]
-    speeds = parse_speed_range(args.speeds)
+    check_output_dir(args.out, "--out")
     backend = backend_map(args.backend, args.ray_address)
     results = [run_sweep(system, speeds, st, accel_rps2=args.accel, workers=args.workers,
                          backend=backend,

@@ -62,3 +62,24 @@ def test_report_check_reruns_a_boards_cells_and_finds_an_edited_file(tmp_path):
     check = stepdamp("report", str(out), "--check", "--sample", "1")
     assert check.returncode == 1
     assert "DIFFERS     board fingerprint (the files)" in check.stdout
+
+
+def test_check_finds_each_committed_run_by_its_speed():
+    """Labels repeat on a grid (every off-resonance speed is "off"): --check once
+    re-ran the first "off" speed for each of them and reported a difference."""
+    import os
+
+    from stepdamp_env.bench.check import job_of_run, protocol_of_board
+    from stepdamp_env.bench.motors import protocol_motors
+    from stepdamp_env.bench.report import load_leaderboard
+
+    board = load_leaderboard(os.path.join(os.path.dirname(__file__), "..", "docs", "results"))
+    motors = protocol_motors(protocol_of_board(board))
+    repeated = 0
+    for e in board["entries"]:
+        for r in e["runs"]:
+            job = job_of_run(motors, e, r)
+            speeds, labels = motors[job.motor_index].speeds(e["suite"])
+            assert speeds[job.speed_index] == r["speed_rps"]
+            repeated += labels.count(r["speed_label"]) > 1
+    assert repeated > 0

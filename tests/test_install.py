@@ -88,7 +88,9 @@ def test_pytest_runs_from_any_directory(tmp_path):
     out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                           os.path.join(root, "tests", "test_leaderboard.py"),
                           "-k", "cli_writes or may_not_set"],
-                         cwd=tmp_path, capture_output=True, text=True)
+                         cwd=tmp_path, capture_output=True, text=True,
+                         # CI's basetemp holds tmp_path: the inner run gets its own below it
+                         env={**os.environ, "PYTEST_ADDOPTS": f"--basetemp='{tmp_path / 'inner'}'"})
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
 
 

@@ -13,17 +13,17 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from .leaderboard import LeaderboardJob, identify_motor, run_cells
-from .motors import protocol_motors
+from .motors import ProtocolMotor, protocol_motors
 from .protocol_v1 import protocol_for
 from .provenance import board_fingerprint
 
-__all__ = ["protocol_of_board", "check_board"]
+__all__ = ["protocol_of_board", "job_of_run", "check_board"]
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -60,6 +60,26 @@ def _sample(board: Mapping[str, Any], size: int) -> list[tuple[Mapping, Mapping]
         return []
     picks = np.unique(np.linspace(0, len(runs) - 1, min(size, len(runs))).round().astype(int))
     return [runs[k] for k in picks]
+
+
+def job_of_run(motors: Sequence[ProtocolMotor], entry: Mapping[str, Any],
+               run: Mapping[str, Any]) -> LeaderboardJob:
+    """The leaderboard job that computed ``run`` of ``entry``; a one-line
+    ``ParameterError`` if the protocol's motors have no such run."""
+    names = [m.name for m in motors]
+    if run["motor"] not in names:
+        raise ParameterError(f"the board has a run on {run['motor']!r}, a motor its protocol "
+                             "does not have")
+    i = names.index(run["motor"])
+    # Labels repeat on a grid (every off-resonance speed is "off"): the speed decides.
+    grid = list(zip(*motors[i].speeds(entry["suite"])))
+    if (run["speed_rps"], run["speed_label"]) not in grid:
+        raise ParameterError(f"the board's run at {run['speed_rps']!r} rev/s "
+                             f"({run['speed_label']}) on {run['motor']!r} is not on the "
+                             f"protocol's {entry['suite']} grid")
+    return LeaderboardJob(entry["spec"], entry["suite"], i, run["seed"],
+                          grid.index((run["speed_rps"], run["speed_label"])),
+                          run.get("training_seed"))
 
 
 def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, Any]]:
@@ -102,18 +122,11 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
             _same(failed, recorded_failures.get(key))
         out.append({"what": f"identification {r['motor']} seed {r['seed']}", "reproduces": ok,
                     "detail": "" if ok else "the identified model differs"})
-    jobs = []
-    for e, r in picked:
-        labels = list(motors[index[r["motor"]]].speeds(e["suite"])[1])
-        if r["speed_label"] not in labels:
-            raise ParameterError(f"the board's run at {r['speed_label']!r} on {r['motor']!r} "
-                                 f"is not on the protocol's {e['suite']} grid {labels}")
-        jobs.append(LeaderboardJob(e["spec"], e["suite"], index[r["motor"]], r["seed"],
-                                   labels.index(r["speed_label"]), r.get("training_seed")))
+    jobs = [job_of_run(motors, e, r) for e, r in picked]
     for (e, r), got in zip(picked, run_cells(protocol, jobs, identified)):
         ok = _same(got, r)
         where = (f"{e['name']} | {e['suite']}{' | ' + e['split'] if 'split' in e else ''} | "
-                 f"{r['motor']} seed {r['seed']} {r['speed_label']}"
+                 f"{r['motor']} seed {r['seed']} {r['speed_label']} {r['speed_rps']:.4g} rev/s"
                  + (f" model {r['training_seed']}" if "training_seed" in r else ""))
         detail = ""
         if not ok:
