@@ -76,7 +76,7 @@ def bench_kernel_only(num_envs: int, seconds: float) -> float:
                   for system, v in zip(venv.systems, venv.speeds_rps)])
     s = np.stack([initial_state(row) for row in c])
     acc = new_accumulators(num_envs)
-    u = np.zeros((num_envs, K.N_INPUT))
+    u = np.zeros((num_envs, len(K.INPUT)))
     n = venv.sampler.n_periods
     K.run_batch(c, s, acc, u, n)
     steps = 0

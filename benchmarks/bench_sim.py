@@ -29,8 +29,8 @@ def measure(sim_seconds: float, repeats: int, speed_rps: float, motor: str) -> d
     system = load_system(motor)
     config = build_config(system, SpeedProfile(speed_rps), RunSettings(), window_start_s=0.1)
     n = int(round(sim_seconds * system.drive.pwm_hz))
-    empty = np.zeros((0, K.N_TRACE))
-    u = np.zeros(K.N_INPUT)
+    empty = np.zeros((0, len(K.TRACE)))
+    u = np.zeros(len(K.INPUT))
     K.run_periods(config, initial_state(config), new_accumulators(), u, 10, empty, 1)  # compile
     rates = []
     for _ in range(repeats):

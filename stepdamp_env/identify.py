@@ -94,24 +94,24 @@ def _servo_run(system: SystemParams, speed_rps: float, estimate: FeedforwardMode
     profile = SpeedProfile(speed_rps=speed_rps, accel_rps2=5.0)
     config = build_config(system, profile, settings, window_start_s=math.inf)
     # Harmonic feedforward but no Fs term: the effort's mean must keep carrying Fs.
-    config[K.C_FS_EST] = 0.0
+    config[K.CONFIG.FS_EST] = 0.0
     state = initial_state(config)
     acc = new_accumulators()
-    u = np.zeros(K.N_INPUT)
-    empty = np.zeros((0, K.N_TRACE))
+    u = np.zeros(len(K.INPUT))
+    empty = np.zeros((0, len(K.TRACE)))
     pwm = system.drive.pwm_hz
     n_skip = int(round((profile.duration_s() + settle_s) * pwm))
     K.run_periods(config, state, acc, u, n_skip, empty, 1)
     every = 1                                   # every control period: no aliasing
     n = int(round(measure_s * pwm))
-    trace = np.zeros((-(-n // every), K.N_TRACE))
+    trace = np.zeros((-(-n // every), len(K.TRACE)))
     rows = K.run_periods(config, state, acc, u, n, trace, every)
     trace = trace[:rows]
-    if acc[K.A_MAX_LAG] > system.motor.full_step_rad:
+    if acc[K.ACC.MAX_LAG] > system.motor.full_step_rad:
         raise RuntimeError(f"identification run at {speed_rps} rev/s lost steps")
     # Feedback part of the effort: the drive knows the feedforward it injected.
-    effort = system.motor.Km * (trace[:, K.T_IQ_CMD] - trace[:, K.T_IQ_FF])
-    return trace[:, K.T_THETA_FB], effort
+    effort = system.motor.Km * (trace[:, K.TRACE.IQ_CMD] - trace[:, K.TRACE.IQ_FF])
+    return trace[:, K.TRACE.THETA_FB], effort
 
 
 def effort_response(system: SystemParams, frequency_rad_s: float) -> complex:

@@ -3,10 +3,12 @@
 Everything here is a pure function of plain floats or of flat float64 arrays, so
 each piece can be called and tested from Python and the fused loop
 (:func:`run_periods`) can advance one drive or a batch (:func:`run_batch`) without
-leaving compiled code. Layouts of the arrays are the ``C_*`` (configuration,
-never changed by a step), ``S_*`` (state, changed by every step), ``A_*``
-(accumulated metrics), ``U_*`` (external inputs held for a call) and ``T_*``
-(trace channels) indices below; :mod:`stepdamp_env.simulation` builds them.
+leaving compiled code. The arrays' layouts are declared once below
+(:func:`stepdamp_env.fields.layout`): ``CONFIG`` (never changed by a step),
+``STATE`` (changed by every step), ``ACC`` (accumulated metrics), ``INPUT``
+(external inputs held for a call), ``LAW`` (the damping law's gains and state)
+and ``TRACE`` (trace channels); ``PLANT`` and ``CTRL`` name the positions of the
+parameter tuples the pieces share. :mod:`stepdamp_env.simulation` builds them.
 
 One PWM period of length dt = 1/pwm_hz, starting at t_k = k*dt, does:
 
@@ -30,6 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .fields import describe, layout
 from .fixedmath import log, sincos, sincos_shifted
 
 # No Python error checks on division: the inputs are validated before they get here.
@@ -45,205 +48,221 @@ _jit_inline = njit(cache=True, error_model="numpy", inline="always")
 # ---------------------------------------------------------------------------
 # Configuration vector (per drive, float64). Plant truth, drive, controller.
 # ---------------------------------------------------------------------------
-C_R = 0            # winding resistance (Ohm)
-C_L = 1            # winding inductance (H)
-C_KM = 2           # torque constant of the plant (N*m/A)
-C_NR = 3           # rotor teeth
-C_J = 4            # inertia (kg*m^2)
-C_D = 5            # viscous damping (N*m*s/rad)
-C_DET_S1 = 6       # plant detent as sin/cos coefficients (N*m), see detent_torque
-C_DET_C1 = 7
-C_DET_S2 = 8
-C_DET_C2 = 9
-C_DET_S4 = 10
-C_DET_C4 = 11
-C_FS = 12          # Coulomb/breakaway friction (N*m)
-C_LOAD = 13        # constant load torque (N*m)
-C_VDC = 14         # bus voltage (V)
-C_DT = 15          # PWM period (s)
-C_HOLD = 16        # open-loop holding current (A)
-C_MICROSTEP = 17   # shaft angle of one microstep (rad)
-C_KP_I = 18        # current PI proportional gain (V/A)
-C_KI_I = 19        # current PI integral gain (V/(A*s))
-C_ENCODER = 20     # shaft angle of one encoder count (rad)
-C_VEL_ALPHA = 21   # velocity low-pass coefficient per period, 1 - exp(-2*pi*fc*dt)
-C_KP_VEL = 22      # servo velocity gain (N*m*s/rad)
-C_KP_POS = 23      # servo position gain (N*m/rad)
-C_KI_POS = 24      # servo position integral gain (N*m/(rad*s))
-C_MODE = 25        # 0 open loop, 1 servo
-C_FF_ON = 26       # 1 if the base harmonic feedforward is on ("patent-ff")
-C_KM_EST = 27      # controller's estimate of Km (N*m/A)
-C_FS_EST = 28      # controller's estimate of Fs (N*m), servo feedforward
-C_FF_S1 = 29       # controller's detent estimate as sin/cos coefficients (N*m)
-C_FF_C1 = 30
-C_FF_S2 = 31
-C_FF_C2 = 32
-C_FF_S4 = 33
-C_FF_C4 = 34
-C_SUBSTEPS = 35    # RK4 steps per PWM period
-C_W_STICK = 36     # stiction velocity band (rad/s)
-C_PROFILE = 37     # 0 constant speed after a ramp, 1 point-to-point move
-C_SPEED = 38       # command speed (rad/s, signed)
-C_ACCEL = 39       # command acceleration (rad/s^2, > 0)
-C_DISTANCE = 40    # move distance (rad, signed), profile 1 only
-C_WINDOW_START = 41  # metrics window start (s)
-C_REF_SPEED = 42   # speed whose harmonics the metrics lock on to (rad/s)
-C_I_NOISE = 43     # current-sensor noise, standard deviation per sample (A)
-C_I_OFFSET_A = 44  # current-sensor offsets of phases A and B (A)
-C_I_OFFSET_B = 45
-C_NOISE_SEED = 46  # seed of the sensor noise (an integer below 2**53)
-C_VEL_EST = 47     # velocity estimator: 0 encoder difference + low-pass, 1 Kalman filter,
-                   # 2 back-EMF observer (no encoder)
-C_KF_K0 = 48       # steady-state Kalman gains on the encoder innovation
-C_KF_K1 = 49       # (position: dimensionless, velocity: 1/s)
-C_BEMF_G1 = 50     # back-EMF observer: e = v - G1*i_k + G2*i_(k-1) (Ohm), the exact
-C_BEMF_G2 = 51     # one-period winding solution, G1 = R/(1-a), G2 = R*a/(1-a), a = exp(-R*dt/L)
-C_DRIVE_MODE = 52  # DRIVE_CURRENT (DQ PI loops) or DRIVE_VOLTAGE (winding-model voltages)
-C_R_EST = 53       # the voltage-mode drive's model of the winding: resistance (Ohm)
-C_L_EST = 54       # and inductance (H)
-N_CONFIG = 55
+CONFIG = layout("Config", """
+    R             winding resistance (Ohm)
+    L             winding inductance (H)
+    KM            torque constant of the plant (N*m/A)
+    NR            rotor teeth
+    J             inertia (kg*m^2)
+    D             viscous damping (N*m*s/rad)
+    DET_S1        plant detent as sin/cos coefficients (N*m), see detent_torque
+    DET_C1
+    DET_S2
+    DET_C2
+    DET_S4
+    DET_C4
+    FS            Coulomb/breakaway friction (N*m)
+    LOAD          constant load torque (N*m)
+    VDC           bus voltage (V)
+    DT            PWM period (s)
+    HOLD          open-loop holding current (A)
+    MICROSTEP     shaft angle of one microstep (rad)
+    KP_I          current PI proportional gain (V/A)
+    KI_I          current PI integral gain (V/(A*s))
+    ENCODER       shaft angle of one encoder count (rad)
+    VEL_ALPHA     velocity low-pass coefficient per period, 1 - exp(-2*pi*fc*dt)
+    KP_VEL        servo velocity gain (N*m*s/rad)
+    KP_POS        servo position gain (N*m/rad)
+    KI_POS        servo position integral gain (N*m/(rad*s))
+    MODE          a MODE code: OPEN_LOOP or SERVO
+    FF_ON         1 if the base harmonic feedforward is on ("patent-ff")
+    KM_EST        controller's estimate of Km (N*m/A)
+    FS_EST        controller's estimate of Fs (N*m), servo feedforward
+    FF_S1         controller's detent estimate as sin/cos coefficients (N*m)
+    FF_C1
+    FF_S2
+    FF_C2
+    FF_S4
+    FF_C4
+    SUBSTEPS      RK4 steps per PWM period
+    W_STICK       stiction velocity band (rad/s)
+    PROFILE       a PROFILE code: CONSTANT (speed after a ramp) or MOVE (point to point)
+    SPEED         command speed (rad/s, signed)
+    ACCEL         command acceleration (rad/s^2, > 0)
+    DISTANCE      move distance (rad, signed), profile 1 only
+    WINDOW_START  metrics window start (s)
+    REF_SPEED     speed whose harmonics the metrics lock on to (rad/s)
+    I_NOISE       current-sensor noise, standard deviation per sample (A)
+    I_OFFSET_A    current-sensor offsets of phases A and B (A)
+    I_OFFSET_B
+    NOISE_SEED    seed of the sensor noise (an integer below 2**53)
+    VEL_EST       velocity estimator, a VEL_EST code: encoder difference + low-pass,
+                  Kalman filter, or back-EMF observer (no encoder)
+    KF_K0         steady-state Kalman gain on the encoder innovation, position (1)
+    KF_K1         the same, velocity (1/s)
+    BEMF_G1       back-EMF observer: e = v - G1*i_k + G2*i_(k-1) (Ohm), the exact
+                  one-period winding solution, G1 = R/(1-a), G2 = R*a/(1-a),
+                  a = exp(-R*dt/L)
+    BEMF_G2       (Ohm)
+    DRIVE_MODE    a DRIVE code: CURRENT (DQ PI loops) or VOLTAGE (winding-model voltages)
+    R_EST         the voltage-mode drive's model of the winding: resistance (Ohm)
+    L_EST         and inductance (H)
+""")
 
-DRIVE_CURRENT = 0
-DRIVE_VOLTAGE = 1
-
-VEL_EST_LOWPASS = 0
-VEL_EST_KALMAN = 1
-VEL_EST_BACK_EMF = 2
-
-MODE_OPEN_LOOP = 0
-MODE_SERVO = 1
-PROFILE_CONSTANT = 0
-PROFILE_MOVE = 1
+# Codes of the float fields that select a variant.
+DRIVE = layout("Drive", """
+    CURRENT    DQ PI current loops
+    VOLTAGE    winding-model voltages (mid-band)
+""")
+VEL_EST = layout("VelocityEstimator", """
+    LOWPASS    encoder difference and a first-order low-pass
+    KALMAN     steady-state Kalman filter on the encoder
+    BACK_EMF   back-EMF observer (no encoder)
+""")
+MODE = layout("Mode", """
+    OPEN_LOOP  holding current, no position feedback
+    SERVO      velocity and position loops on the encoder
+""")
+PROFILE = layout("Profile", """
+    CONSTANT   constant speed after a ramp
+    MOVE       point-to-point move
+""")
 
 # ---------------------------------------------------------------------------
-# Positions in the tuple of plant_params (per drive, float64). The kernel reads
-# it by these names; numba folds module-level ints to constants, so a named
-# read compiles exactly like a literal index.
+# Positions in the tuple of plant_params (per drive, float64). numba reads a
+# module-level layout as a constant: a named read compiles like a literal index.
 # ---------------------------------------------------------------------------
-P_R = 0            # winding resistance (Ohm)
-P_INV_L = 1        # inverse winding inductance (1/H)
-P_KM = 2           # torque constant (N*m/A)
-P_NR = 3           # rotor teeth (electrical angle per shaft angle)
-P_INV_J = 4        # inverse inertia (1/(kg*m^2))
-P_D = 5            # viscous damping (N*m*s/rad)
-P_DET_S1 = 6       # detent as sin/cos coefficients of harmonics 1, 2, 4 (N*m)
-P_DET_C1 = 7
-P_DET_S2 = 8
-P_DET_C2 = 9
-P_DET_S4 = 10
-P_DET_C4 = 11
-P_FS = 12          # Coulomb/breakaway friction (N*m)
-P_LOAD = 13        # constant load torque (N*m)
+PLANT = layout("Plant", """
+    R       winding resistance (Ohm)
+    INV_L   inverse winding inductance (1/H)
+    KM      torque constant (N*m/A)
+    NR      rotor teeth (electrical angle per shaft angle)
+    INV_J   inverse inertia (1/(kg*m^2))
+    D       viscous damping (N*m*s/rad)
+    DET_S1  detent as sin/cos coefficients of harmonics 1, 2, 4 (N*m)
+    DET_C1
+    DET_S2
+    DET_C2
+    DET_S4
+    DET_C4
+    FS      Coulomb/breakaway friction (N*m)
+    LOAD    constant load torque (N*m)
+""")
 
 # ---------------------------------------------------------------------------
 # Positions in the tuple of controller_params (per drive, float64).
 # ---------------------------------------------------------------------------
-Q_DT = 0           # PWM period (s)
-Q_NR = 1           # rotor teeth (electrical angle per shaft angle)
-Q_HOLD = 2         # open-loop holding current (A)
-Q_MICROSTEP = 3    # shaft angle of one microstep (rad)
-Q_KP_I = 4         # current PI proportional gain (V/A)
-Q_KI_I = 5         # current PI integral gain (V/(A*s))
-Q_ENCODER = 6      # shaft angle of one encoder count (rad)
-Q_VEL_ALPHA = 7    # velocity low-pass coefficient per period (dimensionless)
-Q_KP_VEL = 8       # servo velocity gain (N*m*s/rad)
-Q_KP_POS = 9       # servo position gain (N*m/rad)
-Q_KI_POS = 10      # servo position integral gain (N*m/(rad*s))
-Q_MODE = 11        # MODE_OPEN_LOOP or MODE_SERVO
-Q_FF_ON = 12       # 1.0 if the base harmonic feedforward is on, else 0.0
-Q_KM_EST = 13      # controller's estimate of Km (N*m/A)
-Q_FS_EST = 14      # controller's estimate of Fs (N*m)
-Q_FF_S1 = 15       # controller's detent estimate, sin/cos coefficients (N*m)
-Q_FF_C1 = 16
-Q_FF_S2 = 17
-Q_FF_C2 = 18
-Q_FF_S4 = 19
-Q_FF_C4 = 20
-Q_VDC = 21         # bus voltage (V)
-Q_PROFILE = 22     # PROFILE_CONSTANT or PROFILE_MOVE
-Q_SPEED = 23       # command speed (rad/s, signed)
-Q_ACCEL = 24       # command acceleration (rad/s^2)
-Q_DISTANCE = 25    # move distance (rad, signed)
-Q_I_NOISE = 26     # current-sensor noise, standard deviation per sample (A)
-Q_I_OFFSET_A = 27  # current-sensor offsets of phases A and B (A)
-Q_I_OFFSET_B = 28
-Q_NOISE_SEED = 29  # seed of the sensor noise (integer-valued)
-Q_VEL_EST = 30     # VEL_EST_LOWPASS or VEL_EST_KALMAN
-Q_KF_K0 = 31       # Kalman gain on the innovation, position (dimensionless)
-Q_KF_K1 = 32       # Kalman gain on the innovation, velocity (1/s)
-Q_BEMF_G1 = 33     # back-EMF observer constants (Ohm), see C_BEMF_G1
-Q_BEMF_G2 = 34
-Q_DRIVE_MODE = 35  # DRIVE_CURRENT or DRIVE_VOLTAGE
-Q_R_EST = 36       # voltage mode's winding model: resistance (Ohm), inductance (H)
-Q_L_EST = 37
+CTRL = layout("Controller", """
+    DT          PWM period (s)
+    NR          rotor teeth (electrical angle per shaft angle)
+    HOLD        open-loop holding current (A)
+    MICROSTEP   shaft angle of one microstep (rad)
+    KP_I        current PI proportional gain (V/A)
+    KI_I        current PI integral gain (V/(A*s))
+    ENCODER     shaft angle of one encoder count (rad)
+    VEL_ALPHA   velocity low-pass coefficient per period (dimensionless)
+    KP_VEL      servo velocity gain (N*m*s/rad)
+    KP_POS      servo position gain (N*m/rad)
+    KI_POS      servo position integral gain (N*m/(rad*s))
+    MODE        a MODE code
+    FF_ON       1.0 if the base harmonic feedforward is on, else 0.0
+    KM_EST      controller's estimate of Km (N*m/A)
+    FS_EST      controller's estimate of Fs (N*m)
+    FF_S1       controller's detent estimate, sin/cos coefficients (N*m)
+    FF_C1
+    FF_S2
+    FF_C2
+    FF_S4
+    FF_C4
+    VDC         bus voltage (V)
+    PROFILE     a PROFILE code
+    SPEED       command speed (rad/s, signed)
+    ACCEL       command acceleration (rad/s^2)
+    DISTANCE    move distance (rad, signed)
+    I_NOISE     current-sensor noise, standard deviation per sample (A)
+    I_OFFSET_A  current-sensor offsets of phases A and B (A)
+    I_OFFSET_B
+    NOISE_SEED  seed of the sensor noise (integer-valued)
+    VEL_EST     a VEL_EST code
+    KF_K0       Kalman gain on the innovation, position (dimensionless)
+    KF_K1       Kalman gain on the innovation, velocity (1/s)
+    BEMF_G1     back-EMF observer constants (Ohm), see CONFIG.BEMF_G1
+    BEMF_G2
+    DRIVE_MODE  a DRIVE code
+    R_EST       voltage mode's winding model: resistance (Ohm), inductance (H)
+    L_EST
+""")
 
 # ---------------------------------------------------------------------------
 # State vector (per drive, float64).
 # ---------------------------------------------------------------------------
-S_PERIOD = 0       # PWM periods done (exact integer in a float64)
-S_THETA = 1        # shaft angle (rad)
-S_OMEGA = 2        # shaft speed (rad/s)
-S_IA = 3           # phase A current (A)
-S_IB = 4           # phase B current (A)
-S_E_IN = 5         # energy supplied to the windings (J)
-S_E_CU = 6         # copper loss (J)
-S_E_DAMP = 7       # viscous loss (J)
-S_E_FRIC = 8       # friction loss (J)
-S_E_LOAD = 9       # work done on the load torque (J)
-S_INT_D = 10       # d-axis PI integrator (V)
-S_INT_Q = 11       # q-axis PI integrator (V)
-S_VA_NEXT = 12     # winding voltages computed this period, applied next (V)
-S_VB_NEXT = 13
-S_THETA_FB_PREV = 14  # previous encoder angle (rad)
-S_OMEGA_FB = 15    # filtered velocity estimate (rad/s)
-S_POS_INT = 16     # servo integral of the position error (rad*s)
-S_THETA_FB = 17    # last encoder angle (rad)
-S_THETA_CMD = 18   # last command angle (rad)
-S_OMEGA_CMD = 19   # last command speed (rad/s)
-S_ID_MEAS = 20     # last measured d/q currents in the Park frame (A)
-S_IQ_MEAS = 21
-S_IQ_FF = 22       # last injected feedforward + residual q current (A)
-S_PARK_ANGLE = 23  # last Park (electrical) angle (rad)
-S_THETA_EST = 24   # Kalman estimate of the shaft angle (rad)
-S_IA_PREV = 25     # measured phase currents of the previous sample (A), back-EMF observer
-S_IB_PREV = 26
-S_VA_OLD = 27      # winding voltages applied during the period that just ended (V)
-S_VB_OLD = 28
-N_STATE = 29
+STATE = layout("State", """
+    PERIOD         PWM periods done (exact integer in a float64)
+    THETA          shaft angle (rad)
+    OMEGA          shaft speed (rad/s)
+    IA             phase A current (A)
+    IB             phase B current (A)
+    E_IN           energy supplied to the windings (J)
+    E_CU           copper loss (J)
+    E_DAMP         viscous loss (J)
+    E_FRIC         friction loss (J)
+    E_LOAD         work done on the load torque (J)
+    INT_D          d-axis PI integrator (V)
+    INT_Q          q-axis PI integrator (V)
+    VA_NEXT        winding voltages computed this period, applied next (V)
+    VB_NEXT
+    THETA_FB_PREV  previous encoder angle (rad)
+    OMEGA_FB       filtered velocity estimate (rad/s)
+    POS_INT        servo integral of the position error (rad*s)
+    THETA_FB       last encoder angle (rad)
+    THETA_CMD      last command angle (rad)
+    OMEGA_CMD      last command speed (rad/s)
+    ID_MEAS        last measured d/q currents in the Park frame (A)
+    IQ_MEAS
+    IQ_FF          last injected feedforward + residual q current (A)
+    PARK_ANGLE     last Park (electrical) angle (rad)
+    THETA_EST      Kalman estimate of the shaft angle (rad)
+    IA_PREV        measured phase currents of the previous sample (A), back-EMF observer
+    IB_PREV
+    VA_OLD         winding voltages applied during the period that just ended (V)
+    VB_OLD
+""")
 
 # ---------------------------------------------------------------------------
 # Accumulated metrics (per drive). Window sums use samples with t >= window start.
 # ---------------------------------------------------------------------------
-A_COUNT = 0        # samples in the window
-A_SUM_E = 1        # sum of velocity error w_cmd - w (rad/s)
-A_SUM_E2 = 2       # sum of its square
-A_MIN_E = 3
-A_MAX_E = 4
-A_SUM_IFF2 = 5     # sum of the squared injected q current (A^2)
-A_H1_S = 6         # lock-in sums of the error against h*Nr*theta_ref, h = 1, 2, 4
-A_H1_C = 7
-A_H2_S = 8
-A_H2_C = 9
-A_H4_S = 10
-A_H4_C = 11
-A_MAX_LAG = 12     # max |theta_cmd - theta| over all samples (rad)
-A_MAX_CURRENT = 13  # max |i| of either phase over all samples (A)
-A_SUM_E2_ALL = 14  # sum of squared velocity error over all samples
-A_COUNT_ALL = 15
-A_SUM_IFF2_ALL = 16
-N_ACC = 17
+ACC = layout("Accumulators", """
+    COUNT         samples in the window
+    SUM_E         sum of velocity error w_cmd - w (rad/s)
+    SUM_E2        sum of its square
+    MIN_E
+    MAX_E
+    SUM_IFF2      sum of the squared injected q current (A^2)
+    H1_S          lock-in sums of the error against h*Nr*theta_ref, h = 1, 2, 4
+    H1_C
+    H2_S
+    H2_C
+    H4_S
+    H4_C
+    MAX_LAG       max |theta_cmd - theta| over all samples (rad)
+    MAX_CURRENT   max |i| of either phase over all samples (A)
+    SUM_E2_ALL    sum of squared velocity error over all samples
+    COUNT_ALL
+    SUM_IFF2_ALL
+""")
 
 # ---------------------------------------------------------------------------
 # External inputs held for one call (per drive): residual policy actions.
 # ---------------------------------------------------------------------------
-U_DS1 = 0          # corrections to the feedforward coefficients (N*m)
-U_DC1 = 1
-U_DS2 = 2
-U_DC2 = 3
-U_DS4 = 4
-U_DC4 = 5
-U_IQ = 6           # residual q current (A)
-N_INPUT = 7
+INPUT = layout("Input", """
+    DS1  corrections to the feedforward coefficients (N*m)
+    DC1
+    DS2
+    DC2
+    DS4
+    DC4
+    IQ   residual q current (A)
+""")
 
 # ---------------------------------------------------------------------------
 # Damping law (per drive, float64), evaluated every PWM period by
@@ -254,54 +273,51 @@ N_INPUT = 7
 # resonant phasor a_h + j b_h integrates (KR_h + j KI_h) times the velocity
 # error demodulated at h*x (sin + j cos), clamped to +-limit.
 # ---------------------------------------------------------------------------
-L_KV = 0           # velocity gain (A per rad/s)
-L_KP = 1           # high-passed position gain (A per rad): with L_KV, a phase lead
-L_KR1 = 2          # resonant gains, real and imaginary, h = 1, 2, 4 (A/s per rad/s)
-L_KI1 = 3
-L_KR2 = 4
-L_KI2 = 5
-L_KR4 = 6
-L_KI4 = 7
-L_HP_ALPHA = 8     # high-pass coefficient per period, 1 - exp(-2*pi*fc*dt)
-L_LIMIT = 9        # bound of the law's current and of each resonant coefficient (A)
-L_E_LP = 10        # state: low-passed position error (rad)
-L_A1 = 11          # state: resonant coefficients of sin/cos h x, h = 1, 2, 4 (A)
-L_B1 = 12
-L_A2 = 13
-L_B2 = 14
-L_A4 = 15
-L_B4 = 16
-L_SUM_I2 = 17      # sum over periods of the law's current squared (A^2), zeroed by the caller
-L_RESONANT = 18    # 1.0 while a resonant gain or coefficient is non-zero (set at each call)
-N_LAW = 19
-N_LAW_GAINS = 8    # L_KV .. L_KI4: what an agent sets
+LAW = layout("Law", """
+    KV        velocity gain (A per rad/s)
+    KP        high-passed position gain (A per rad): with KV, a phase lead
+    KR1       resonant gains, real and imaginary, h = 1, 2, 4 (A/s per rad/s)
+    KI1
+    KR2
+    KI2
+    KR4
+    KI4
+    HP_ALPHA  high-pass coefficient per period, 1 - exp(-2*pi*fc*dt)
+    LIMIT     bound of the law's current and of each resonant coefficient (A)
+    E_LP      state: low-passed position error (rad)
+    A1        state: resonant coefficients of sin/cos h x, h = 1, 2, 4 (A)
+    B1
+    A2
+    B2
+    A4
+    B4
+    SUM_I2    sum over periods of the law's current squared (A^2), zeroed by the caller
+    RESONANT  1.0 while a resonant gain or coefficient is non-zero (set at each call)
+""")
 
 # ---------------------------------------------------------------------------
 # Trace channels: one row per recorded PWM period.
 # ---------------------------------------------------------------------------
-T_T = 0
-T_THETA = 1
-T_OMEGA = 2
-T_THETA_CMD = 3
-T_OMEGA_CMD = 4
-T_IA = 5
-T_IB = 6
-T_VA = 7           # winding voltages applied during the period (V)
-T_VB = 8
-T_ID = 9
-T_IQ = 10
-T_IQ_CMD = 11
-T_IQ_FF = 12
-T_THETA_FB = 13
-T_OMEGA_FB = 14
-N_TRACE = 15
-TRACE_NAMES = ("t", "theta", "omega", "theta_cmd", "omega_cmd", "ia", "ib", "va",
-               "vb", "id", "iq", "iq_cmd", "iq_ff", "theta_fb", "omega_fb")
+TRACE = layout("Trace", """
+    T           s
+    THETA       rad
+    OMEGA       rad/s
+    THETA_CMD   rad
+    OMEGA_CMD   rad/s
+    IA          A
+    IB          A
+    VA          V, winding voltages applied during the period
+    VB          V
+    ID          A
+    IQ          A
+    IQ_CMD      A
+    IQ_FF       A
+    THETA_FB    rad
+    OMEGA_FB    rad/s
+""")
+TRACE_NAMES = tuple(name.lower() for name in TRACE._fields)
 #: SI unit of each trace channel.
-TRACE_UNITS = {"t": "s", "theta": "rad", "omega": "rad/s", "theta_cmd": "rad",
-               "omega_cmd": "rad/s", "ia": "A", "ib": "A", "va": "V", "vb": "V", "id": "A",
-               "iq": "A", "iq_cmd": "A", "iq_ff": "A", "theta_fb": "rad", "omega_fb": "rad/s"}
-
+TRACE_UNITS = {name.lower(): text.split(",")[0] for name, text in describe(TRACE).items()}
 
 # ---------------------------------------------------------------------------
 # Small pieces. Each is a pure function of floats and float tuples.
@@ -390,29 +406,29 @@ def plant_params(c):
     Positions are the ``P_*`` names: (R, 1/L, Km, Nr, 1/J, D, detent s1, c1,
     s2, c2, s4, c4, Fs, load_torque).
     """
-    return (c[C_R], 1.0 / c[C_L], c[C_KM], c[C_NR], 1.0 / c[C_J], c[C_D],
-            c[C_DET_S1], c[C_DET_C1], c[C_DET_S2], c[C_DET_C2], c[C_DET_S4], c[C_DET_C4],
-            c[C_FS], c[C_LOAD])
+    return (c[CONFIG.R], 1.0 / c[CONFIG.L], c[CONFIG.KM], c[CONFIG.NR], 1.0 / c[CONFIG.J], c[CONFIG.D],
+            c[CONFIG.DET_S1], c[CONFIG.DET_C1], c[CONFIG.DET_S2], c[CONFIG.DET_C2], c[CONFIG.DET_S4], c[CONFIG.DET_C4],
+            c[CONFIG.FS], c[CONFIG.LOAD])
 
 
 @_jit
 def detent_torque(theta, p):
     """Detent torque (N*m): -Kd4 sin 4x - Kd2 sin(2x + phi2) - Kd1 sin(x + phi1), x = Nr*theta."""
-    s1, c1 = sincos(p[P_NR] * theta)
-    return -harmonic_series(s1, c1, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2], p[P_DET_C2],
-                            p[P_DET_S4], p[P_DET_C4])
+    s1, c1 = sincos(p[PLANT.NR] * theta)
+    return -harmonic_series(s1, c1, p[PLANT.DET_S1], p[PLANT.DET_C1], p[PLANT.DET_S2], p[PLANT.DET_C2],
+                            p[PLANT.DET_S4], p[PLANT.DET_C4])
 
 
 @_jit
 def detent_potential(theta, p):
     """Potential energy V(theta) (J) of the detent torque: torque = -dV/dtheta."""
-    nr = p[P_NR]
+    nr = p[PLANT.NR]
     s1, c1 = sincos(nr * theta)
     s2, c2, s4, c4 = harmonics(s1, c1)
     # a sin hx + b cos hx integrates over theta to -(a cos hx - b sin hx)/(h Nr).
-    return -((p[P_DET_S1] * c1 - p[P_DET_C1] * s1) / nr
-             + (p[P_DET_S2] * c2 - p[P_DET_C2] * s2) / (2.0 * nr)
-             + (p[P_DET_S4] * c4 - p[P_DET_C4] * s4) / (4.0 * nr))
+    return -((p[PLANT.DET_S1] * c1 - p[PLANT.DET_C1] * s1) / nr
+             + (p[PLANT.DET_S2] * c2 - p[PLANT.DET_C2] * s2) / (2.0 * nr)
+             + (p[PLANT.DET_S4] * c4 - p[PLANT.DET_C4] * s4) / (4.0 * nr))
 
 
 @_jit_inline
@@ -439,28 +455,28 @@ def friction_torque(omega, tau_drive, fs):
 @_jit
 def driving_torque(theta, omega, ia, ib, p):
     """Every torque on the rotor except friction (N*m)."""
-    s1, c1 = sincos(p[P_NR] * theta)
-    det = harmonic_series(s1, c1, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2], p[P_DET_C2],
-                          p[P_DET_S4], p[P_DET_C4])
-    return (electromagnetic_torque(ia, ib, s1, c1, p[P_KM]) - det - p[P_D] * omega
-            - p[P_LOAD])
+    s1, c1 = sincos(p[PLANT.NR] * theta)
+    det = harmonic_series(s1, c1, p[PLANT.DET_S1], p[PLANT.DET_C1], p[PLANT.DET_S2], p[PLANT.DET_C2],
+                          p[PLANT.DET_S4], p[PLANT.DET_C4])
+    return (electromagnetic_torque(ia, ib, s1, c1, p[PLANT.KM]) - det - p[PLANT.D] * omega
+            - p[PLANT.LOAD])
 
 
 @_jit_inline
 def motor_derivative_sc(sin_x, cos_x, omega, ia, ib, va, vb, p):
     """:func:`motor_derivative` given sin and cos of x = Nr*theta."""
-    r, inv_l, km, d = p[P_R], p[P_INV_L], p[P_KM], p[P_D]
-    tau_det = harmonic_series(sin_x, cos_x, p[P_DET_S1], p[P_DET_C1], p[P_DET_S2],
-                              p[P_DET_C2], p[P_DET_S4], p[P_DET_C4])
+    r, inv_l, km, d = p[PLANT.R], p[PLANT.INV_L], p[PLANT.KM], p[PLANT.D]
+    tau_det = harmonic_series(sin_x, cos_x, p[PLANT.DET_S1], p[PLANT.DET_C1], p[PLANT.DET_S2],
+                              p[PLANT.DET_C2], p[PLANT.DET_S4], p[PLANT.DET_C4])
     tau_drive = (electromagnetic_torque(ia, ib, sin_x, cos_x, km) - tau_det - d * omega
-                 - p[P_LOAD])
-    fric = friction_torque(omega, tau_drive, p[P_FS])
+                 - p[PLANT.LOAD])
+    fric = friction_torque(omega, tau_drive, p[PLANT.FS])
     # Back-EMF ea = -Km w sin x, eb = Km w cos x (eq. 2 with the cosine).
     dia = (va - r * ia + km * omega * sin_x) * inv_l
     dib = (vb - r * ib - km * omega * cos_x) * inv_l
-    return (omega, (tau_drive - fric) * p[P_INV_J], dia, dib,
+    return (omega, (tau_drive - fric) * p[PLANT.INV_J], dia, dib,
             va * ia + vb * ib, r * (ia * ia + ib * ib), d * omega * omega,
-            fric * omega, p[P_LOAD] * omega)
+            fric * omega, p[PLANT.LOAD] * omega)
 
 
 @_jit
@@ -472,7 +488,7 @@ def motor_derivative(theta, omega, ia, ib, va, vb, p):
     supplied to the windings, lost in copper, in viscous damping, in friction
     and delivered to the load torque.
     """
-    s1, c1 = sincos(p[P_NR] * theta)
+    s1, c1 = sincos(p[PLANT.NR] * theta)
     return motor_derivative_sc(s1, c1, omega, ia, ib, va, vb, p)
 
 
@@ -485,7 +501,7 @@ def rk4_step(x, va, vb, p, h):
     the integrator's accuracy. Returns the new ``x``.
     """
     th, w, ia, ib = x[0], x[1], x[2], x[3]
-    nr = p[P_NR]
+    nr = p[PLANT.NR]
     hh = 0.5 * h
     x0 = nr * th
     s0, c0 = sincos(x0)
@@ -521,7 +537,7 @@ def plant_step(x, va, vb, p, h, w_stick):
     friction holds it for the step. Returns the new ``x`` (see rk4_step).
     """
     w = x[1]
-    if abs(w) < w_stick and abs(driving_torque(x[0], 0.0, x[2], x[3], p)) <= p[P_FS]:
+    if abs(w) < w_stick and abs(driving_torque(x[0], 0.0, x[2], x[3], p)) <= p[PLANT.FS]:
         return rk4_step_stuck(x, va, vb, p, h)
     return rk4_step(x, va, vb, p, h)
 
@@ -535,8 +551,8 @@ def rk4_step_stuck(x, va, vb, p, h):
     put for the step; only the currents and the electrical energies move.
     """
     w = x[1]
-    e_fric = x[7] + 0.5 * w * w / p[P_INV_J]
-    r, inv_l = p[P_R], p[P_INV_L]
+    e_fric = x[7] + 0.5 * w * w / p[PLANT.INV_J]
+    r, inv_l = p[PLANT.R], p[PLANT.INV_L]
     ia, ib = x[2], x[3]
     hh = 0.5 * h
     a1, b1 = (va - r * ia) * inv_l, (vb - r * ib) * inv_l
@@ -603,7 +619,7 @@ def command(t, kind, speed, accel, distance):
     kind 1: trapezoidal (or triangular) move of ``distance`` (signed) at up to |speed|.
     """
     a = accel
-    if kind == PROFILE_CONSTANT:
+    if kind == PROFILE.CONSTANT:
         sgn = 1.0 if speed >= 0.0 else -1.0
         t_ramp = abs(speed) / a
         if t < t_ramp:
@@ -639,14 +655,14 @@ def controller_params(c):
     velocity estimator, Kalman k0, k1, back-EMF G1, G2, drive mode, R and L of
     the voltage mode's winding model).
     """
-    return (c[C_DT], c[C_NR], c[C_HOLD], c[C_MICROSTEP], c[C_KP_I], c[C_KI_I],
-            c[C_ENCODER], c[C_VEL_ALPHA], c[C_KP_VEL], c[C_KP_POS], c[C_KI_POS],
-            c[C_MODE], c[C_FF_ON], c[C_KM_EST], c[C_FS_EST],
-            c[C_FF_S1], c[C_FF_C1], c[C_FF_S2], c[C_FF_C2], c[C_FF_S4], c[C_FF_C4],
-            c[C_VDC], c[C_PROFILE], c[C_SPEED], c[C_ACCEL], c[C_DISTANCE],
-            c[C_I_NOISE], c[C_I_OFFSET_A], c[C_I_OFFSET_B], c[C_NOISE_SEED], c[C_VEL_EST],
-            c[C_KF_K0], c[C_KF_K1], c[C_BEMF_G1], c[C_BEMF_G2], c[C_DRIVE_MODE],
-            c[C_R_EST], c[C_L_EST])
+    return (c[CONFIG.DT], c[CONFIG.NR], c[CONFIG.HOLD], c[CONFIG.MICROSTEP], c[CONFIG.KP_I], c[CONFIG.KI_I],
+            c[CONFIG.ENCODER], c[CONFIG.VEL_ALPHA], c[CONFIG.KP_VEL], c[CONFIG.KP_POS], c[CONFIG.KI_POS],
+            c[CONFIG.MODE], c[CONFIG.FF_ON], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
+            c[CONFIG.FF_S1], c[CONFIG.FF_C1], c[CONFIG.FF_S2], c[CONFIG.FF_C2], c[CONFIG.FF_S4], c[CONFIG.FF_C4],
+            c[CONFIG.VDC], c[CONFIG.PROFILE], c[CONFIG.SPEED], c[CONFIG.ACCEL], c[CONFIG.DISTANCE],
+            c[CONFIG.I_NOISE], c[CONFIG.I_OFFSET_A], c[CONFIG.I_OFFSET_B], c[CONFIG.NOISE_SEED], c[CONFIG.VEL_EST],
+            c[CONFIG.KF_K0], c[CONFIG.KF_K1], c[CONFIG.BEMF_G1], c[CONFIG.BEMF_G2], c[CONFIG.DRIVE_MODE],
+            c[CONFIG.R_EST], c[CONFIG.L_EST])
 
 
 @_jit_inline
@@ -656,11 +672,11 @@ def feedforward_torque(sin_x, cos_x, q, u):
     The base model (eq. 8 / eq. 15 harmonics, scaled by ff_on) plus the
     external coefficient corrections in ``u`` (see ``U_*``).
     """
-    on = q[Q_FF_ON]
+    on = q[CTRL.FF_ON]
     return harmonic_series(sin_x, cos_x,
-                           on * q[Q_FF_S1] + u[U_DS1], on * q[Q_FF_C1] + u[U_DC1],
-                           on * q[Q_FF_S2] + u[U_DS2], on * q[Q_FF_C2] + u[U_DC2],
-                           on * q[Q_FF_S4] + u[U_DS4], on * q[Q_FF_C4] + u[U_DC4])
+                           on * q[CTRL.FF_S1] + u[INPUT.DS1], on * q[CTRL.FF_C1] + u[INPUT.DC1],
+                           on * q[CTRL.FF_S2] + u[INPUT.DS2], on * q[CTRL.FF_C2] + u[INPUT.DC2],
+                           on * q[CTRL.FF_S4] + u[INPUT.DS4], on * q[CTRL.FF_C4] + u[INPUT.DC4])
 
 
 @_jit_inline
@@ -681,56 +697,56 @@ def control_step(period, theta, ia, ib, cs, q, u):
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
         vb_old = cs
-    dt, nr = q[Q_DT], q[Q_NR]
+    dt, nr = q[CTRL.DT], q[CTRL.NR]
     t = period * dt
-    theta_cmd, omega_cmd = command(t, q[Q_PROFILE], q[Q_SPEED], q[Q_ACCEL], q[Q_DISTANCE])
+    theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL], q[CTRL.DISTANCE])
     # Velocity estimate from the encoder (a drive senses it in either mode).
-    theta_fb = quantise(theta, q[Q_ENCODER])
-    if q[Q_I_NOISE] != 0.0:
-        noise_a, noise_b = gaussian_pair(q[Q_NOISE_SEED], period)
-        ia = ia + q[Q_I_OFFSET_A] + q[Q_I_NOISE] * noise_a
-        ib = ib + q[Q_I_OFFSET_B] + q[Q_I_NOISE] * noise_b
+    theta_fb = quantise(theta, q[CTRL.ENCODER])
+    if q[CTRL.I_NOISE] != 0.0:
+        noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period)
+        ia = ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a
+        ib = ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b
     else:
-        ia = ia + q[Q_I_OFFSET_A]
-        ib = ib + q[Q_I_OFFSET_B]
-    if q[Q_VEL_EST] == VEL_EST_BACK_EMF:
+        ia = ia + q[CTRL.I_OFFSET_A]
+        ib = ib + q[CTRL.I_OFFSET_B]
+    if q[CTRL.VEL_EST] == VEL_EST.BACK_EMF:
         # No encoder for the speed: the back-EMF over the period that just
         # ended, from its applied voltage and the measured currents at both
         # ends, projected on the electrical angle at the period's middle (open
         # loop: the command's, which the rotor trails by its load angle) and
         # low-passed like the encoder's difference.
-        ea = va_old - q[Q_BEMF_G1] * ia + q[Q_BEMF_G2] * ia_prev
-        eb = vb_old - q[Q_BEMF_G1] * ib + q[Q_BEMF_G2] * ib_prev
-        if q[Q_MODE] == MODE_OPEN_LOOP:
+        ea = va_old - q[CTRL.BEMF_G1] * ia + q[CTRL.BEMF_G2] * ia_prev
+        eb = vb_old - q[CTRL.BEMF_G1] * ib + q[CTRL.BEMF_G2] * ib_prev
+        if q[CTRL.MODE] == MODE.OPEN_LOOP:
             x_mid = nr * (theta_cmd - 0.5 * dt * omega_cmd)
         else:
-            x_mid = nr * (theta_fb + 0.5 * q[Q_ENCODER])
+            x_mid = nr * (theta_fb + 0.5 * q[CTRL.ENCODER])
         s_p, c_p = sincos(x_mid)
-        w_raw = (c_p * eb - s_p * ea) * (1.0 / q[Q_KM_EST])
-        omega_fb = omega_fb + q[Q_VEL_ALPHA] * (w_raw - omega_fb)
-    elif q[Q_VEL_EST] == VEL_EST_KALMAN:
+        w_raw = (c_p * eb - s_p * ea) * (1.0 / q[CTRL.KM_EST])
+        omega_fb = omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb)
+    elif q[CTRL.VEL_EST] == VEL_EST.KALMAN:
         # Steady-state Kalman filter, constant-velocity model, measuring the
         # centre of the encoder count.
         predicted = theta_est + dt * omega_fb
-        innovation = theta_fb + 0.5 * q[Q_ENCODER] - predicted
-        theta_est = predicted + q[Q_KF_K0] * innovation
-        omega_fb = omega_fb + q[Q_KF_K1] * innovation
+        innovation = theta_fb + 0.5 * q[CTRL.ENCODER] - predicted
+        theta_est = predicted + q[CTRL.KF_K0] * innovation
+        omega_fb = omega_fb + q[CTRL.KF_K1] * innovation
     else:
-        omega_fb = omega_fb + q[Q_VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt)
+        omega_fb = omega_fb + q[CTRL.VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt)
                                                - omega_fb)
 
-    if q[Q_MODE] == MODE_OPEN_LOOP:
+    if q[CTRL.MODE] == MODE.OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
-        angle = nr * quantise(theta_cmd, q[Q_MICROSTEP])
+        angle = nr * quantise(theta_cmd, q[CTRL.MICROSTEP])
         sin_a, cos_a = sincos(angle)
-        id_cmd = q[Q_HOLD]
-        iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[Q_KM_EST]) + u[U_IQ]
+        id_cmd = q[CTRL.HOLD]
+        iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ]
         iq_cmd = iq_inj
     else:
         # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
         # floored count lags by half a count on average); Fs is fed forward
         # with the command's sign.
-        theta_meas = theta_fb + 0.5 * q[Q_ENCODER]
+        theta_meas = theta_fb + 0.5 * q[CTRL.ENCODER]
         angle = nr * theta_meas
         sin_a, cos_a = sincos(angle)
         id_cmd = 0.0
@@ -738,42 +754,42 @@ def control_step(period, theta, ia, ib, cs, q, u):
         pos_int = pos_int + theta_err * dt
         fs_ff = 0.0
         if omega_cmd > 0.0:
-            fs_ff = q[Q_FS_EST]
+            fs_ff = q[CTRL.FS_EST]
         elif omega_cmd < 0.0:
-            fs_ff = -q[Q_FS_EST]
-        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[Q_FF_ON] * fs_ff)
-                  * (1.0 / q[Q_KM_EST]) + u[U_IQ])
-        tau_fb = (q[Q_KP_VEL] * (omega_cmd - omega_fb) + q[Q_KP_POS] * theta_err
-                  + q[Q_KI_POS] * pos_int)
-        iq_cmd = tau_fb * (1.0 / q[Q_KM_EST]) + iq_inj
+            fs_ff = -q[CTRL.FS_EST]
+        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[CTRL.FF_ON] * fs_ff)
+                  * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ])
+        tau_fb = (q[CTRL.KP_VEL] * (omega_cmd - omega_fb) + q[CTRL.KP_POS] * theta_err
+                  + q[CTRL.KI_POS] * pos_int)
+        iq_cmd = tau_fb * (1.0 / q[CTRL.KM_EST]) + iq_inj
 
     id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
-    if q[Q_DRIVE_MODE] == DRIVE_VOLTAGE:
+    if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
         # No current feedback: the steady-state winding voltages in the frame
         # of the angle for the commanded currents at the command's electrical
         # speed, the back-EMF estimated from the command speed (docs/model.md,
         # "Voltage-mode drive"). They are applied during the next period, so
         # the inverse Park turns them to that period's middle, 1.5 periods on.
         w_e = nr * omega_cmd
-        r_est, l_est = q[Q_R_EST], q[Q_L_EST]
+        r_est, l_est = q[CTRL.R_EST], q[CTRL.L_EST]
         vd = r_est * id_cmd - w_e * l_est * iq_cmd
-        vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[Q_KM_EST] * omega_cmd
+        vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[CTRL.KM_EST] * omega_cmd
         sin_v, cos_v = sincos_shifted(angle, sin_a, cos_a, 1.5 * dt * w_e)
         va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
-        v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[Q_VDC])
+        v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
         return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
                  vb_old),
                 (v_alpha - v_gamma, v_beta - v_gamma),
                 (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a,
                  cos_a))
     # PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
-    kp, ki = q[Q_KP_I], q[Q_KI_I]
+    kp, ki = q[CTRL.KP_I], q[CTRL.KI_I]
     err_d = id_cmd - id_m
     err_q = iq_cmd - iq_m
     vd = pi_output(err_d, int_d, kp)
     vq = pi_output(err_q, int_q, kp)
     va_dem, vb_dem = inverse_park_sc(vd, vq, sin_a, cos_a)
-    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[Q_VDC])
+    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
     va = v_alpha - v_gamma
     vb = v_beta - v_gamma
     vd_app, vq_app = park_sc(va, vb, sin_a, cos_a)
@@ -791,9 +807,9 @@ def control_step(period, theta, ia, ib, cs, q, u):
 def run_periods(c, s, acc, u_arr, n_periods, trace, trace_every):
     """Advance one drive by ``n_periods`` PWM periods, in place on ``s`` and ``acc``.
 
-    ``u_arr`` (N_INPUT) is held for the whole call. ``trace`` receives one row
+    ``u_arr`` (len(INPUT)) is held for the whole call. ``trace`` receives one row
     every ``trace_every`` periods (counted from this call's start) while it has
-    room; pass a (0, N_TRACE) array for none. Returns the rows written.
+    room; pass a (0, len(TRACE)) array for none. Returns the rows written.
     """
     return _advance(c, s, acc, u_arr, None, n_periods, trace, trace_every)
 
@@ -804,7 +820,7 @@ def run_periods_law(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 
     Each period the law reads the drive's samples of the period before (one
     PWM period of computation) and adds its current to the q residual
-    ``U_IQ``; gains of zero add exactly nothing.
+    ``INPUT.IQ``; gains of zero add exactly nothing.
     """
     return _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every)
 
@@ -813,26 +829,26 @@ def run_periods_law(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 def law_current(law, e_w, e_theta, s1, c1, dt):
     """One period of the damping law (see ``L_*``) at the Park angle whose sin and
     cos are given: updates its state, returns its current (A)."""
-    e_lp = law[L_E_LP] + law[L_HP_ALPHA] * (e_theta - law[L_E_LP])
-    law[L_E_LP] = e_lp
-    i = law[L_KV] * e_w + law[L_KP] * (e_theta - e_lp)
-    limit = law[L_LIMIT]
-    if law[L_RESONANT] != 0.0:
+    e_lp = law[LAW.E_LP] + law[LAW.HP_ALPHA] * (e_theta - law[LAW.E_LP])
+    law[LAW.E_LP] = e_lp
+    i = law[LAW.KV] * e_w + law[LAW.KP] * (e_theta - e_lp)
+    limit = law[LAW.LIMIT]
+    if law[LAW.RESONANT] != 0.0:
         s2, c2, s4, c4 = harmonics(s1, c1)
         sn = (s1, s2, s4)
         cn = (c1, c2, c4)
         for k in range(3):
-            kr, ki = law[L_KR1 + 2 * k], law[L_KI1 + 2 * k]
+            kr, ki = law[LAW.KR1 + 2 * k], law[LAW.KI1 + 2 * k]
             es, ec = e_w * sn[k], e_w * cn[k]
-            a = law[L_A1 + 2 * k] + dt * (kr * es - ki * ec)
-            b = law[L_B1 + 2 * k] + dt * (ki * es + kr * ec)
+            a = law[LAW.A1 + 2 * k] + dt * (kr * es - ki * ec)
+            b = law[LAW.B1 + 2 * k] + dt * (ki * es + kr * ec)
             a = min(max(a, -limit), limit)
             b = min(max(b, -limit), limit)
-            law[L_A1 + 2 * k] = a
-            law[L_B1 + 2 * k] = b
+            law[LAW.A1 + 2 * k] = a
+            law[LAW.B1 + 2 * k] = b
             i += a * sn[k] + b * cn[k]
     i = min(max(i, -limit), limit)
-    law[L_SUM_I2] += i * i
+    law[LAW.SUM_I2] += i * i
     return i
 
 
@@ -843,38 +859,38 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
         # The resonant terms cost a third of the law: they run only while a gain
         # or a coefficient is non-zero (gains are held for the call).
         on = 0.0
-        for j in range(L_KR1, L_KI4 + 1):
+        for j in range(LAW.KR1, LAW.KI4 + 1):
             if law[j] != 0.0:
                 on = 1.0
-        for j in range(L_A1, L_B4 + 1):
+        for j in range(LAW.A1, LAW.B4 + 1):
             if law[j] != 0.0:
                 on = 1.0
-        law[L_RESONANT] = on
+        law[LAW.RESONANT] = on
     p = plant_params(c)
     q = controller_params(c)
     u = (u_arr[0], u_arr[1], u_arr[2], u_arr[3], u_arr[4], u_arr[5], u_arr[6])
-    dt = q[Q_DT]
-    n_sub = int(c[C_SUBSTEPS])
+    dt = q[CTRL.DT]
+    n_sub = int(c[CONFIG.SUBSTEPS])
     h = dt / n_sub
-    w_stick = c[C_W_STICK]
-    win_start = c[C_WINDOW_START]
-    ref_rate = c[C_NR] * c[C_REF_SPEED]
-    x = (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
-         s[S_E_FRIC], s[S_E_LOAD])
-    cs = (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT],
-          s[S_THETA_EST], s[S_IA_PREV], s[S_IB_PREV], s[S_VA_OLD], s[S_VB_OLD])
-    va_next, vb_next = s[S_VA_NEXT], s[S_VB_NEXT]
-    period = s[S_PERIOD]
-    sin_prev, cos_prev = sincos(s[S_PARK_ANGLE])
-    obs = (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], 0.0,
-           s[S_IQ_FF], s[S_PARK_ANGLE], sin_prev, cos_prev)
-    n_win, sum_e, sum_e2, min_e, max_e, sum_iff2 = (acc[A_COUNT], acc[A_SUM_E],
-                                                     acc[A_SUM_E2], acc[A_MIN_E],
-                                                     acc[A_MAX_E], acc[A_SUM_IFF2])
-    h1s, h1c, h2s, h2c, h4s, h4c = (acc[A_H1_S], acc[A_H1_C], acc[A_H2_S], acc[A_H2_C],
-                                    acc[A_H4_S], acc[A_H4_C])
-    max_lag, max_i = acc[A_MAX_LAG], acc[A_MAX_CURRENT]
-    sum_e2_all, n_all, sum_iff2_all = acc[A_SUM_E2_ALL], acc[A_COUNT_ALL], acc[A_SUM_IFF2_ALL]
+    w_stick = c[CONFIG.W_STICK]
+    win_start = c[CONFIG.WINDOW_START]
+    ref_rate = c[CONFIG.NR] * c[CONFIG.REF_SPEED]
+    x = (s[STATE.THETA], s[STATE.OMEGA], s[STATE.IA], s[STATE.IB], s[STATE.E_IN], s[STATE.E_CU], s[STATE.E_DAMP],
+         s[STATE.E_FRIC], s[STATE.E_LOAD])
+    cs = (s[STATE.INT_D], s[STATE.INT_Q], s[STATE.THETA_FB_PREV], s[STATE.OMEGA_FB], s[STATE.POS_INT],
+          s[STATE.THETA_EST], s[STATE.IA_PREV], s[STATE.IB_PREV], s[STATE.VA_OLD], s[STATE.VB_OLD])
+    va_next, vb_next = s[STATE.VA_NEXT], s[STATE.VB_NEXT]
+    period = s[STATE.PERIOD]
+    sin_prev, cos_prev = sincos(s[STATE.PARK_ANGLE])
+    obs = (s[STATE.THETA_FB], s[STATE.THETA_CMD], s[STATE.OMEGA_CMD], s[STATE.ID_MEAS], s[STATE.IQ_MEAS], 0.0,
+           s[STATE.IQ_FF], s[STATE.PARK_ANGLE], sin_prev, cos_prev)
+    n_win, sum_e, sum_e2, min_e, max_e, sum_iff2 = (acc[ACC.COUNT], acc[ACC.SUM_E],
+                                                     acc[ACC.SUM_E2], acc[ACC.MIN_E],
+                                                     acc[ACC.MAX_E], acc[ACC.SUM_IFF2])
+    h1s, h1c, h2s, h2c, h4s, h4c = (acc[ACC.H1_S], acc[ACC.H1_C], acc[ACC.H2_S], acc[ACC.H2_C],
+                                    acc[ACC.H4_S], acc[ACC.H4_C])
+    max_lag, max_i = acc[ACC.MAX_LAG], acc[ACC.MAX_CURRENT]
+    sum_e2_all, n_all, sum_iff2_all = acc[ACC.SUM_E2_ALL], acc[ACC.COUNT_ALL], acc[ACC.SUM_IFF2_ALL]
     rows = 0
     for i in range(n_periods):
         t = period * dt
@@ -924,49 +940,49 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 
         if rows < trace.shape[0] and i % trace_every == 0:
             row = trace[rows]
-            row[T_T] = t
-            row[T_THETA] = x[0]
-            row[T_OMEGA] = x[1]
-            row[T_THETA_CMD] = obs[1]
-            row[T_OMEGA_CMD] = obs[2]
-            row[T_IA] = x[2]
-            row[T_IB] = x[3]
-            row[T_VA] = va
-            row[T_VB] = vb
-            row[T_ID] = obs[3]
-            row[T_IQ] = obs[4]
-            row[T_IQ_CMD] = obs[5]
-            row[T_IQ_FF] = obs[6]
-            row[T_THETA_FB] = obs[0]
-            row[T_OMEGA_FB] = cs[3]
+            row[TRACE.T] = t
+            row[TRACE.THETA] = x[0]
+            row[TRACE.OMEGA] = x[1]
+            row[TRACE.THETA_CMD] = obs[1]
+            row[TRACE.OMEGA_CMD] = obs[2]
+            row[TRACE.IA] = x[2]
+            row[TRACE.IB] = x[3]
+            row[TRACE.VA] = va
+            row[TRACE.VB] = vb
+            row[TRACE.ID] = obs[3]
+            row[TRACE.IQ] = obs[4]
+            row[TRACE.IQ_CMD] = obs[5]
+            row[TRACE.IQ_FF] = obs[6]
+            row[TRACE.THETA_FB] = obs[0]
+            row[TRACE.OMEGA_FB] = cs[3]
             rows += 1
 
         for _ in range(n_sub):
             x = plant_step(x, va, vb, p, h, w_stick)
         period += 1.0
 
-    s[S_PERIOD] = period
-    (s[S_THETA], s[S_OMEGA], s[S_IA], s[S_IB], s[S_E_IN], s[S_E_CU], s[S_E_DAMP],
-     s[S_E_FRIC], s[S_E_LOAD]) = x
-    (s[S_INT_D], s[S_INT_Q], s[S_THETA_FB_PREV], s[S_OMEGA_FB], s[S_POS_INT], s[S_THETA_EST],
-     s[S_IA_PREV], s[S_IB_PREV], s[S_VA_OLD], s[S_VB_OLD]) = cs
-    s[S_VA_NEXT], s[S_VB_NEXT] = va_next, vb_next
-    (s[S_THETA_FB], s[S_THETA_CMD], s[S_OMEGA_CMD], s[S_ID_MEAS], s[S_IQ_MEAS], _iq_cmd,
-     s[S_IQ_FF], s[S_PARK_ANGLE], _sin, _cos) = obs
-    acc[A_COUNT], acc[A_SUM_E], acc[A_SUM_E2], acc[A_MIN_E], acc[A_MAX_E] = (
+    s[STATE.PERIOD] = period
+    (s[STATE.THETA], s[STATE.OMEGA], s[STATE.IA], s[STATE.IB], s[STATE.E_IN], s[STATE.E_CU], s[STATE.E_DAMP],
+     s[STATE.E_FRIC], s[STATE.E_LOAD]) = x
+    (s[STATE.INT_D], s[STATE.INT_Q], s[STATE.THETA_FB_PREV], s[STATE.OMEGA_FB], s[STATE.POS_INT], s[STATE.THETA_EST],
+     s[STATE.IA_PREV], s[STATE.IB_PREV], s[STATE.VA_OLD], s[STATE.VB_OLD]) = cs
+    s[STATE.VA_NEXT], s[STATE.VB_NEXT] = va_next, vb_next
+    (s[STATE.THETA_FB], s[STATE.THETA_CMD], s[STATE.OMEGA_CMD], s[STATE.ID_MEAS], s[STATE.IQ_MEAS], _iq_cmd,
+     s[STATE.IQ_FF], s[STATE.PARK_ANGLE], _sin, _cos) = obs
+    acc[ACC.COUNT], acc[ACC.SUM_E], acc[ACC.SUM_E2], acc[ACC.MIN_E], acc[ACC.MAX_E] = (
         n_win, sum_e, sum_e2, min_e, max_e)
-    acc[A_SUM_IFF2] = sum_iff2
-    acc[A_H1_S], acc[A_H1_C], acc[A_H2_S], acc[A_H2_C], acc[A_H4_S], acc[A_H4_C] = (
+    acc[ACC.SUM_IFF2] = sum_iff2
+    acc[ACC.H1_S], acc[ACC.H1_C], acc[ACC.H2_S], acc[ACC.H2_C], acc[ACC.H4_S], acc[ACC.H4_C] = (
         h1s, h1c, h2s, h2c, h4s, h4c)
-    acc[A_MAX_LAG], acc[A_MAX_CURRENT] = max_lag, max_i
-    acc[A_SUM_E2_ALL], acc[A_COUNT_ALL], acc[A_SUM_IFF2_ALL] = sum_e2_all, n_all, sum_iff2_all
+    acc[ACC.MAX_LAG], acc[ACC.MAX_CURRENT] = max_lag, max_i
+    acc[ACC.SUM_E2_ALL], acc[ACC.COUNT_ALL], acc[ACC.SUM_IFF2_ALL] = sum_e2_all, n_all, sum_iff2_all
     return rows
 
 
 @_jit
 def run_batch(configs, states, accs, inputs, n_periods):
     """Advance N drives (rows of the arrays) by ``n_periods`` each, without trace."""
-    empty = np.zeros((0, N_TRACE))
+    empty = np.zeros((0, len(TRACE)))
     for i in range(configs.shape[0]):
         run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, 1)
 
@@ -974,7 +990,7 @@ def run_batch(configs, states, accs, inputs, n_periods):
 @_jit
 def run_batch_law(configs, states, accs, inputs, laws, n_periods):
     """:func:`run_batch` with each drive's damping law (rows of ``laws``)."""
-    empty = np.zeros((0, N_TRACE))
+    empty = np.zeros((0, len(TRACE)))
     for i in range(configs.shape[0]):
         _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, 1)
 
@@ -987,19 +1003,19 @@ def merge_rows(totals, parts):
     for i in range(totals.shape[0]):
         t = totals[i]
         p = parts[i]
-        if p[A_COUNT] > 0:
-            if t[A_COUNT] > 0:
-                if p[A_MIN_E] < t[A_MIN_E]:
-                    t[A_MIN_E] = p[A_MIN_E]
-                if p[A_MAX_E] > t[A_MAX_E]:
-                    t[A_MAX_E] = p[A_MAX_E]
+        if p[ACC.COUNT] > 0:
+            if t[ACC.COUNT] > 0:
+                if p[ACC.MIN_E] < t[ACC.MIN_E]:
+                    t[ACC.MIN_E] = p[ACC.MIN_E]
+                if p[ACC.MAX_E] > t[ACC.MAX_E]:
+                    t[ACC.MAX_E] = p[ACC.MAX_E]
             else:
-                t[A_MIN_E] = p[A_MIN_E]
-                t[A_MAX_E] = p[A_MAX_E]
-        for j in (A_COUNT, A_SUM_E, A_SUM_E2, A_SUM_IFF2, A_H1_S, A_H1_C, A_H2_S, A_H2_C,
-                  A_H4_S, A_H4_C, A_SUM_E2_ALL, A_COUNT_ALL, A_SUM_IFF2_ALL):
+                t[ACC.MIN_E] = p[ACC.MIN_E]
+                t[ACC.MAX_E] = p[ACC.MAX_E]
+        for j in (ACC.COUNT, ACC.SUM_E, ACC.SUM_E2, ACC.SUM_IFF2, ACC.H1_S, ACC.H1_C, ACC.H2_S, ACC.H2_C,
+                  ACC.H4_S, ACC.H4_C, ACC.SUM_E2_ALL, ACC.COUNT_ALL, ACC.SUM_IFF2_ALL):
             t[j] += p[j]
-        if p[A_MAX_LAG] > t[A_MAX_LAG]:
-            t[A_MAX_LAG] = p[A_MAX_LAG]
-        if p[A_MAX_CURRENT] > t[A_MAX_CURRENT]:
-            t[A_MAX_CURRENT] = p[A_MAX_CURRENT]
+        if p[ACC.MAX_LAG] > t[ACC.MAX_LAG]:
+            t[ACC.MAX_LAG] = p[ACC.MAX_LAG]
+        if p[ACC.MAX_CURRENT] > t[ACC.MAX_CURRENT]:
+            t[ACC.MAX_CURRENT] = p[ACC.MAX_CURRENT]

@@ -39,11 +39,11 @@ __all__ = [
     "simulate",
 ]
 
-MODES = {"open-loop": K.MODE_OPEN_LOOP, "servo": K.MODE_SERVO}
-DRIVE_MODE_CODES = {"current": K.DRIVE_CURRENT, "voltage": K.DRIVE_VOLTAGE}
+MODES = {"open-loop": K.MODE.OPEN_LOOP, "servo": K.MODE.SERVO}
+DRIVE_MODE_CODES = {"current": K.DRIVE.CURRENT, "voltage": K.DRIVE.VOLTAGE}
 DAMPINGS = ("none", "patent-ff")
-VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST_LOWPASS, "kalman": K.VEL_EST_KALMAN,
-                       "back-emf": K.VEL_EST_BACK_EMF}
+VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST.LOWPASS, "kalman": K.VEL_EST.KALMAN,
+                       "back-emf": K.VEL_EST.BACK_EMF}
 TWO_PI = 2.0 * math.pi
 # Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
 DEFAULT_ACCEL_RPS2 = 50.0
@@ -200,65 +200,65 @@ def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunS
 
 def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSettings,
                  window_start_s: float = 0.0) -> np.ndarray:
-    """The kernel's configuration vector (see ``kernel.C_*``)."""
+    """The kernel's configuration vector (see ``kernel.CONFIG``)."""
     m, d, sv = system.motor, system.drive, system.servo
     check_integrable(system, settings.substeps, profile.speed_rps)
-    c = np.zeros(K.N_CONFIG)
-    c[K.C_R] = m.R
-    c[K.C_L] = m.L
-    c[K.C_KM] = m.Km
-    c[K.C_NR] = m.Nr
-    c[K.C_J] = m.J
-    c[K.C_D] = m.D
+    c = np.zeros(len(K.CONFIG))
+    c[K.CONFIG.R] = m.R
+    c[K.CONFIG.L] = m.L
+    c[K.CONFIG.KM] = m.Km
+    c[K.CONFIG.NR] = m.Nr
+    c[K.CONFIG.J] = m.J
+    c[K.CONFIG.D] = m.D
     plant = FeedforwardModel.from_motor(m).coefficients()
-    c[K.C_DET_S1:K.C_DET_C4 + 1] = plant
-    c[K.C_FS] = m.Fs
-    c[K.C_LOAD] = m.load_torque
-    c[K.C_VDC] = d.Vdc
+    c[K.CONFIG.DET_S1:K.CONFIG.DET_C4 + 1] = plant
+    c[K.CONFIG.FS] = m.Fs
+    c[K.CONFIG.LOAD] = m.load_torque
+    c[K.CONFIG.VDC] = d.Vdc
     dt = 1.0 / d.pwm_hz
-    c[K.C_DT] = dt
-    c[K.C_HOLD] = d.holding_current
-    c[K.C_MICROSTEP] = m.full_step_rad / d.microsteps
+    c[K.CONFIG.DT] = dt
+    c[K.CONFIG.HOLD] = d.holding_current
+    c[K.CONFIG.MICROSTEP] = m.full_step_rad / d.microsteps
     kp_i, ki_i = system.current_gains()
-    c[K.C_KP_I] = kp_i
-    c[K.C_KI_I] = ki_i
-    c[K.C_ENCODER] = TWO_PI / sv.encoder_cpr
-    c[K.C_VEL_ALPHA] = 1.0 - fm.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
-    c[K.C_KP_VEL], c[K.C_KP_POS], c[K.C_KI_POS] = system.servo_gains()
-    c[K.C_MODE] = MODES[settings.mode]
-    c[K.C_FF_ON] = 1.0 if settings.damping == "patent-ff" else 0.0
+    c[K.CONFIG.KP_I] = kp_i
+    c[K.CONFIG.KI_I] = ki_i
+    c[K.CONFIG.ENCODER] = TWO_PI / sv.encoder_cpr
+    c[K.CONFIG.VEL_ALPHA] = 1.0 - fm.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
+    c[K.CONFIG.KP_VEL], c[K.CONFIG.KP_POS], c[K.CONFIG.KI_POS] = system.servo_gains()
+    c[K.CONFIG.MODE] = MODES[settings.mode]
+    c[K.CONFIG.FF_ON] = 1.0 if settings.damping == "patent-ff" else 0.0
     est = settings.estimate if settings.estimate is not None else FeedforwardModel.from_motor(m)
-    c[K.C_KM_EST] = est.Km
-    c[K.C_FS_EST] = est.Fs
-    c[K.C_FF_S1:K.C_FF_C4 + 1] = est.coefficients()
-    c[K.C_SUBSTEPS] = settings.substeps
+    c[K.CONFIG.KM_EST] = est.Km
+    c[K.CONFIG.FS_EST] = est.Fs
+    c[K.CONFIG.FF_S1:K.CONFIG.FF_C4 + 1] = est.coefficients()
+    c[K.CONFIG.SUBSTEPS] = settings.substeps
     # Stiction band: the speed friction alone removes in one plant step, so a
     # zero crossing within a step is caught at the next step's start.
-    c[K.C_W_STICK] = m.Fs / m.J * dt / settings.substeps
-    c[K.C_PROFILE] = K.PROFILE_CONSTANT if profile.kind == "constant" else K.PROFILE_MOVE
-    c[K.C_SPEED] = TWO_PI * profile.speed_rps
-    c[K.C_ACCEL] = TWO_PI * profile.accel_rps2
-    c[K.C_DISTANCE] = TWO_PI * profile.distance_rev
-    c[K.C_WINDOW_START] = window_start_s
-    c[K.C_REF_SPEED] = TWO_PI * abs(profile.speed_rps)
-    c[K.C_I_NOISE] = d.current_noise_a
-    c[K.C_I_OFFSET_A] = d.current_offset_a
-    c[K.C_I_OFFSET_B] = d.current_offset_b
-    c[K.C_NOISE_SEED] = settings.noise_seed
-    c[K.C_VEL_EST] = VELOCITY_ESTIMATORS[settings.velocity_estimator]
+    c[K.CONFIG.W_STICK] = m.Fs / m.J * dt / settings.substeps
+    c[K.CONFIG.PROFILE] = K.PROFILE.CONSTANT if profile.kind == "constant" else K.PROFILE.MOVE
+    c[K.CONFIG.SPEED] = TWO_PI * profile.speed_rps
+    c[K.CONFIG.ACCEL] = TWO_PI * profile.accel_rps2
+    c[K.CONFIG.DISTANCE] = TWO_PI * profile.distance_rev
+    c[K.CONFIG.WINDOW_START] = window_start_s
+    c[K.CONFIG.REF_SPEED] = TWO_PI * abs(profile.speed_rps)
+    c[K.CONFIG.I_NOISE] = d.current_noise_a
+    c[K.CONFIG.I_OFFSET_A] = d.current_offset_a
+    c[K.CONFIG.I_OFFSET_B] = d.current_offset_b
+    c[K.CONFIG.NOISE_SEED] = settings.noise_seed
+    c[K.CONFIG.VEL_EST] = VELOCITY_ESTIMATORS[settings.velocity_estimator]
     # Designed only when used: the design can be slow or fail for extreme encoders.
     if settings.velocity_estimator == "kalman":
-        c[K.C_KF_K0], c[K.C_KF_K1] = kalman_velocity_gains(dt, c[K.C_ENCODER],
+        c[K.CONFIG.KF_K0], c[K.CONFIG.KF_K1] = kalman_velocity_gains(dt, c[K.CONFIG.ENCODER],
                                                          sv.kalman_accel_std)
     # The winding's R and L as the drive's standstill measurement gives them (the
     # current loop's tuning uses the same values).
     x = m.R * dt / m.L
-    c[K.C_BEMF_G1] = m.L / dt * (x / -fm.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
-    c[K.C_BEMF_G2] = c[K.C_BEMF_G1] * fm.exp(-x)
+    c[K.CONFIG.BEMF_G1] = m.L / dt * (x / -fm.expm1(-x) if x > 0.0 else 1.0)   # R/(1-a)
+    c[K.CONFIG.BEMF_G2] = c[K.CONFIG.BEMF_G1] * fm.exp(-x)
     # Voltage mode: the winding model from the same standstill measurement.
-    c[K.C_DRIVE_MODE] = DRIVE_MODE_CODES[d.drive_mode]
-    c[K.C_R_EST] = m.R
-    c[K.C_L_EST] = m.L
+    c[K.CONFIG.DRIVE_MODE] = DRIVE_MODE_CODES[d.drive_mode]
+    c[K.CONFIG.R_EST] = m.R
+    c[K.CONFIG.L_EST] = m.L
     return c
 
 
@@ -298,7 +298,7 @@ def check_converged(system: SystemParams, substeps: int, state: np.ndarray,
               for x in (v.values() if isinstance(v, dict) else [v])]
     limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps / system.motor.Nr
     if np.all(np.isfinite(state)) and all(math.isfinite(x) for x in values) \
-            and abs(state[K.S_OMEGA]) <= 2.0 * limit:
+            and abs(state[K.STATE.OMEGA]) <= 2.0 * limit:
         return
     m = system.motor
     raise ParameterError(
@@ -316,24 +316,24 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
     (0 at t = 0) and the d integrator holds the R*i that sustains it, so a run
     starts without a current transient. In servo the windings start unenergised.
     """
-    s = np.zeros(K.N_STATE)
-    s[K.S_THETA] = theta0
-    theta_fb = math.floor(theta0 / config[K.C_ENCODER]) * config[K.C_ENCODER]
-    s[K.S_THETA_FB_PREV] = theta_fb
-    s[K.S_THETA_FB] = theta_fb
-    s[K.S_THETA_EST] = theta_fb + 0.5 * config[K.C_ENCODER]
-    if config[K.C_MODE] == K.MODE_OPEN_LOOP:
-        s[K.S_IA] = config[K.C_HOLD]
-        s[K.S_INT_D] = config[K.C_R] * config[K.C_HOLD]
-        s[K.S_VA_NEXT] = config[K.C_R] * config[K.C_HOLD]
-        s[K.S_VA_OLD] = s[K.S_VA_NEXT]
-        s[K.S_IA_PREV] = config[K.C_HOLD]
-        s[K.S_ID_MEAS] = config[K.C_HOLD]
+    s = np.zeros(len(K.STATE))
+    s[K.STATE.THETA] = theta0
+    theta_fb = math.floor(theta0 / config[K.CONFIG.ENCODER]) * config[K.CONFIG.ENCODER]
+    s[K.STATE.THETA_FB_PREV] = theta_fb
+    s[K.STATE.THETA_FB] = theta_fb
+    s[K.STATE.THETA_EST] = theta_fb + 0.5 * config[K.CONFIG.ENCODER]
+    if config[K.CONFIG.MODE] == K.MODE.OPEN_LOOP:
+        s[K.STATE.IA] = config[K.CONFIG.HOLD]
+        s[K.STATE.INT_D] = config[K.CONFIG.R] * config[K.CONFIG.HOLD]
+        s[K.STATE.VA_NEXT] = config[K.CONFIG.R] * config[K.CONFIG.HOLD]
+        s[K.STATE.VA_OLD] = s[K.STATE.VA_NEXT]
+        s[K.STATE.IA_PREV] = config[K.CONFIG.HOLD]
+        s[K.STATE.ID_MEAS] = config[K.CONFIG.HOLD]
     return s
 
 
-_SUMS = (K.A_COUNT, K.A_SUM_E, K.A_SUM_E2, K.A_SUM_IFF2, K.A_H1_S, K.A_H1_C, K.A_H2_S, K.A_H2_C,
-         K.A_H4_S, K.A_H4_C, K.A_SUM_E2_ALL, K.A_COUNT_ALL, K.A_SUM_IFF2_ALL)
+_SUMS = (K.ACC.COUNT, K.ACC.SUM_E, K.ACC.SUM_E2, K.ACC.SUM_IFF2, K.ACC.H1_S, K.ACC.H1_C, K.ACC.H2_S, K.ACC.H2_C,
+         K.ACC.H4_S, K.ACC.H4_C, K.ACC.SUM_E2_ALL, K.ACC.COUNT_ALL, K.ACC.SUM_IFF2_ALL)
 
 
 def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
@@ -342,17 +342,17 @@ def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
     Sums add, extremes combine; the lock-in sums add because their phase is
     timed from the window start, not from the stretch.
     """
-    if part[K.A_COUNT] > 0:
-        if total[K.A_COUNT] > 0:
-            total[K.A_MIN_E] = min(total[K.A_MIN_E], part[K.A_MIN_E])
-            total[K.A_MAX_E] = max(total[K.A_MAX_E], part[K.A_MAX_E])
+    if part[K.ACC.COUNT] > 0:
+        if total[K.ACC.COUNT] > 0:
+            total[K.ACC.MIN_E] = min(total[K.ACC.MIN_E], part[K.ACC.MIN_E])
+            total[K.ACC.MAX_E] = max(total[K.ACC.MAX_E], part[K.ACC.MAX_E])
         else:
-            total[K.A_MIN_E] = part[K.A_MIN_E]
-            total[K.A_MAX_E] = part[K.A_MAX_E]
+            total[K.ACC.MIN_E] = part[K.ACC.MIN_E]
+            total[K.ACC.MAX_E] = part[K.ACC.MAX_E]
     for i in _SUMS:
         total[i] += part[i]
-    total[K.A_MAX_LAG] = max(total[K.A_MAX_LAG], part[K.A_MAX_LAG])
-    total[K.A_MAX_CURRENT] = max(total[K.A_MAX_CURRENT], part[K.A_MAX_CURRENT])
+    total[K.ACC.MAX_LAG] = max(total[K.ACC.MAX_LAG], part[K.ACC.MAX_LAG])
+    total[K.ACC.MAX_CURRENT] = max(total[K.ACC.MAX_CURRENT], part[K.ACC.MAX_CURRENT])
 
 
 def merge_accumulator_rows(total: np.ndarray, part: np.ndarray) -> None:
@@ -363,7 +363,7 @@ def merge_accumulator_rows(total: np.ndarray, part: np.ndarray) -> None:
 
 def new_accumulators(n: int | None = None) -> np.ndarray:
     """Zeroed metric sums for one drive, or an (n, N_ACC) batch."""
-    return np.zeros(K.N_ACC if n is None else (n, K.N_ACC))
+    return np.zeros(len(K.ACC) if n is None else (n, len(K.ACC)))
 
 
 @dataclass(frozen=True)
@@ -397,33 +397,33 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
                               speed_rps: float) -> RunMetrics:
     """Turn the kernel's sums into :class:`RunMetrics` (the ``*_norm`` metrics,
     relative to the command speed, are NaN for a command at rest)."""
-    n = acc[K.A_COUNT]
+    n = acc[K.ACC.COUNT]
     if n <= 0:
         raise ParameterError("the measuring window holds no sample: the run ended before it "
                          "opened (raise duration_s or lower settle_s)")
-    rms = math.sqrt(acc[K.A_SUM_E2] / n)
-    p2p = acc[K.A_MAX_E] - acc[K.A_MIN_E]
+    rms = math.sqrt(acc[K.ACC.SUM_E2] / n)
+    p2p = acc[K.ACC.MAX_E] - acc[K.ACC.MIN_E]
     w_cmd = TWO_PI * abs(speed_rps)
     norm = w_cmd if w_cmd > 0 else math.nan
     amps = {}
-    for h, (i_s, i_c) in ((1, (K.A_H1_S, K.A_H1_C)), (2, (K.A_H2_S, K.A_H2_C)),
-                          (4, (K.A_H4_S, K.A_H4_C))):
+    for h, (i_s, i_c) in ((1, (K.ACC.H1_S, K.ACC.H1_C)), (2, (K.ACC.H2_S, K.ACC.H2_C)),
+                          (4, (K.ACC.H4_S, K.ACC.H4_C))):
         amps[h] = 2.0 / n * fm.hypot(acc[i_s], acc[i_c])
     step = system.motor.full_step_rad
-    lag = float(acc[K.A_MAX_LAG])
+    lag = float(acc[K.ACC.MAX_LAG])
     return RunMetrics(
         speed_rps=float(speed_rps),
         rms_velocity_error_rad_s=rms,
         p2p_velocity_error_rad_s=float(p2p),
         rms_velocity_error_norm=rms / norm,
         p2p_velocity_error_norm=float(p2p) / norm,
-        mean_velocity_error_rad_s=float(acc[K.A_SUM_E] / n),
+        mean_velocity_error_rad_s=float(acc[K.ACC.SUM_E] / n),
         max_position_lag_rad=lag,
         max_position_lag_steps=lag / step,
         step_loss=bool(lag > step),
-        rms_injected_current_a=math.sqrt(acc[K.A_SUM_IFF2] / n),
+        rms_injected_current_a=math.sqrt(acc[K.ACC.SUM_IFF2] / n),
         harmonic_amplitude_rad_s=amps,
-        peak_phase_current_a=float(acc[K.A_MAX_CURRENT]),
+        peak_phase_current_a=float(acc[K.ACC.MAX_CURRENT]),
     )
 
 
@@ -438,7 +438,7 @@ class RunResult:
     duration_s: float
     metrics: RunMetrics
     trace: dict[str, np.ndarray] | None = None
-    final_state: np.ndarray = field(default_factory=lambda: np.zeros(K.N_STATE))
+    final_state: np.ndarray = field(default_factory=lambda: np.zeros(len(K.STATE)))
     accumulators: np.ndarray = field(default_factory=new_accumulators)
 
 
@@ -485,12 +485,12 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     n_periods = int(round(duration_s * system.drive.pwm_hz))
     state = initial_state(config)
     acc = new_accumulators()
-    inputs = np.zeros(K.N_INPUT)
+    inputs = np.zeros(len(K.INPUT))
     if trace:
         rows = -(-n_periods // trace_every)
-        buf = np.zeros((rows, K.N_TRACE))
+        buf = np.zeros((rows, len(K.TRACE)))
     else:
-        buf = np.zeros((0, K.N_TRACE))
+        buf = np.zeros((0, len(K.TRACE)))
     written = K.run_periods(config, state, acc, inputs, n_periods, buf, trace_every)
     trace_dict = None
     if trace:

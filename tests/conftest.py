@@ -18,8 +18,8 @@ def run_raw(system, profile, settings=None, n_periods=1000, state=None, window_s
     c = build_config(system, profile, settings, window_start_s=window_start_s)
     s = initial_state(c) if state is None else state
     acc = new_accumulators()
-    trace = np.zeros((-(-n_periods // trace_every), K.N_TRACE))
-    rows = K.run_periods(c, s, acc, np.zeros(K.N_INPUT), n_periods, trace, trace_every)
+    trace = np.zeros((-(-n_periods // trace_every), len(K.TRACE)))
+    rows = K.run_periods(c, s, acc, np.zeros(len(K.INPUT)), n_periods, trace, trace_every)
     return c, s, acc, {name: trace[:rows, i] for i, name in enumerate(K.TRACE_NAMES)}
 
 

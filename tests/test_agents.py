@@ -132,10 +132,10 @@ def test_current_residual_velocity_feature_is_the_physical_velocity_error():
     for _ in range(40):
         obs, *_ = env.step(np.array([0.5], dtype=np.float32))
         s = inner.drive_state
-        want = (s[K.S_OMEGA_CMD] - s[K.S_OMEGA_FB]) / (1e-3 * wn * m.full_step_rad)
+        want = (s[K.STATE.OMEGA_CMD] - s[K.STATE.OMEGA_FB]) / (1e-3 * wn * m.full_step_rad)
         assert obs[18] == pytest.approx(np.clip(want, -10, 10), rel=1e-5, abs=1e-6)
         assert obs[17] == pytest.approx(0.05)       # last env action's current entry
-        assert s[K.S_OMEGA_CMD] > 0
+        assert s[K.STATE.OMEGA_CMD] > 0
 
 
 def test_hyperparams_files_parse():

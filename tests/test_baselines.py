@@ -99,7 +99,7 @@ def test_current_path_model_matches_the_simulated_loop(still, fc):
     # step response's first difference is the impulse response.
     system = get_preset("patent").replace(J=10.0, Kd1=0.0, Kd2=0.0, Kd4=0.0,
                                           holding_current=0.2, current_bandwidth_hz=fc)
-    _, _, _, tr = run_raw(system, still, n_periods=3000, state=np.zeros(K.N_STATE))
+    _, _, _, tr = run_raw(system, still, n_periods=3000, state=np.zeros(len(K.STATE)))
     impulse = np.diff(np.concatenate([[0.0], tr["ia"] / 0.2]))
     dt = 1.0 / system.drive.pwm_hz
     for f in (50.0, 200.0, 700.0):

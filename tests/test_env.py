@@ -123,7 +123,7 @@ def test_agent_rate_sets_periods_per_step():
     env = StepperDampEnv(agent_hz=500.0, speed_rps=1.0)
     env.reset(seed=0)
     env.step(np.zeros(6, np.float32))
-    assert env.drive_state[K.S_PERIOD] == 40
+    assert env.drive_state[K.STATE.PERIOD] == 40
     assert env.seconds_per_step == pytest.approx(2e-3)
 
 
@@ -136,9 +136,9 @@ def _env_trajectory(n_steps, **kwargs):
     for _ in range(n_steps):
         _, _, term, _, _ = env.step(zero)
         s = env.drive_state
-        theta.append(s[K.S_THETA])
-        omega.append(s[K.S_OMEGA])
-        ia.append(s[K.S_IA])
+        theta.append(s[K.STATE.THETA])
+        omega.append(s[K.STATE.OMEGA])
+        ia.append(s[K.STATE.IA])
         assert not term
     return np.array(theta), np.array(omega), np.array(ia)
 
@@ -170,21 +170,21 @@ def test_estimate_options_set_the_controller_model():
     env = StepperDampEnv(randomize=True, estimate="nominal")
     env.reset(seed=4)
     c = env.drive_config
-    assert np.allclose(c[K.C_FF_S1:K.C_FF_C4 + 1],
+    assert np.allclose(c[K.CONFIG.FF_S1:K.CONFIG.FF_C4 + 1],
                        FeedforwardModel.from_motor(nominal.motor).coefficients())
-    assert c[K.C_KM_EST] == nominal.motor.Km
-    assert c[K.C_KM] != nominal.motor.Km            # the plant was randomised
+    assert c[K.CONFIG.KM_EST] == nominal.motor.Km
+    assert c[K.CONFIG.KM] != nominal.motor.Km            # the plant was randomised
     exact = StepperDampEnv(randomize=True, estimate="exact")
     exact.reset(seed=4)
     ce = exact.drive_config
-    assert ce[K.C_KM_EST] == ce[K.C_KM]
+    assert ce[K.CONFIG.KM_EST] == ce[K.CONFIG.KM]
     ident = FeedforwardModel(Km=0.28, Kd1=0.0, Kd2=0.005, Kd4=0.01, phi1=0.0, phi2=0.5, Fs=0.0)
     env = StepperDampEnv(estimate=ident)
     env.reset(seed=0)
-    assert env.drive_config[K.C_KM_EST] == 0.28
+    assert env.drive_config[K.CONFIG.KM_EST] == 0.28
     none = StepperDampEnv(base_controller="none")
     none.reset(seed=0)
-    assert none.drive_config[K.C_FF_ON] == 0.0
+    assert none.drive_config[K.CONFIG.FF_ON] == 0.0
 
 
 # -- determinism and scalar/vector agreement ---------------------------------------

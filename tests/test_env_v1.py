@@ -214,12 +214,12 @@ def _ringdown(kv_gain: float, system, n_periods: int = 4000, amplitude: float = 
     settings = RunSettings(damping="none")
     c = build_config(system, SpeedProfile(speed_rps=1e-6), settings, window_start_s=math.inf)
     s = initial_state(c, theta0=amplitude * system.motor.full_step_rad)
-    law = np.zeros(K.N_LAW)
-    law[K.L_KV] = kv_gain
-    law[K.L_LIMIT] = 10.0
-    trace = np.zeros((n_periods, K.N_TRACE))
-    K.run_periods_law(c, s, np.zeros(K.N_ACC), np.zeros(K.N_INPUT), law, n_periods, trace, 1)
-    t, theta = trace[:, K.T_T], trace[:, K.T_THETA]
+    law = np.zeros(len(K.LAW))
+    law[K.LAW.KV] = kv_gain
+    law[K.LAW.LIMIT] = 10.0
+    trace = np.zeros((n_periods, len(K.TRACE)))
+    K.run_periods_law(c, s, np.zeros(len(K.ACC)), np.zeros(len(K.INPUT)), law, n_periods, trace, 1)
+    t, theta = trace[:, K.TRACE.T], trace[:, K.TRACE.THETA]
     # Envelope of the oscillation: peaks of |theta| over successive half periods.
     peaks = [i for i in range(1, len(theta) - 1)
              if abs(theta[i]) >= abs(theta[i - 1]) and abs(theta[i]) > abs(theta[i + 1])]

@@ -107,25 +107,30 @@ def _config(system=None):
     return build_config(system, SpeedProfile(1.0), RunSettings())
 
 
-def _positions(prefix):
-    return {name: getattr(K, name) for name in dir(K)
-            if name.startswith(prefix) and isinstance(getattr(K, name), int)}
-
-
 def test_parameter_tuples_are_read_by_their_named_positions():
     # Distinct values everywhere, so a wrong position cannot pass by accident.
-    c = 1.5 + np.arange(K.N_CONFIG, dtype=np.float64)
+    c = 1.5 + np.arange(len(K.CONFIG), dtype=np.float64)
     p, q = K.plant_params(c), K.controller_params(c)
-    for names, tup in ((_positions("P_"), p), (_positions("Q_"), q)):
-        assert sorted(names.values()) == list(range(len(tup)))
-    inverted = {"P_INV_L": "C_L", "P_INV_J": "C_J"}
-    for name, pos in _positions("P_").items():
+    assert len(p) == len(K.PLANT) and len(q) == len(K.CTRL)
+    inverted = {"INV_L": "L", "INV_J": "J"}
+    for name in K.PLANT._fields:
         if name in inverted:
-            assert p[pos] == 1.0 / c[getattr(K, inverted[name])]
+            assert p[getattr(K.PLANT, name)] == 1.0 / c[getattr(K.CONFIG, inverted[name])]
         else:
-            assert p[pos] == c[getattr(K, "C_" + name[2:])], name
-    for name, pos in _positions("Q_").items():
-        assert q[pos] == c[getattr(K, "C_" + name[2:])], name
+            assert p[getattr(K.PLANT, name)] == c[getattr(K.CONFIG, name)], name
+    for name in K.CTRL._fields:
+        assert q[getattr(K.CTRL, name)] == c[getattr(K.CONFIG, name)], name
+
+
+def test_layouts_are_dense_and_described():
+    from stepdamp_env.fields import describe, layout
+
+    for lay in (K.CONFIG, K.PLANT, K.CTRL, K.STATE, K.ACC, K.INPUT, K.LAW, K.TRACE):
+        assert list(lay) == list(range(len(lay)))
+        assert set(describe(lay)) == set(type(lay)._fields)
+    assert K.TRACE_UNITS["omega"] == "rad/s" and K.TRACE_NAMES[0] == "t"
+    with pytest.raises(ValueError, match="repeats"):
+        layout("Bad", "A\nA")
 
 
 def test_detent_torque_is_the_patent_expression_and_minus_gradient_of_potential():
@@ -144,24 +149,24 @@ def test_detent_torque_is_the_patent_expression_and_minus_gradient_of_potential(
 
 def test_back_emf_power_equals_torque_times_speed():
     p = K.plant_params(_config())
-    R, inv_l = p[K.P_R], p[K.P_INV_L]
+    R, inv_l = p[K.PLANT.R], p[K.PLANT.INV_L]
     for th, w, ia, ib in RNG.uniform(-1, 1, (1000, 4)) * np.array([10, 50, 3, 3]):
         d = K.motor_derivative(th, w, ia, ib, 0.0, 0.0, p)
         # With va = vb = 0: L di/dt = -R i - e, so -e = L di/dt + R i.
         ea = -(d[2] / inv_l + R * ia)
         eb = -(d[3] / inv_l + R * ib)
-        x = p[K.P_NR] * th
-        tau_em = p[K.P_KM] * (-ia * math.sin(x) + ib * math.cos(x))
+        x = p[K.PLANT.NR] * th
+        tau_em = p[K.PLANT.KM] * (-ia * math.sin(x) + ib * math.cos(x))
         assert ea * ia + eb * ib == pytest.approx(tau_em * w, rel=1e-12, abs=1e-12)
 
 
 def test_winding_power_splits_into_copper_magnetic_and_mechanical():
     p = K.plant_params(_config())
-    R, L = p[K.P_R], 1.0 / p[K.P_INV_L]
+    R, L = p[K.PLANT.R], 1.0 / p[K.PLANT.INV_L]
     for th, w, ia, ib, va, vb in RNG.uniform(-1, 1, (500, 6)) * np.array([5, 30, 2, 2, 40, 40]):
         d = K.motor_derivative(th, w, ia, ib, va, vb, p)
-        x = p[K.P_NR] * th
-        tau_em = p[K.P_KM] * (-ia * math.sin(x) + ib * math.cos(x))
+        x = p[K.PLANT.NR] * th
+        tau_em = p[K.PLANT.KM] * (-ia * math.sin(x) + ib * math.cos(x))
         p_in = va * ia + vb * ib
         assert d[4] == pytest.approx(p_in, rel=1e-14, abs=1e-14)
         rhs = R * (ia**2 + ib**2) + L * (ia * d[2] + ib * d[3]) + tau_em * w

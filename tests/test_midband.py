@@ -45,11 +45,11 @@ def test_drive_mode_is_a_parameter_json_key_and_set_name(tmp_path):
 def test_current_mode_config_is_unchanged_and_voltage_mode_sets_its_model():
     patent = get_preset("patent")
     c = build_config(patent, SpeedProfile(1.0), RunSettings())
-    assert c[K.C_DRIVE_MODE] == K.DRIVE_CURRENT
+    assert c[K.CONFIG.DRIVE_MODE] == K.DRIVE.CURRENT
     cv = build_config(patent.replace(drive_mode="voltage"), SpeedProfile(1.0), RunSettings())
-    assert cv[K.C_DRIVE_MODE] == K.DRIVE_VOLTAGE
-    assert (cv[K.C_R_EST], cv[K.C_L_EST]) == (patent.motor.R, patent.motor.L)
-    assert np.array_equal(np.delete(c, K.C_DRIVE_MODE), np.delete(cv, K.C_DRIVE_MODE))
+    assert cv[K.CONFIG.DRIVE_MODE] == K.DRIVE.VOLTAGE
+    assert (cv[K.CONFIG.R_EST], cv[K.CONFIG.L_EST]) == (patent.motor.R, patent.motor.L)
+    assert np.array_equal(np.delete(c, K.CONFIG.DRIVE_MODE), np.delete(cv, K.CONFIG.DRIVE_MODE))
 
 
 # -- the kernel's voltage law -----------------------------------------------------
@@ -57,7 +57,7 @@ def _voltage_step(system, theta, ia, ib, period, speed_rps):
     c = build_config(system, SpeedProfile(speed_rps, accel_rps2=1e9), RunSettings())
     q = K.controller_params(c)
     cs = (1.0, 2.0, theta, 2 * math.pi * speed_rps, 0.0, theta, ia, ib, 0.0, 0.0)
-    return c, K.control_step(float(period), theta, ia, ib, cs, q, (0.0,) * K.N_INPUT)
+    return c, K.control_step(float(period), theta, ia, ib, cs, q, (0.0,) * len(K.INPUT))
 
 
 def test_voltage_law_is_the_winding_model_turned_to_the_next_period():
@@ -75,7 +75,7 @@ def test_voltage_law_is_the_winding_model_turned_to_the_next_period():
     w = 2 * math.pi * speed
     w_e = m.Nr * w
     vd, vq = m.R * hold, w_e * m.L * hold + m.Km * w
-    angle = obs1[7] + 1.5 * c[K.C_DT] * w_e
+    angle = obs1[7] + 1.5 * c[K.CONFIG.DT] * w_e
     expect = (vd * math.cos(angle) - vq * math.sin(angle),
               vd * math.sin(angle) + vq * math.cos(angle))
     assert v1 == pytest.approx(expect, abs=1e-9)
@@ -91,8 +91,8 @@ def test_voltage_mode_holds_the_commanded_current_in_steady_state():
     tail = slice(-2000, None)
     assert np.max(np.abs(tr["id"][tail] - 1.9)) < 0.02
     assert np.max(np.abs(tr["iq"][tail])) < 0.02
-    assert s[K.S_INT_D] == initial_state(build_config(
-        base, SpeedProfile(1.0, accel_rps2=20.0), RunSettings()))[K.S_INT_D]
+    assert s[K.STATE.INT_D] == initial_state(build_config(
+        base, SpeedProfile(1.0, accel_rps2=20.0), RunSettings()))[K.STATE.INT_D]
 
 
 def test_energy_balance_of_the_voltage_mode_drive_closes_to_0_1_percent():
@@ -107,7 +107,7 @@ def test_energy_balance_of_the_voltage_mode_drive_closes_to_0_1_percent():
     supplied, accounted = _energy_terms(c, s0, s1)
     assert supplied > 0.1
     assert abs(supplied - accounted) / supplied < 1e-3
-    assert s1[K.S_E_LOAD] > 0 and s1[K.S_E_FRIC] > 0
+    assert s1[K.STATE.E_LOAD] > 0 and s1[K.STATE.E_FRIC] > 0
 
 
 # -- the analysis -----------------------------------------------------------------

@@ -111,7 +111,7 @@ def test_v1_runner_pwm_trace_records_every_period_and_changes_nothing():
     rows = np.concatenate(traced.trace)
     period = 1.0 / plant.drive.pwm_hz
     assert rows.shape[0] == traced.steps * round(0.01 / period)
-    assert np.allclose(np.diff(rows[:, K.T_T]), period, rtol=1e-6)
+    assert np.allclose(np.diff(rows[:, K.TRACE.T]), period, rtol=1e-6)
 
 
 @pytest.mark.parametrize("algo", ["ars", "ppo", "sac", "td3"])

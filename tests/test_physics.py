@@ -16,12 +16,12 @@ from conftest import run_raw
 
 def _energy_terms(c, s0, s1):
     p = K.plant_params(c)
-    L, J = c[K.C_L], c[K.C_J]
-    mag = 0.5 * L * (s1[K.S_IA] ** 2 + s1[K.S_IB] ** 2 - s0[K.S_IA] ** 2 - s0[K.S_IB] ** 2)
-    kin = 0.5 * J * (s1[K.S_OMEGA] ** 2 - s0[K.S_OMEGA] ** 2)
-    det = K.detent_potential(s1[K.S_THETA], p) - K.detent_potential(s0[K.S_THETA], p)
-    losses = s1[K.S_E_CU] + s1[K.S_E_DAMP] + s1[K.S_E_FRIC] + s1[K.S_E_LOAD]
-    return s1[K.S_E_IN], mag + kin + det + losses
+    L, J = c[K.CONFIG.L], c[K.CONFIG.J]
+    mag = 0.5 * L * (s1[K.STATE.IA] ** 2 + s1[K.STATE.IB] ** 2 - s0[K.STATE.IA] ** 2 - s0[K.STATE.IB] ** 2)
+    kin = 0.5 * J * (s1[K.STATE.OMEGA] ** 2 - s0[K.STATE.OMEGA] ** 2)
+    det = K.detent_potential(s1[K.STATE.THETA], p) - K.detent_potential(s0[K.STATE.THETA], p)
+    losses = s1[K.STATE.E_CU] + s1[K.STATE.E_DAMP] + s1[K.STATE.E_FRIC] + s1[K.STATE.E_LOAD]
+    return s1[K.STATE.E_IN], mag + kin + det + losses
 
 
 @pytest.mark.parametrize("mode,damping,load", [("open-loop", "none", 0.0),
@@ -43,9 +43,9 @@ def test_energy_balance_closes_over_a_whole_run(patent, mode, damping, load):
     assert supplied > 0.01       # joules: a real run, not a trivially small one
     assert abs(supplied - accounted) / supplied < 1e-3
     # Every channel is actually exercised.
-    assert s1[K.S_E_CU] > 0 and s1[K.S_E_DAMP] > 0 and s1[K.S_E_FRIC] > 0
+    assert s1[K.STATE.E_CU] > 0 and s1[K.STATE.E_DAMP] > 0 and s1[K.STATE.E_FRIC] > 0
     if load:
-        assert s1[K.S_E_LOAD] > 0
+        assert s1[K.STATE.E_LOAD] > 0
 
 
 def test_energy_balance_tightens_with_a_finer_step(patent):
@@ -71,10 +71,10 @@ def test_static_stiffness_matches_km_i_nr(still):
     torque = 0.01
     system = base.replace(Kd1=0.0, Kd2=0.0, Kd4=0.0, Fs=0.0, D=0.05, load_torque=torque)
     _, s, _, _ = run_raw(system, still, n_periods=20000, trace_every=20000)
-    disp = s[K.S_THETA]
+    disp = s[K.STATE.THETA]
     m, i_hold = system.motor, system.drive.holding_current
     k_lin = m.Km * i_hold * m.Nr
-    assert abs(s[K.S_OMEGA]) < 1e-6
+    assert abs(s[K.STATE.OMEGA]) < 1e-6
     assert torque / -disp == pytest.approx(k_lin, rel=0.01)
     exact = -math.asin(torque / (m.Km * i_hold)) / m.Nr
     assert disp == pytest.approx(exact, rel=1e-3)
@@ -89,7 +89,7 @@ def test_current_loop_step_response_matches_designed_bandwidth(still, fc):
     base = get_preset("patent")
     system = base.replace(J=10.0, Kd1=0.0, Kd2=0.0, Kd4=0.0, holding_current=0.2,
                           current_bandwidth_hz=fc)
-    _, _, _, tr = run_raw(system, still, n_periods=2000, state=np.zeros(K.N_STATE))
+    _, _, _, tr = run_raw(system, still, n_periods=2000, state=np.zeros(len(K.STATE)))
     step = tr["ia"] / 0.2             # angle 0: id = ia
     impulse = np.diff(np.concatenate([[0.0], step]))
     freqs = np.arange(1.0, 5000.0, 1.0)
@@ -109,7 +109,7 @@ def test_current_loop_anti_windup_recovers_from_saturation(still):
     # back-calculation anti-windup the current settles without a windup overshoot.
     base = get_preset("patent")
     system = base.replace(J=10.0, Kd1=0.0, Kd2=0.0, Kd4=0.0, Vdc=12.0)
-    _, _, _, tr = run_raw(system, still, n_periods=2000, state=np.zeros(K.N_STATE))
+    _, _, _, tr = run_raw(system, still, n_periods=2000, state=np.zeros(len(K.STATE)))
     i_target = system.drive.holding_current
     assert np.any(np.abs(tr["va"]) > 0.99 * 12.0)          # it did saturate
     assert tr["ia"].max() < 1.05 * i_target
@@ -126,7 +126,7 @@ def test_stiction_holds_below_breakaway_and_slides_above(still):
     settings = RunSettings(mode="servo", damping="none")
     held = free.replace(load_torque=0.9 * fs)
     _, s, _, _ = run_raw(held, still, settings, n_periods=4000)
-    assert s[K.S_THETA] == 0.0 and s[K.S_OMEGA] == 0.0
+    assert s[K.STATE.THETA] == 0.0 and s[K.STATE.OMEGA] == 0.0
     # Above breakaway: constant deceleration (load - Fs)/J in the negative sense.
     load = 3.0 * fs
     slid = free.replace(load_torque=load)
@@ -134,8 +134,8 @@ def test_stiction_holds_below_breakaway_and_slides_above(still):
     _, s, _, _ = run_raw(slid, still, settings, n_periods=n)
     t = n / free.drive.pwm_hz
     J = free.motor.J
-    assert s[K.S_OMEGA] == pytest.approx(-(load - fs) / J * t, rel=1e-6)
-    assert s[K.S_THETA] == pytest.approx(-0.5 * (load - fs) / J * t * t, rel=1e-3)
+    assert s[K.STATE.OMEGA] == pytest.approx(-(load - fs) / J * t, rel=1e-6)
+    assert s[K.STATE.THETA] == pytest.approx(-0.5 * (load - fs) / J * t * t, rel=1e-3)
 
 
 def test_coulomb_friction_stops_a_coasting_rotor_and_keeps_it_stopped(still):
@@ -148,13 +148,13 @@ def test_coulomb_friction_stops_a_coasting_rotor_and_keeps_it_stopped(still):
 
     s = initial_state(c)
     w0 = 2.0
-    s[K.S_OMEGA] = w0
+    s[K.STATE.OMEGA] = w0
     fs, J = free.motor.Fs, free.motor.J
     t_stop = w0 * J / fs
     n = int(2 * t_stop * free.drive.pwm_hz)
     _, s, _, tr = run_raw(free, still, settings, n_periods=n, state=s)
-    assert s[K.S_OMEGA] == 0.0
-    assert s[K.S_THETA] == pytest.approx(0.5 * w0 * t_stop, rel=1e-3)
+    assert s[K.STATE.OMEGA] == 0.0
+    assert s[K.STATE.THETA] == pytest.approx(0.5 * w0 * t_stop, rel=1e-3)
     assert np.all(tr["omega"] >= 0.0)        # no reversal
 
 
@@ -195,7 +195,7 @@ def test_rk4_error_falls_with_the_fourth_power_of_the_step(patent):
     for sub in (1, 2, 4, 64):
         _, s, _, _ = run_raw(system, SpeedProfile(speed), RunSettings(substeps=sub),
                              n_periods=2000)
-        finals[sub] = s[K.S_THETA]
+        finals[sub] = s[K.STATE.THETA]
     e1 = abs(finals[1] - finals[64])
     e2 = abs(finals[2] - finals[64])
     e4 = abs(finals[4] - finals[64])
@@ -219,11 +219,11 @@ def test_chunked_runs_equal_one_long_run(patent):
 
     s_long = initial_state(c)
     s_chunk = s_long.copy()
-    empty = np.zeros((0, K.N_TRACE))
-    u = np.zeros(K.N_INPUT)
-    K.run_periods(c, s_long, np.zeros(K.N_ACC), u, 2000, empty, 1)
+    empty = np.zeros((0, len(K.TRACE)))
+    u = np.zeros(len(K.INPUT))
+    K.run_periods(c, s_long, np.zeros(len(K.ACC)), u, 2000, empty, 1)
     for _ in range(100):
-        K.run_periods(c, s_chunk, np.zeros(K.N_ACC), u, 20, empty, 1)
+        K.run_periods(c, s_chunk, np.zeros(len(K.ACC)), u, 20, empty, 1)
     assert np.array_equal(s_long, s_chunk)
 
 
@@ -239,7 +239,7 @@ def test_trace_voltages_are_the_applied_winding_voltages_one_period_late(patent)
 def test_open_loop_park_angle_uses_microstep_quantised_command(patent):
     res = simulate(patent, speed_rps=0.5, trace=True, duration_s=0.5)
     c = build_config(patent, SpeedProfile(0.5), RunSettings())
-    micro = c[K.C_MICROSTEP]
+    micro = c[K.CONFIG.MICROSTEP]
     q = np.floor(res.trace["theta_cmd"] / micro) * micro
     # id is measured in the frame of the quantised command angle: the holding
     # current is along it, so id ~ holding current and iq ~ 0.

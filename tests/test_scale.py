@@ -113,11 +113,11 @@ def test_batched_runner_adapts_a_scalar_policy_and_keeps_failed_runs(specs):
 
 def test_merge_accumulator_rows_is_merge_accumulators_row_by_row():
     rng = np.random.default_rng(3)
-    total = rng.normal(size=(6, K.N_ACC))
-    part = rng.normal(size=(6, K.N_ACC))
-    total[:, K.A_COUNT] = [0, 3, 2, 0, 5, 1]
-    part[:, K.A_COUNT] = [0, 0, 4, 2, 1, 1]
-    part[5, K.A_MIN_E] = np.nan                      # Python's min keeps the first
+    total = rng.normal(size=(6, len(K.ACC)))
+    part = rng.normal(size=(6, len(K.ACC)))
+    total[:, K.ACC.COUNT] = [0, 3, 2, 0, 5, 1]
+    part[:, K.ACC.COUNT] = [0, 0, 4, 2, 1, 1]
+    part[5, K.ACC.MIN_E] = np.nan                      # Python's min keeps the first
     expected = total.copy()
     for t, p in zip(expected, part):
         merge_accumulators(t, p)

@@ -57,10 +57,10 @@ def test_kernel_kalman_estimator_equals_filterpy_in_steady_state():
     res = simulate(system, speed_rps=0.8, settings=settings, trace=True, duration_s=0.4)
     tr = res.trace
     c = build_config(system, SpeedProfile(0.8), settings)
-    q = c[K.C_ENCODER]
-    dt = c[K.C_DT]
+    q = c[K.CONFIG.ENCODER]
+    dt = c[K.CONFIG.DT]
     k0, k1 = kalman_velocity_gains(dt, q, system.servo.kalman_accel_std)
-    assert (c[K.C_KF_K0], c[K.C_KF_K1]) == (k0, k1)
+    assert (c[K.CONFIG.KF_K0], c[K.CONFIG.KF_K1]) == (k0, k1)
     # Replay the kernel's fixed-gain recursion from filterpy's predict step.
     kf = kalman_velocity_filter(dt, q, system.servo.kalman_accel_std)
     kf.x = np.array([[tr["theta_fb"][0] + 0.5 * q], [0.0]])

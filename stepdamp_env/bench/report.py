@@ -410,7 +410,7 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
 
     def sample(env: Any, obs: np.ndarray, start: float) -> np.ndarray:
         tr = env.step_trace
-        return tr[tr[:, K.T_T] >= start - 1e-12]
+        return tr[tr[:, K.TRACE.T] >= start - 1e-12]
 
     start, length = episode_window(motor.system, speed_rps, protocol.accel_rps2,
                                    protocol.window_s, motor.settle_s(suite))
@@ -420,10 +420,10 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
                          window_s=protocol.window_s, settle_s=motor.settle_s(suite),
                          until_s=None if span_s is None else start + span_s,
                          on_step=sample, pwm_trace=True)
-    rows = np.concatenate(result.trace) if result.trace else np.zeros((0, K.N_TRACE))
+    rows = np.concatenate(result.trace) if result.trace else np.zeros((0, len(K.TRACE)))
     end = start + (length if span_s is None else span_s)
-    rows = rows[rows[:, K.T_T] < end]
-    return rows[:, K.T_T] - start, rows[:, K.T_OMEGA_CMD] - rows[:, K.T_OMEGA]
+    rows = rows[rows[:, K.TRACE.T] < end]
+    return rows[:, K.TRACE.T] - start, rows[:, K.TRACE.OMEGA_CMD] - rows[:, K.TRACE.OMEGA]
 
 
 def _speed_title(label: str) -> str:

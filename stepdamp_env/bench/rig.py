@@ -67,9 +67,9 @@ class CalibrationRig:
         config = build_config(system, profile, settings, window_start_s=start)
         state = initial_state(config)
         acc = new_accumulators()
-        inputs = np.zeros(K.N_INPUT)
-        inputs[K.U_DS1:K.U_DC4 + 1] = corr
+        inputs = np.zeros(len(K.INPUT))
+        inputs[K.INPUT.DS1:K.INPUT.DC4 + 1] = corr
         n = int(math.ceil((start + length) * system.drive.pwm_hz))
-        K.run_periods(config, state, acc, inputs, n, np.zeros((0, K.N_TRACE)), 1)
+        K.run_periods(config, state, acc, inputs, n, np.zeros((0, len(K.TRACE))), 1)
         amps = metrics_from_accumulators(acc, system, speed_rps).harmonic_amplitude_rad_s
         return np.array([amps[h] for h in DETENT_HARMONICS]), n / system.drive.pwm_hz

@@ -88,10 +88,10 @@ IX_COUNT_ALL = 12
 IX_SUM_IFF2_ALL = 13
 IX_MAX_LAG = 14
 IX_MAX_CURRENT = 15
-KERNEL_INDEX = np.array([K.S_THETA_FB, K.S_OMEGA_FB, K.S_THETA_CMD, K.S_OMEGA_CMD,
-                         K.S_ID_MEAS, K.S_IQ_MEAS, K.S_PARK_ANGLE, K.S_THETA, K.S_OMEGA,
-                         K.S_IA, K.S_IB, K.A_SUM_E2_ALL, K.A_COUNT_ALL, K.A_SUM_IFF2_ALL,
-                         K.A_MAX_LAG, K.A_MAX_CURRENT], dtype=np.int64)
+KERNEL_INDEX = np.array([K.STATE.THETA_FB, K.STATE.OMEGA_FB, K.STATE.THETA_CMD, K.STATE.OMEGA_CMD,
+                         K.STATE.ID_MEAS, K.STATE.IQ_MEAS, K.STATE.PARK_ANGLE, K.STATE.THETA, K.STATE.OMEGA,
+                         K.STATE.IA, K.STATE.IB, K.ACC.SUM_E2_ALL, K.ACC.COUNT_ALL, K.ACC.SUM_IFF2_ALL,
+                         K.ACC.MAX_LAG, K.ACC.MAX_CURRENT], dtype=np.int64)
 
 
 @_jit

@@ -11,8 +11,8 @@ __all__ = ["trace_rows", "render_episode"]
 
 def trace_rows(trace: np.ndarray) -> np.ndarray:
     """t (s), velocity error (rad/s), ia, ib, injected iq (A) of every traced PWM period."""
-    return np.stack([trace[:, K.T_T], trace[:, K.T_OMEGA_CMD] - trace[:, K.T_OMEGA],
-                     trace[:, K.T_IA], trace[:, K.T_IB], trace[:, K.T_IQ_FF]])
+    return np.stack([trace[:, K.TRACE.T], trace[:, K.TRACE.OMEGA_CMD] - trace[:, K.TRACE.OMEGA],
+                     trace[:, K.TRACE.IA], trace[:, K.TRACE.IB], trace[:, K.TRACE.IQ_FF]])
 
 
 def render_episode(rows: list[np.ndarray], title: str) -> np.ndarray:

@@ -62,11 +62,11 @@ class EpisodeSampler:
         self._current_scale_a = float(current_scale)
         # The kernel's inputs ds1..dc4 and iq are adjacent (U_DS1..U_IQ).
         if o.action_mode == "harmonic":
-            self._offset, scales = K.U_DS1, (harmonic_scale,) * 6
+            self._offset, scales = K.INPUT.DS1, (harmonic_scale,) * 6
         elif o.action_mode == "current":
-            self._offset, scales = K.U_IQ, (current_scale,)
+            self._offset, scales = K.INPUT.IQ, (current_scale,)
         else:
-            self._offset, scales = K.U_DS1, (harmonic_scale,) * 6 + (current_scale,)
+            self._offset, scales = K.INPUT.DS1, (harmonic_scale,) * 6 + (current_scale,)
         self._action_scales = tuple(float(x) for x in scales)
         self._act_dim = len(scales)
         self._obs_dim = C.N_BASE_OBS + self._act_dim + (C.N_PRIVILEGED if o.privileged else 0)
@@ -190,7 +190,7 @@ class EpisodeSampler:
 
     def initial_observation(self, s: np.ndarray, par: np.ndarray, obs: np.ndarray) -> None:
         """Observation before the first step into ``obs``; arguments are (1, n) rows."""
-        acc = np.zeros((1, K.N_ACC))
-        acc[0, K.A_COUNT_ALL] = 1.0
+        acc = np.zeros((1, len(K.ACC)))
+        acc[0, K.ACC.COUNT_ALL] = 1.0
         C.observe(s, acc, np.zeros((1, self._act_dim), dtype=np.float32), par, C.KERNEL_INDEX,
                   bool(self._options.privileged), obs, np.zeros((1, C.N_OUT)))

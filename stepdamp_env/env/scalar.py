@@ -127,16 +127,16 @@ class StepperDampEnv(gym.Env):
         self._privileged = bool(self.options.privileged)
         self._measuring = self.options.measure_from_s is not None
         # One-row 2-D arrays for the compiled helpers, 1-D views of them for the kernel.
-        self._c2 = np.zeros((1, K.N_CONFIG))
-        self._s2 = np.zeros((1, K.N_STATE))
-        self._acc2 = np.zeros((1, K.N_ACC))
-        self._u2 = np.zeros((1, K.N_INPUT))
+        self._c2 = np.zeros((1, len(K.CONFIG)))
+        self._s2 = np.zeros((1, len(K.STATE)))
+        self._acc2 = np.zeros((1, len(K.ACC)))
+        self._u2 = np.zeros((1, len(K.INPUT)))
         self._par2 = np.zeros((1, C.N_PAR))
         self._a2 = np.zeros((1, f.act_dim))
         self._obs2 = np.zeros((1, f.obs_dim), dtype=np.float32)
         self._out2 = np.zeros((1, C.N_OUT))
         self._bind_views()
-        self._trace = np.zeros((self._n if render_mode else 0, K.N_TRACE))
+        self._trace = np.zeros((self._n if render_mode else 0, len(K.TRACE)))
         self._history: list[np.ndarray] = []
         self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
@@ -162,12 +162,12 @@ class StepperDampEnv(gym.Env):
     # -- public read-outs ------------------------------------------------------
     @property
     def drive_state(self) -> np.ndarray:
-        """Copy of the kernel's state vector (``kernel.S_*``; SI units)."""
+        """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
         return self._s.copy()
 
     @property
     def drive_config(self) -> np.ndarray:
-        """Copy of the kernel's configuration vector (``kernel.C_*``) of this episode."""
+        """Copy of the kernel's configuration vector (``kernel.CONFIG``) of this episode."""
         return self._c.copy()
 
     @property
@@ -188,7 +188,7 @@ class StepperDampEnv(gym.Env):
     @property
     def time_s(self) -> float:
         """Simulated time since the episode started (s)."""
-        return float(self._s[K.S_PERIOD] * self._c[K.C_DT])
+        return float(self._s[K.STATE.PERIOD] * self._c[K.CONFIG.DT])
 
     @property
     def step_trace(self) -> np.ndarray:
@@ -323,7 +323,7 @@ class StepperDampBatch:
     @property
     def time_s(self) -> np.ndarray:
         """Each row's simulated time (s), as the env's ``time_s``."""
-        return self._s[:, K.S_PERIOD] * self._c[:, K.C_DT]
+        return self._s[:, K.STATE.PERIOD] * self._c[:, K.CONFIG.DT]
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance every row one agent step with ``actions`` (n, act_dim); returns

@@ -39,7 +39,7 @@ __all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv",
            "StepperDampV1Batch"]
 
 TWO_PI = 2.0 * math.pi
-_FF_COLUMNS = (K.C_FF_S1, K.C_FF_C1, K.C_FF_S2, K.C_FF_C2, K.C_FF_S4, K.C_FF_C4)
+_FF_COLUMNS = (K.CONFIG.FF_S1, K.CONFIG.FF_C1, K.CONFIG.FF_S2, K.CONFIG.FF_C2, K.CONFIG.FF_S4, K.CONFIG.FF_C4)
 
 
 class TaskV1:
@@ -74,14 +74,14 @@ class TaskV1:
         if o.action_mode == "damping-gains":
             # (kv, kp) = (cos phi, -sin phi): velocity feedback with a lead of about phi at wn.
             scales = (kv, kv * u.wn_rad_s) + (kr,) * 6
-            self.law_actions, self.input_offset = True, K.L_KV
+            self.law_actions, self.input_offset = True, K.LAW.KV
         elif o.action_mode == "harmonic":
-            scales, self.law_actions, self.input_offset = (harmonic,) * 6, False, K.U_DS1
+            scales, self.law_actions, self.input_offset = (harmonic,) * 6, False, K.INPUT.DS1
         elif o.action_mode == "current":
-            scales, self.law_actions, self.input_offset = (current,), False, K.U_IQ
+            scales, self.law_actions, self.input_offset = (current,), False, K.INPUT.IQ
         else:
             scales, self.law_actions, self.input_offset = ((harmonic,) * 6 + (current,), False,
-                                                           K.U_DS1)
+                                                           K.INPUT.DS1)
         self.action_scales = tuple(float(x) for x in scales)
         # The high-pass of the position error: corner wn/4 (13 degrees of lead at wn).
         self.law_hp_alpha = 1.0 - fm.exp(-0.25 * u.wn_rad_s / drive.pwm_hz)
@@ -158,8 +158,8 @@ class TaskV1:
         par[V.P_CUR_PEN] = o.current_penalty
         par[V.P_ACT_SCALE:V.P_ACT_SCALE + self.act_dim] = self.action_scales
         law[:] = 0.0
-        law[K.L_HP_ALPHA] = self.law_hp_alpha
-        law[K.L_LIMIT] = self.law_limit_a
+        law[K.LAW.HP_ALPHA] = self.law_hp_alpha
+        law[K.LAW.LIMIT] = self.law_limit_a
         if self.n_context:
             ctx[:] = self.context(estimate, speed)
         return {"speed_rps": speed, "target_harmonic": h}, system
@@ -171,11 +171,11 @@ class DriveBatch:
     def __init__(self, task: TaskV1, n: int) -> None:
         self.task = t = task
         self.n = n
-        self.c = np.zeros((n, K.N_CONFIG))
-        self.s = np.zeros((n, K.N_STATE))
-        self.acc = np.zeros((n, K.N_ACC))
-        self.u = np.zeros((n, K.N_INPUT))
-        self.law = np.zeros((n, K.N_LAW))
+        self.c = np.zeros((n, len(K.CONFIG)))
+        self.s = np.zeros((n, len(K.STATE)))
+        self.acc = np.zeros((n, len(K.ACC)))
+        self.u = np.zeros((n, len(K.INPUT)))
+        self.law = np.zeros((n, len(K.LAW)))
         self.par = np.zeros((n, V.N_PAR))
         self.history = np.zeros((n, V.N_HISTORY_SIGNALS * t.options.history), dtype=np.float32)
         self.ctx = np.zeros((n, t.n_context), dtype=np.float32)
@@ -224,7 +224,7 @@ class DriveBatch:
         self.history[i] = 0.0
         self.speeds_rps[i] = info["speed_rps"]
         self.acc[i] = 0.0
-        self.acc[i, K.A_COUNT_ALL] = 1.0
+        self.acc[i, K.ACC.COUNT_ALL] = 1.0
         self._observe(slice(i, i + 1))
         return info
 
@@ -400,7 +400,7 @@ class StepperDampV1Env(gym.Env):
         self.observation_space = task.observation_space()
         self.action_space = task.action_space()
         self._drives = DriveBatch(task, 1)
-        self._trace = np.zeros((task.n_periods if render_mode else 0, K.N_TRACE))
+        self._trace = np.zeros((task.n_periods if render_mode else 0, len(K.TRACE)))
         self._frames: list[np.ndarray] = []
         self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
@@ -409,7 +409,7 @@ class StepperDampV1Env(gym.Env):
 
     @property
     def drive_state(self) -> np.ndarray:
-        """Copy of the kernel's state vector (``kernel.S_*``; SI units)."""
+        """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
         return self._drives.s[0].copy()
 
     @property

@@ -68,7 +68,7 @@ O_LAW_RMS = 9       # rms current of the damping law (A)
 N_OUT = 10
 
 IX_LAW_SUM_I2 = 0
-LAW_INDEX = np.array([K.L_SUM_I2], dtype=np.int64)
+LAW_INDEX = np.array([K.LAW.SUM_I2], dtype=np.int64)
 
 # Positions in compiled.KERNEL_INDEX, copied so that this module's cache never
 # depends on another file; the import fails if they drift apart.

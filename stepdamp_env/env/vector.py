@@ -69,10 +69,10 @@ class StepperDampVectorEnv(VectorEnv):
         self._steps_per_call = f.n_periods
         self._offset = f.input_offset
         self._privileged = bool(self.options.privileged)
-        self._c = np.zeros((n, K.N_CONFIG))
-        self._s = np.zeros((n, K.N_STATE))
-        self._acc = np.zeros((n, K.N_ACC))
-        self._u = np.zeros((n, K.N_INPUT))
+        self._c = np.zeros((n, len(K.CONFIG)))
+        self._s = np.zeros((n, len(K.STATE)))
+        self._acc = np.zeros((n, len(K.ACC)))
+        self._u = np.zeros((n, len(K.INPUT)))
         self._par = np.zeros((n, C.N_PAR))
         self._obs = np.zeros((n, f.obs_dim), dtype=np.float32)
         self._out = np.zeros((n, C.N_OUT))
@@ -95,7 +95,7 @@ class StepperDampVectorEnv(VectorEnv):
 
     @property
     def drive_states(self) -> np.ndarray:
-        """Copy of the kernel's state rows (``kernel.S_*``; SI units), one per drive."""
+        """Copy of the kernel's state rows (``kernel.STATE``; SI units), one per drive."""
         return self._s.copy()
 
     def _reset_drive(self, i: int) -> dict[str, Any]:
