@@ -97,7 +97,7 @@ class ResidualAgent:
                           if k in ("agent_hz", "velocity_estimator")}
         self.hold_steps = int(self.config.get("hold_steps", 1))
         self.feedback_gain = float(self.config.get("feedback_gain", 0.0))
-        which = self.config.get("estimate", self.config.get("eval_estimate", "identified"))
+        which = self.config.get("estimate", "identified")
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=which,
                                learned=True, oracle=which == "exact")
         self._constants = EpisodeConstants(1)
@@ -106,8 +106,7 @@ class ResidualAgent:
         self._sq = 0.0
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
-        # "eval_estimate": the key of configs written before 0.2.
-        which = self.config.get("estimate", self.config.get("eval_estimate", "identified"))
+        which = self.config.get("estimate", "identified")
         return {"base_controller": "patent-ff", "action_mode": self.action_mode,
                 **self.env_extra, "estimate": resolve_estimate(which, knowledge)}
 

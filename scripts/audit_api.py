@@ -110,7 +110,8 @@ def probes() -> Counter:
 
     import stepdamp_env  # noqa: F401  (registers the env)
     from stepdamp_env.env import EnvOptions, StepperDampEnv
-    from stepdamp_env.params import SystemParams, get_preset
+    from stepdamp_env.params import SystemParams
+    from stepdamp_env.presets import get_preset
     from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 
     cases: list[tuple[str, Callable[[], Any], bool]] = []

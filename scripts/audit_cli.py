@@ -29,7 +29,7 @@ A watchdog ends the audit (status 3) if one case runs longer than 240 s.
 Cases are cheap: ``sweep`` gets one speed (``--speeds 0.5:0.5:0.1``),
 ``simulate`` ``--speed 0.5``, ``identify`` ``--method least-squares``,
 ``leaderboard`` ``--quick --no-plots --no-progress --suite open-loop
---baselines none --workers 1``, ``train`` 8 PPO timesteps on one drive without
+--entries none --workers 1``, ``train`` 8 PPO timesteps on one drive without
 validation, wherever the mistake is elsewhere. The whole audit takes a few
 minutes on 2 cores. Temporary files live in a ``tempfile.mkdtemp()`` directory
 (also the working directory during the run) that is removed at the end.
@@ -202,7 +202,7 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
 
     def board(label: str, *extra: str, **over: object) -> None:
         base = [("--quick", True), ("--no-plots", True), ("--no-progress", True),
-                ("--suite", "open-loop"), ("--baselines", "none"), ("--workers", "1"),
+                ("--suite", "open-loop"), ("--entries", "none"), ("--workers", "1"),
                 ("--out", out())]
         add(label, *_argv("leaderboard", base, over, extra))
 
@@ -362,9 +362,9 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     # --- leaderboard ------------------------------------------------------
     board("--suite not a choice", **{"--suite": "both"})
     board("--suite empty", **{"--suite": ""})
-    board("--baselines unknown", **{"--baselines": "nosuch"})
-    board("--baselines one good, one unknown", **{"--baselines": ["none", "nosuch"]})
-    board("--baselines empty name", **{"--baselines": ""})
+    board("--entries unknown", **{"--entries": "nosuch"})
+    board("--entries one good, one unknown", **{"--entries": ["none", "nosuch"]})
+    board("--entries empty name", **{"--entries": ""})
     board("--policy module that does not exist", "--policy", "nosuch_module_xyz:attr")
     board("--policy missing .py file", "--policy",
           os.path.join(tmp, "policies", "missing.py") + ":Policy")

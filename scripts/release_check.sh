@@ -34,7 +34,7 @@ step "4. a tiny agent, trained and put on the leaderboard"
 (cd "$work" && stepdamp train --algo ppo --total-timesteps 128 --eval-freq 0 \
     --checkpoint-freq 0 --no-progress --no-tensorboard --out run | tail -n 2)
 (cd "$work" && stepdamp leaderboard --quick --no-progress --no-plots --suite open-loop \
-    --baselines none ff-delay-comp --policy run/final.zip --out lb-agent | tail -n 5)
+    --entries none ff-delay-comp --policy run/final.zip --out lb-agent | tail -n 5)
 
 step "5. uninstall leaves nothing in site-packages"
 site="$(python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"

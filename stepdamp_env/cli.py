@@ -23,8 +23,8 @@ import numpy as np
 
 from .io import check_output_dir, check_writable, staged_directory
 from .ray_backend import backend_map
-from .params import (FeedforwardModel, ParameterError, load_system, parse_set_overrides,
-                     preset_names)
+from .params import FeedforwardModel, ParameterError, load_system, parse_set_overrides
+from .presets import preset_names
 from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
                          measuring_window, simulate)
 from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS, resolving_spacing
@@ -320,7 +320,8 @@ def _register_policies() -> None:
 
 def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench import default_policy_names, run_leaderboard, write_outputs
-    from .bench.protocol_v1 import load_motors_file, protocol_for
+    from .bench.protocols import protocol_class, protocol_for, protocol_versions
+    from .bench.protocols.v1 import load_motors_file
     from .bench.report import (RESULT_FILES, entry_rows, format_summary, render_per_motor,
                                splits)
 
@@ -329,14 +330,14 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     check_output_dir(args.out, "--out", own_dirs=(RESUME_DIR,))
     protocol = protocol_for(args.protocol, quick=args.quick)
     if args.motors is not None:
-        if args.protocol == "v0":
-            raise ParameterError("--motors needs --protocol v1 (v0's motors are frozen)")
         protocol = protocol.with_custom_motors(load_motors_file(args.motors, protocol))
     _register_policies()
-    if args.suite == "mid-band" and args.protocol != "v2":
-        raise ParameterError("--suite mid-band needs --protocol v2 (v0 and v1 are frozen "
-                             "without it)")
     if args.suite != "all":
+        if args.suite not in protocol.known_suites:
+            has = [v for v in protocol_versions() if args.suite in protocol_class(v).known_suites]
+            raise ParameterError(f"--suite {args.suite}: {protocol.name} {protocol.version} has "
+                                 f"{list(protocol.known_suites)}; --protocol {' or '.join(has)} "
+                                 f"has {args.suite}")
         protocol = protocol.with_suites((args.suite,))
     named = default_policy_names()
     chosen = list(named) if args.entries is None else [b for g in args.entries for b in g]
@@ -491,12 +492,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="result directory")
     p.set_defaults(func=_cmd_identify)
 
-    p = command("leaderboard", "run the stepdamp-bench protocol (v1 by default) on the "
-                               "baselines, the reference agents and given policies")
-    p.add_argument("--protocol", choices=["v0", "v1", "v2"], default="v1",
-                   help="protocol version: v1 (default; interpolation and extrapolation "
-                        "splits), v2 (v1 plus the voltage-mode drive's mid-band suite) or "
-                        "the frozen v0 of the published numbers")
+    from .bench.protocols import DEFAULT_VERSION, protocol_versions
+
+    p = command("leaderboard", f"run the stepdamp-bench protocol ({DEFAULT_VERSION} by "
+                               "default) on the baselines, the reference agents and given "
+                               "policies")
+    p.add_argument("--protocol", choices=protocol_versions(), default=DEFAULT_VERSION,
+                   help="protocol version, each specified in docs/protocols.md: v1 "
+                        "(interpolation and extrapolation splits), v2 (v1 plus the "
+                        "voltage-mode drive's mid-band suite), v0 (frozen, the first "
+                        "published numbers)")
     p.add_argument("--quick", action="store_true",
                    help="the protocol's reduced CI variant (v1 and v2: 8 motors, resonant speeds, "
                         "two servo speeds, 0.1 s window; v0: presets, one seed)")
@@ -509,7 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "class, factory or instance), a model `stepdamp train` wrote "
                         "(DIR/best.zip) or an SB3 .zip; repeatable. Loading runs its code "
                         "(an SB3 .zip unpickles): use trusted files only")
-    p.add_argument("--entries", "--baselines", dest="entries", action="append", nargs="+",
+    p.add_argument("--entries", dest="entries", action="append", nargs="+",
                    default=None, metavar="NAME",
                    help="run only these registered entries, baselines and reference agents "
                         "(default: all; 'none' always runs)")

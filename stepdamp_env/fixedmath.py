@@ -24,10 +24,12 @@ import math
 import numpy as np
 from numba import njit
 
+from .fields import layout
+
 __all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "atan", "atan2", "hypot", "tanh",
            "cexp", "cmul", "exp_array", "sincos_array", "dot", "weighted_rows",
            "lstsq", "solve", "random_walk_kalman_update", "mlp_forward",
-           "IDENTITY", "RELU", "TANH"]
+           "ACTIVATION"]
 
 # numba without fastmath: no reassociation, no contraction into FMA.
 _jit = njit(cache=True, error_model="numpy")
@@ -486,7 +488,11 @@ def random_walk_kalman_update(x, p, h, z, q, r):
 
 # --- the learned policies' networks ------------------------------------------
 # Activations of mlp_forward's layers.
-IDENTITY, RELU, TANH = 0, 1, 2
+ACTIVATION = layout("Activation", """
+    IDENTITY  no activation
+    RELU      max(x, 0)
+    TANH      tanh(x)
+""")
 
 
 @_jit
@@ -494,7 +500,7 @@ def mlp_forward(x, weights, biases, sizes, activations):
     """A feed-forward network on each row of ``x`` (float32 or float64, n x d):
     layer l maps sizes[l] inputs to sizes[l+1] outputs, ``weights`` holds every
     layer's (out, in) matrix row by row and ``biases`` their biases, one after
-    the other, ``activations[l]`` is IDENTITY, RELU or TANH. Every sum runs in
+    the other, ``activations[l]`` is an ``ACTIVATION`` code. Every sum runs in
     input order in float64, whatever the batch size; returns float64 (n x out)."""
     n = x.shape[0]
     layers = activations.size
@@ -517,9 +523,9 @@ def mlp_forward(x, weights, biases, sizes, activations):
                 base = w_at + o * n_in
                 for i in range(n_in):
                     s += weights[base + i] * a[i]
-                if act == RELU:
+                if act == ACTIVATION.RELU:
                     s = s if s > 0.0 else 0.0
-                elif act == TANH:
+                elif act == ACTIVATION.TANH:
                     s = tanh(s)
                 z[o] = s
             for o in range(n_out):

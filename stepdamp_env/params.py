@@ -628,15 +628,3 @@ def parse_set_overrides(items: Iterable[str]) -> dict[str, float | str]:
             raise ParameterError(f"--set {name}: {raw!r} is not a number") from None
         out[name] = int(value) if value.is_integer() and name in _INTEGER_FIELDS else value
     return out
-
-
-# The preset API lives in stepdamp_env.presets, which imports this module; it is
-# re-exported here on first access (PEP 562) so neither import runs the other.
-_PRESET_API = ("PRESETS", "preset_names", "get_preset")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _PRESET_API:
-        from . import presets
-        return getattr(presets, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

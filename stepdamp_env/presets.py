@@ -2,8 +2,8 @@
 
 Each preset gives its provenance beside its numbers: the document a value is
 taken from, or ASSUMED where the document is silent. :func:`get_preset` and
-:func:`preset_names` are also importable from :mod:`stepdamp_env.params` and
-:mod:`stepdamp_env`, as is :data:`PRESETS`.
+:func:`preset_names` are also importable from :mod:`stepdamp_env`, as is
+:data:`PRESETS`.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ from stepdamp_env import kernel as K  # noqa: E402
 from stepdamp_env.bench import (MotorKnowledge, PolicyContext, policy_env_options,  # noqa: E402
                                 run_episode)
 from stepdamp_env.env import StepperDampEnv  # noqa: E402
-from stepdamp_env.params import FeedforwardModel, get_preset  # noqa: E402
+from stepdamp_env.params import FeedforwardModel  # noqa: E402
+from stepdamp_env.presets import get_preset  # noqa: E402
 
 torch.set_num_threads(1)
 MOTOR = "qsh4218-51-10-049"

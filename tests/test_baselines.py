@@ -13,7 +13,8 @@ from stepdamp_env import kernel as K
 from stepdamp_env.bench import MotorKnowledge, run_episode
 from stepdamp_env.identify import identify
 from stepdamp_env.bench.rig import CalibrationRig
-from stepdamp_env.params import FeedforwardModel, get_preset
+from stepdamp_env.params import FeedforwardModel
+from stepdamp_env.presets import get_preset
 from stepdamp_env.response import current_path
 from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window
 

@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 
 from stepdamp_env.bench import full_protocol, quick_protocol
-from stepdamp_env.bench.motors import (holds_its_load, in_training_distribution,
-                                       protocol_v1_motors, settle_times)
-from stepdamp_env.bench.protocol_v1 import (SHIFTS, full_protocol_v1, load_motors_file,
-                                            protocol_for, quick_protocol_v1)
+from stepdamp_env.bench.motors import holds_its_load, protocol_motors
+from stepdamp_env.bench.protocols import protocol_for
+from stepdamp_env.bench.protocols.v1 import (SHIFTS, full_protocol_v1, in_training_distribution,
+                                             load_motors_file, quick_protocol_v1)
 from stepdamp_env.bench.stats import (iqm, probability_of_improvement,
                                       stratified_bootstrap_ci, two_level_bootstrap)
-from stepdamp_env.params import ParameterError, get_preset
+from stepdamp_env.params import ParameterError
+from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 
 
@@ -29,7 +30,7 @@ from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 # Splits
 # ---------------------------------------------------------------------------
 def test_splits_are_disjoint_and_deterministic():
-    motors = protocol_v1_motors(full_protocol_v1())
+    motors = protocol_motors(full_protocol_v1())
     names = [m.name for m in motors]
     assert len(names) == len(set(names)) == 36
     params = [json.dumps({k: v for k, v in m.system.to_dict().items() if k != "name"},
@@ -39,17 +40,16 @@ def test_splits_are_disjoint_and_deterministic():
                                                                  "extrapolation")}
     assert len(by_split["interpolation"]) == 16 and len(by_split["extrapolation"]) == 20
     # A fresh draw (cache bypassed) gives the same motors.
-    again = protocol_v1_motors(dataclasses.replace(full_protocol_v1(), variant="again"))
+    again = protocol_motors(dataclasses.replace(full_protocol_v1(), variant="again"))
     assert [m.system for m in again] == [m.system for m in motors]
     # No v1 motor is a v0 protocol motor or a preset (agents train on presets).
-    from stepdamp_env.bench import protocol_motors
     v0 = {m.system.motor for m in protocol_motors(full_protocol())}
     assert not v0 & {m.system.motor for m in motors}
 
 
 def test_training_distribution_contains_interpolation_and_excludes_extrapolation():
     p = full_protocol_v1()
-    for m in protocol_v1_motors(p):
+    for m in protocol_motors(p):
         preset = get_preset(m.nominal.name).replace(current_noise_a=p.current_noise_a,
                                                     encoder_cpr=p.encoder_cpr)
         inside = in_training_distribution(m.system, preset, p)
@@ -58,7 +58,7 @@ def test_training_distribution_contains_interpolation_and_excludes_extrapolation
     # Each shift alone puts a motor outside: its own field leaves the training box.
     box = {n: (lo, hi) for n, lo, hi in p.training_randomization}
     shifts = {s.name: s for s in SHIFTS}
-    for m in protocol_v1_motors(p):
+    for m in protocol_motors(p):
         if m.split != "extrapolation":
             continue
         preset = get_preset(m.nominal.name)
@@ -72,7 +72,7 @@ def test_training_distribution_contains_interpolation_and_excludes_extrapolation
 
 
 def test_declared_shifts_reach_the_nominal_model_and_hidden_ones_do_not():
-    motors = {m.name: m for m in protocol_v1_motors(full_protocol_v1())}
+    motors = {m.name: m for m in protocol_motors(full_protocol_v1())}
     m = motors["patent~x-0.9-degree"]
     assert m.system.motor.Nr == m.nominal.motor.Nr == 100
     m = motors["patent~x-low-bus"]
@@ -88,7 +88,7 @@ def test_physics_rule_and_servo_grid():
     p = full_protocol_v1()
     weak = get_preset("patent").replace(load_torque=0.2)      # 0.57 N*m holding torque
     assert not holds_its_load(weak, p.holding_margin)
-    for m in protocol_v1_motors(p):
+    for m in protocol_motors(p):
         speeds, labels = m.speeds("servo")
         f4 = m.system.predicted_resonances_rps()[4]
         assert np.allclose(speeds, np.array(p.servo_factors) * f4)
@@ -102,12 +102,12 @@ def test_physics_rule_and_servo_grid():
 # ---------------------------------------------------------------------------
 def test_settling_follows_the_decay_time_without_a_clip():
     p = full_protocol_v1()
-    motors = {m.name: m for m in protocol_v1_motors(p)}
+    motors = {m.name: m for m in protocol_motors(p)}
     slow = motors["qsh5718-56-28-126~x-inertia"]
     m = slow.system.motor
     assert slow.settle_s("open-loop") == pytest.approx(4.0 * 2.0 * m.J / m.D)
     assert slow.settle_s("open-loop") > 0.6                 # v0 would clip it to 0.6 s
-    assert settle_times(get_preset("patent"), p)["servo"] == pytest.approx(0.1)
+    assert p.settle_times(get_preset("patent"))["servo"] == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("suite", ["open-loop", "servo"])
@@ -117,7 +117,7 @@ def test_the_window_opens_in_steady_state(suite):
     clip left it inside). One later window alone is no reference: in servo at the
     lowest speeds the encoder's counts beat, and 0.3 s windows a second apart
     differ by more than 6 % by themselves."""
-    motors = {m.name: m for m in protocol_v1_motors(full_protocol_v1())}
+    motors = {m.name: m for m in protocol_motors(full_protocol_v1())}
     m = motors["qsh5718-56-28-126~x-inertia"]
     speeds, labels = m.speeds(suite)
     for v in speeds[:3]:
@@ -233,7 +233,7 @@ def test_motors_file(tmp_path):
     assert [s.name for s in systems] == ["patent", "mine"]
     assert systems[0].drive.current_noise_a == 0.01 and systems[0].servo.encoder_cpr == 4000
     assert systems[1].servo.encoder_cpr == 1000                 # the file's own sensor
-    motors = protocol_v1_motors(p.with_custom_motors(systems))
+    motors = protocol_motors(p.with_custom_motors(systems))
     assert [m.split for m in motors] == ["custom", "custom"]
     assert all(m.nominal == m.system for m in motors)
     for bad, match in (("[]", "non-empty"), ("{", "not valid JSON"),

@@ -10,7 +10,7 @@ import pytest
 
 from stepdamp_env import io as sio
 from stepdamp_env.cli import main
-from stepdamp_env.params import get_preset
+from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings
 from stepdamp_env.sweep import parse_speed_range, run_sweep
 

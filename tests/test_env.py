@@ -16,7 +16,8 @@ import stepdamp_env
 from stepdamp_env import kernel as K
 from stepdamp_env.env import (DEFAULT_EPISODE_STEPS, ENV_ID, StepperDampEnv,
                                StepperDampVectorEnv, register_envs)
-from stepdamp_env.params import FeedforwardModel, get_preset, predicted_resonances
+from stepdamp_env.params import FeedforwardModel, predicted_resonances
+from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import simulate
 
 

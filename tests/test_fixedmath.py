@@ -141,7 +141,7 @@ def test_mlp_forward_is_the_network_and_independent_of_the_batch():
     sizes = np.array([5, 8, 8, 3])
     ws = [RNG.normal(size=(8, 5)), RNG.normal(size=(8, 8)), RNG.normal(size=(3, 8))]
     bs = [RNG.normal(size=8), RNG.normal(size=8), RNG.normal(size=3)]
-    acts = np.array([fm.TANH, fm.RELU, fm.IDENTITY])
+    acts = np.array([fm.ACTIVATION.TANH, fm.ACTIVATION.RELU, fm.ACTIVATION.IDENTITY])
     x = RNG.normal(size=(9, 5)).astype(np.float32)
     got = fm.mlp_forward(x, np.concatenate([w.ravel() for w in ws]), np.concatenate(bs),
                          sizes, acts)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stepdamp_baselines import BASELINE_NAMES
-from stepdamp_env.bench import (TRAINING_SEED_LIMIT, Protocol, full_protocol, iqm,
+from stepdamp_env.bench import (TRAINING_SEED_LIMIT, Protocol, ProtocolV0, full_protocol, iqm,
                                 protocol_motors, quick_protocol, run_leaderboard,
                                 stratified_bootstrap_ci)
 from stepdamp_env.bench.report import load_leaderboard
@@ -93,9 +93,9 @@ def test_protocol_motors_seeds_and_speed_grid():
     drawn = [m for m in motors if m.name not in p.presets]
     assert all(m.system.motor != m.nominal.motor for m in drawn)
     with pytest.raises(ParameterError, match="eval_seeds"):
-        Protocol(eval_seeds=(5,))
+        ProtocolV0(eval_seeds=(5,))
     with pytest.raises(ParameterError, match="suites"):
-        Protocol(suites=("closed-loop",))
+        ProtocolV0(suites=("closed-loop",))
 
 
 # -- runs -------------------------------------------------------------------------------
@@ -162,7 +162,7 @@ def test_identified_baseline_runs():
 def test_cli_writes_leaderboard(tmp_path, capsys):
     out = tmp_path / "lb"
     rc = main(["leaderboard", "--protocol", "v0", "--quick", "--suite", "open-loop",
-               "--baselines", "none", "patent-ff-oracle", "--policy", TEST_POLICY,
+               "--entries", "none", "patent-ff-oracle", "--policy", TEST_POLICY,
                "--out", str(out), "--no-progress"])
     assert rc == 0
     board = json.loads((out / "leaderboard.json").read_text())
@@ -202,7 +202,7 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
 
     # A second run replaces the results as a set and keeps a file it did not write.
     (out / "notes.txt").write_text("mine")
-    rc = main(["leaderboard", "--quick", "--suite", "open-loop", "--baselines", "none",
+    rc = main(["leaderboard", "--quick", "--suite", "open-loop", "--entries", "none",
                "--out", str(out), "--no-progress", "--no-plots"])
     assert rc == 0
     assert sorted(os.listdir(out)) == ["LEADERBOARD.md", "leaderboard.json",

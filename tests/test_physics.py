@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stepdamp_env import kernel as K
-from stepdamp_env.params import get_preset
+from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings, SpeedProfile, build_config, simulate
 
 from conftest import run_raw

@@ -32,9 +32,9 @@ from hypothesis import strategies as st
 
 from stepdamp_env.env import StepperDampEnv, StepperDampVectorEnv
 from stepdamp_env.params import (ALL_FIELDS, DriveParams, FeedforwardModel, MotorParams,
-                                 ParameterError, ServoParams, SystemParams, get_preset,
-                                 load_system, parse_set_overrides, preset_names,
-                                 required_substeps, TEXT_FIELDS)
+                                 ParameterError, ServoParams, SystemParams, load_system,
+                                 parse_set_overrides, required_substeps, TEXT_FIELDS)
+from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 
 N_FIELD_VALUES = 6000

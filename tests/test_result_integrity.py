@@ -17,7 +17,7 @@ from stepdamp_agents import reference_seeds
 from stepdamp_agents.policy import clear_model_cache, load_model
 from stepdamp_env.bench import protocol_motors, quick_protocol_v1
 from stepdamp_env.bench.leaderboard import RESUME_DIR, run_leaderboard
-from stepdamp_env.bench.protocol_v1 import load_motors_file
+from stepdamp_env.bench.protocols.v1 import load_motors_file
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.io import related_files, tree_digest
 

@@ -3,11 +3,12 @@
 ============  ================================================================
 module        what it holds
 ============  ================================================================
-protocol      the frozen ``stepdamp-bench v0`` spec (its docstring) and settings
-protocol_v1   the frozen ``stepdamp-bench v1`` spec: splits, servo grid,
-              settling, statistics; ``--motors`` files
-motors        the protocols' motors (presets, seeded draws, v1 splits), speed
-              grids, v1 settling
+protocol      the protocol contract (``Protocol``: what every version says)
+              and the settings all versions share
+protocols     the versions, one module each (its docstring is its spec):
+              ``v0``, ``v1`` (splits, servo grid, settling, ``--motors``
+              files), ``v2`` (the mid-band suite); ``protocol_for`` by name
+motors        ``ProtocolMotor`` and what the versions share to draw motors
 policy        the policy contract: ``Policy`` (and ``BatchPolicy``, one
               policy for many runs), ``PolicyContext``, ``MotorKnowledge``,
               estimate resolution, the fair env options
@@ -29,11 +30,12 @@ from .leaderboard import run_leaderboard
 from .motors import ProtocolMotor, protocol_motors, speed_grid
 from .policy import (BatchPolicy, MotorKnowledge, Policy, PolicyContext, ScalarPolicies,
                      ZeroAction, policy_context, policy_env_options, resolve_estimate)
-from .protocol import (POLICY_OPTIONS, PROTOCOL_NAME, PROTOCOL_VERSION, REFERENCE_POLICY,
-                       SUITES, TRAINING_SEED_LIMIT, Protocol, full_protocol, quick_protocol)
-from .protocol_v1 import (SPLITS, ProtocolV1, ProtocolV2, full_protocol_v2, quick_protocol_v2,
-                          full_protocol_v1, load_motors_file, protocol_for,
-                          quick_protocol_v1)
+from .protocol import (POLICY_OPTIONS, PROTOCOL_NAME, REFERENCE_POLICY, SUITES,
+                       TRAINING_SEED_LIMIT, Protocol)
+from .protocols import protocol_for, protocol_versions, register_protocol
+from .protocols.v0 import ProtocolV0, full_protocol, quick_protocol
+from .protocols.v1 import SPLITS, ProtocolV1, full_protocol_v1, load_motors_file, quick_protocol_v1
+from .protocols.v2 import ProtocolV2, full_protocol_v2, quick_protocol_v2
 from .registry import (PolicySource, default_policy_names, register_loader, register_policy,
                        registered_policies, resolve_policy)
 from .report import render_markdown, write_outputs
@@ -45,7 +47,8 @@ from .stats import (iqm, probability_of_improvement, stratified_bootstrap_ci, su
 __all__ = [
     "run_leaderboard", "ProtocolMotor", "protocol_motors", "speed_grid", "MotorKnowledge",
     "Policy", "PolicyContext", "ZeroAction", "policy_context", "policy_env_options",
-    "resolve_estimate", "POLICY_OPTIONS", "PROTOCOL_NAME", "PROTOCOL_VERSION",
+    "resolve_estimate", "POLICY_OPTIONS", "PROTOCOL_NAME", "ProtocolV0",
+    "protocol_versions", "register_protocol",
     "REFERENCE_POLICY", "SUITES", "TRAINING_SEED_LIMIT", "Protocol", "full_protocol",
     "quick_protocol", "PolicySource", "default_policy_names", "register_loader",
     "register_policy", "registered_policies", "resolve_policy", "render_markdown",

@@ -20,7 +20,7 @@ import numpy as np
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from .leaderboard import LeaderboardJob, identify_motor, run_cells
 from .motors import ProtocolMotor, protocol_motors
-from .protocol_v1 import protocol_for
+from .protocols import protocol_for
 from .provenance import board_fingerprint
 
 __all__ = ["protocol_of_board", "job_of_run", "check_board"]

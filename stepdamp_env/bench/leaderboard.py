@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import os
 import sys
 import time
@@ -38,11 +37,8 @@ from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
 from .provenance import board_fingerprint, environment, package_versions
-from .protocol_v1 import ProtocolV1
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
-from .scoring import (add_probability_of_improvement, make_entry, make_entry_v1,
-                      reference_index)
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
            "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
@@ -143,7 +139,7 @@ def identify_cached(system: SystemParams, method: str, seed: int) -> Feedforward
     return model
 
 
-def identify_motor(protocol: Protocol | ProtocolV1, motor: ProtocolMotor, seed: int,
+def identify_motor(protocol: Protocol, motor: ProtocolMotor, seed: int,
                    cached: bool = True) -> FeedforwardModel | str:
     """The model a protocol's drive identifies on ``motor`` with noise ``seed``, or
     the failure as a string. ``cached``: read and keep it in the identification
@@ -160,12 +156,12 @@ def identify_motor(protocol: Protocol | ProtocolV1, motor: ProtocolMotor, seed: 
 
 
 def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
-    """The identified model; under v1 the reason as a string if identification
-    failed (the drive then falls back to its nominal model, see protocol_v1)."""
+    """The identified model, or the reason as a string if identification failed
+    and the protocol then leaves the drive its nominal model (else an error)."""
     motor_index, seed = args
     protocol = _WORKER["protocol"]
     model = identify_motor(protocol, _WORKER["motors"][motor_index], seed)
-    if isinstance(model, str) and not isinstance(protocol, ProtocolV1):
+    if isinstance(model, str) and not protocol.nominal_on_failed_identification:
         raise ParameterError(f"identification of motor "
                              f"{_WORKER['motors'][motor_index].name!r} (seed {seed}) failed: "
                              f"{model}")
@@ -229,7 +225,7 @@ def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: 
 
 
 def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
-                       protocol: Protocol | ProtocolV1) -> MotorKnowledge:
+                       protocol: Protocol) -> MotorKnowledge:
     """What the drive of a protocol run knows (the oracle-only fields included:
     entries that read them are flagged by their card)."""
     return MotorKnowledge(nominal=motor.nominal, identified=identified,
@@ -293,7 +289,7 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
     return out
 
 
-def _suites(source: PolicySource, protocol: Protocol | ProtocolV1
+def _suites(source: PolicySource, protocol: Protocol
             ) -> tuple[tuple[str, ...], str]:
     """The protocol's suites this policy runs in, and why not in the others."""
     card = policy_card(source.make())
@@ -302,7 +298,7 @@ def _suites(source: PolicySource, protocol: Protocol | ProtocolV1
     return tuple(s for s in protocol.suites if s in card.suites), card.not_in_suites
 
 
-def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | None = None, *,
+def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *,
                     workers: int | None = None, progress: bool = True,
                     resume_dir: str | None = None,
                     backend: Callable[..., list[Any]] | None = None,
@@ -315,9 +311,10 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
     and deterministic: the result does not depend on ``workers`` (default:
     every core this process may use). If torch is loaded (SB3 policies), it is
     set to one thread in this process too, so that a serial run computes
-    exactly what a worker does. Under v1 a learned entry runs every training
-    seed it has (:meth:`.registry.PolicySource.factories`) and entries are
-    scored per split (:func:`.scoring.make_entry_v1`).
+    exactly what a worker does. Where the protocol pools training seeds
+    (``Protocol.pools_training_seeds``) a learned entry runs every training
+    seed it has (:meth:`.registry.PolicySource.factories`); the protocol turns
+    the runs into ranked entries (:meth:`.protocol.Protocol.entries`).
 
     ``resume_dir``: where finished batches are kept (see the module docstring);
     a batch found there is not run again. ``backend``: runs the batches in
@@ -330,52 +327,89 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
     if runner not in ("batched", "scalar"):
         raise ParameterError(f"runner={runner!r} is not one of ['batched', 'scalar']")
     wall_start = time.perf_counter()
-    v1 = isinstance(protocol, ProtocolV1)
-    specs = list(dict.fromkeys([REFERENCE_POLICY, *(policies if policies is not None
-                                                    else default_policy_names())]))
-    sources = {spec: resolve_policy(spec) for spec in specs}
+    sources = _sources([REFERENCE_POLICY, *(policies if policies is not None
+                                            else default_policy_names())])
+    workers = default_workers() if workers is None else max(1, int(workers))
+    run_map = pool_map if backend is None else backend
+    motors = protocol_motors(protocol)
+    _warm_up(motors[0].system)
+    identified, failures = _identify_all(protocol, motors, run_map, workers, progress)
+    knowledge = {pair: protocol_knowledge(motors[pair[0]], pair[1], model, protocol)
+                 for pair, model in identified.items()}
+    # Options and oracle flag per policy, for the record; the last motor is a drawn
+    # one in the full protocol, where nominal, identified and exact all differ.
+    last = list(knowledge)[-1]
+    meta = {spec: _policy_meta(src, knowledge[last]) for spec, src in sources.items()}
+    suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
+    batches = _batches(protocol, motors, sources, suites)
+    records = _run_batches(protocol, motors, knowledge, sources, batches, run_map, workers,
+                           progress, resume_dir, runner)
+    board = _board(protocol, motors, sources, suites, meta, batches, records, identified,
+                   failures)
+    board["wall_seconds"] = time.perf_counter() - wall_start
+    _move_last(board, ("simulated_seconds", "simulated_seconds_detail"))
+    board["environment"] = environment()
+    board["fingerprint"] = board_fingerprint(board)
+    return board
+
+
+def _sources(specs: Sequence[str]) -> dict[str, PolicySource]:
+    """Each policy spec (once, in order) resolved; names must be unique."""
+    sources = {spec: resolve_policy(spec) for spec in dict.fromkeys(specs)}
     names = [s.name for s in sources.values()]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise ParameterError(f"two policies share the name(s) {dupes}; names must be unique")
-    workers = default_workers() if workers is None else max(1, int(workers))
-    motors = protocol_motors(protocol)
+    return sources
+
+
+def _progress_bar(progress: bool, total: int, desc: str, unit: str) -> Any:
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit)
+
+
+def _identify_all(protocol: Protocol, motors: Sequence[ProtocolMotor],
+                  run_map: Callable[..., list[Any]], workers: int, progress: bool
+                  ) -> tuple[dict[tuple[int, int], FeedforwardModel], dict[tuple[int, int], str]]:
+    """The drive's model per (motor index, evaluation seed), and the failures (whose
+    drives keep their nominal model)."""
     pairs = [(i, seed) for i in range(len(motors)) for seed in protocol.eval_seeds]
-    _warm_up(motors[0].system)
-
-    def progress_bar(total: int, desc: str, unit: str) -> Any:
-        if not progress:
-            return None
-        from tqdm.auto import tqdm
-
-        return tqdm(total=total, desc=desc, unit=unit)
-
-    bar = progress_bar(len(pairs), "identify", "motor")
-    init = (motors, {}, protocol, None)
-    run_map = pool_map if backend is None else backend
-    identified = run_map(_identify_job, pairs, workers, initializer=_init_worker,
-                         initargs=init, max_chunk=16, bar=bar)
+    bar = _progress_bar(progress, len(pairs), "identify", "motor")
+    models = run_map(_identify_job, pairs, workers, initializer=_init_worker,
+                     initargs=(motors, {}, protocol, None), max_chunk=16, bar=bar)
     if bar is not None:
         bar.close()
-    failures = {pair: m for pair, m in zip(pairs, identified) if isinstance(m, str)}
-    identified = [FeedforwardModel.from_motor(motors[i].nominal.motor)
-                  if (i, seed) in failures else m for (i, seed), m in zip(pairs, identified)]
-    knowledge = {(i, seed): protocol_knowledge(motors[i], seed, model, protocol)
-                 for (i, seed), model in zip(pairs, identified)}
+    failures = {pair: m for pair, m in zip(pairs, models) if isinstance(m, str)}
+    identified = {(i, seed): FeedforwardModel.from_motor(motors[i].nominal.motor)
+                  if (i, seed) in failures else m for (i, seed), m in zip(pairs, models)}
+    return identified, failures
 
-    # Options and oracle flag per policy, for the record; the last motor is a drawn
-    # one in the full protocol, where nominal, identified and exact all differ.
-    meta = {spec: _policy_meta(src, knowledge[pairs[-1]]) for spec, src in sources.items()}
-    suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
 
+def _batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
+             sources: dict[str, PolicySource],
+             suites: dict[str, tuple[tuple[str, ...], str]]) -> list[LeaderboardBatch]:
+    """Every run, in batches of up to ``BATCH_RUNS`` of one entry, model and suite."""
     batches = []
-    for spec in specs:
-        for ts in sources[spec].factories(pooled=v1):
+    for spec, source in sources.items():
+        for ts in source.factories(pooled=protocol.pools_training_seeds):
             for suite in suites[spec][0]:
                 runs = [(i, seed, j) for i, m in enumerate(motors) for seed in protocol.eval_seeds
                         for j in range(len(m.speeds(suite)[0]))]
                 batches += [LeaderboardBatch(spec, suite, ts, tuple(runs[k:k + BATCH_RUNS]))
                             for k in range(0, len(runs), BATCH_RUNS)]
+    return batches
+
+
+def _run_batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
+                 knowledge: dict[tuple[int, int], MotorKnowledge],
+                 sources: dict[str, PolicySource], batches: Sequence[LeaderboardBatch],
+                 run_map: Callable[..., list[Any]], workers: int, progress: bool,
+                 resume_dir: str | None, runner: str) -> list[list[dict[str, Any]]]:
+    """Each batch's run records: read from ``resume_dir`` if an interrupted run of
+    this very board finished it, else run (and kept there as it finishes)."""
     paths: list[str | None] = [None] * len(batches)
     if resume_dir is not None:
         from ..version import __version__
@@ -383,15 +417,13 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
         header = {"version": __version__, "protocol": protocol.to_dict(),
                   "motors": [m.to_dict() for m in motors],
                   "code": code_fingerprint(),
-                  "policies": {spec: sources[spec].fingerprint(
+                  "policies": {spec: src.fingerprint(
                       exclude=(os.path.dirname(os.path.abspath(resume_dir)),))
-                      for spec in specs}}
+                      for spec, src in sources.items()}}
         paths = list(_resume_paths(resume_dir, batches, header))
-    # Batches an interrupted run of this very board finished are read, not run.
     done: list[Any] = [read_json_or_none(p) if p is not None else None for p in paths]
     todo = [k for k, (b, d) in enumerate(zip(batches, done))
             if not (isinstance(d, list) and len(d) == len(b.runs))]
-
     if len(todo) < len(batches):
         print(f"resuming: {len(batches) - len(todo)} of {len(batches)} batches read from "
               f"{resume_dir}", file=sys.stderr)
@@ -401,7 +433,7 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
         if path is not None:
             write_json(path, records)
 
-    bar = progress_bar(len(todo), "leaderboard", "batch")
+    bar = _progress_bar(progress, len(todo), "leaderboard", "batch")
     # SB3 models are loaded in the parent and inherited by the forked workers.
     ran = run_map(_run_batch, [batches[k] for k in todo], workers, initializer=_init_worker,
                   initargs=(motors, knowledge, protocol, sources, runner), max_chunk=1,
@@ -410,30 +442,30 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
         bar.close()
     for k, records in zip(todo, ran):
         done[k] = records
-    jobs = [job for b in batches for job in b.jobs()]
-    results = [r for records in done for r in records]
+    return done
 
+
+def _board(protocol: Protocol, motors: Sequence[ProtocolMotor],
+           sources: dict[str, PolicySource], suites: dict[str, tuple[tuple[str, ...], str]],
+           meta: dict[str, dict[str, Any]], batches: Sequence[LeaderboardBatch],
+           records: Sequence[list[dict[str, Any]]],
+           identified: dict[tuple[int, int], FeedforwardModel],
+           failures: dict[tuple[int, int], str]) -> dict[str, Any]:
+    """The board (JSON-ready) from every batch's records."""
+    jobs = [job for b in batches for job in b.jobs()]
+    results = [r for batch_records in records for r in batch_records]
     by_entry: dict[tuple[str, str], list[dict]] = {}
     for job, res in zip(jobs, results):
         by_entry.setdefault((job.spec, job.suite), []).append(res)
-    entries = _v1_entries(protocol, motors, specs, sources, by_entry, meta) if v1 else []
-    for suite in protocol.suites if not v1 else ():
-        reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
-        suite_entries = [make_entry(sources[spec].name, sources[spec].spec, suite,
-                                    by_entry[(spec, suite)], reference, protocol, meta[spec])
-                         for spec in specs if (spec, suite) in by_entry]
-        suite_entries.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
-                                          e["headline"]["iqm"], e["name"]))
-        for rank, e in enumerate(suite_entries, 1):
-            e["rank"] = rank
-        entries += suite_entries
+    names = {spec: (src.name, src.spec) for spec, src in sources.items()}
+    entries = protocol.entries(names, by_entry, motors, meta)
     identification = [{"motor": motors[i].name, "seed": seed,
                        "model": dataclasses.asdict(m) if m is not None else None,
                        **({"failed": failures[(i, seed)], "fallback": "nominal"}
                           if (i, seed) in failures else {})}
-                      for (i, seed), m in zip(pairs, identified)]
+                      for (i, seed), m in identified.items()]
     not_run = [{"name": sources[spec].name, "suite": suite, "reason": suites[spec][1]}
-               for spec in specs for suite in protocol.suites if suite not in suites[spec][0]]
+               for spec in sources for suite in protocol.suites if suite not in suites[spec][0]]
     out = {"protocol": {**protocol.to_dict(), "motors": [m.to_dict() for m in motors]},
            "versions": package_versions(), "identification": identification,
            "entries": entries}
@@ -441,17 +473,20 @@ def run_leaderboard(protocol: Protocol | ProtocolV1, policies: Sequence[str] | N
         out["not_run"] = not_run
     run_s = sum(r["simulated_s"] for r in results)
     calib = _calibration_seconds(jobs, results)
-    out["wall_seconds"] = time.perf_counter() - wall_start
     out["simulated_seconds"] = run_s + calib
     out["simulated_seconds_detail"] = {
         "episodes": run_s, "calibration_rig": calib,
         "note": "identification runs are not counted"}
-    out["environment"] = environment()
-    out["fingerprint"] = board_fingerprint(out)
     return out
 
 
-def run_cells(protocol: Protocol | ProtocolV1, jobs: Sequence[LeaderboardJob],
+def _move_last(board: dict[str, Any], keys: Sequence[str]) -> None:
+    """Move ``keys`` to the end of ``board`` (the key order the board files had)."""
+    for key in keys:
+        board[key] = board.pop(key)
+
+
+def run_cells(protocol: Protocol, jobs: Sequence[LeaderboardJob],
               identified: dict[tuple[int, int], FeedforwardModel | None]) -> list[dict[str, Any]]:
     """The records of single leaderboard runs, in this process, exactly as
     :func:`run_leaderboard` computes them (a run does not depend on the batch it
@@ -476,30 +511,3 @@ def _calibration_seconds(jobs: Sequence[LeaderboardJob], results: Sequence[dict]
         key = (job.spec, job.training_seed, job.suite, job.motor_index)
         seen[key] = max(seen.get(key, 0.0), r.get("calibration_s", 0.0))
     return float(sum(seen.values()))
-
-
-def _v1_entries(protocol: ProtocolV1, motors: Sequence[ProtocolMotor], specs: Sequence[str],
-                sources: dict[str, PolicySource], by_entry: dict[tuple[str, str], list[dict]],
-                meta: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
-    """Entries per (suite, split), ranked, with every pair's probability of improvement."""
-    split_of = {m.name: m.split for m in motors}
-    strata = {m.name: m.family for m in motors}
-    entries = []
-    for suite in protocol.suites:
-        if (REFERENCE_POLICY, suite) not in by_entry:
-            continue
-        reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
-        for split in protocol.splits:
-            group = [make_entry_v1(sources[spec].name, sources[spec].spec, suite, split,
-                                   [r for r in by_entry[(spec, suite)]
-                                    if split_of[r["motor"]] == split],
-                                   reference, protocol, strata,
-                                   {**meta[spec], "learned": bool(meta[spec].get("learned"))})
-                     for spec in specs if (spec, suite) in by_entry]
-            group.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
-                                      e["headline"]["iqm"], e["name"]))
-            for rank, e in enumerate(group, 1):
-                e["rank"] = rank
-            add_probability_of_improvement(group, protocol, strata)
-            entries += group
-    return entries

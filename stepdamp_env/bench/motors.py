@@ -1,4 +1,7 @@
-"""The protocol's motors and each motor's speed grid (see :mod:`.protocol`)."""
+"""A protocol's motors: :class:`ProtocolMotor`, and the pieces the versions
+share to build them (sensors, the resonance speed grid, draws around a preset,
+the physics rule, the servo loop's slowest pole). Each version draws its own
+motors (:meth:`.protocol.Protocol.motors`); :func:`protocol_motors` keeps them."""
 
 from __future__ import annotations
 
@@ -9,17 +12,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .. import fixedmath as fm
-from ..analysis import midband
-from ..params import ParameterError, SystemParams
-from ..presets import get_preset
-from ..simulation import RunSettings, SpeedProfile, simulate
-from .protocol import PHASE_FIELDS, SUITE_DRIVE_MODE, SUITES, Protocol
-from .protocol_v1 import ProtocolV1, ProtocolV2, Shift
+from ..params import SystemParams
+from .protocol import PHASE_FIELDS, SUITE_DRIVE_MODE, Protocol
 
-__all__ = ["ProtocolMotor", "protocol_motors", "protocol_v1_motors", "speed_grid",
-           "servo_grid", "midband_grid", "settle_times", "with_sensors", "holds_its_load",
-           "in_training_distribution"]
+__all__ = ["ProtocolMotor", "protocol_motors", "speed_grid", "with_sensors", "holds_its_load",
+           "draw_around", "slowest_decay_rate"]
 
 
 @dataclass(frozen=True)
@@ -89,82 +86,15 @@ def speed_grid(system: SystemParams, protocol: Protocol) -> tuple[tuple[float, .
     return tuple(float(v) for v, _ in points), tuple(lbl for _, lbl in points)
 
 
-def _usable(system: SystemParams, speeds: Sequence[float], protocol: Protocol) -> bool:
-    """No undamped run of the grid lags by half a full step or more (both suites)."""
-    for mode in SUITES:
-        settings = RunSettings(mode=mode, damping="none", window_s=protocol.window_s,
-                               noise_seed=protocol.validation_noise_seed)
-        for v in speeds:
-            try:
-                res = simulate(system, profile=SpeedProfile(speed_rps=v,
-                                                            accel_rps2=protocol.accel_rps2),
-                               settings=settings)
-            except ParameterError:      # the run diverged: as unusable as a NaN lag was
-                return False
-            if not res.metrics.max_position_lag_steps < protocol.usable_max_lag_steps:
-                return False
-    return True
-
-
 _MOTOR_CACHE: dict[Any, tuple[ProtocolMotor, ...]] = {}
 
 
-def protocol_motors(protocol: Protocol | ProtocolV1) -> tuple[ProtocolMotor, ...]:
-    """The protocol's motors (deterministic). v0: presets first, then the draws;
-    v1: the splits in the protocol's order (:func:`protocol_v1_motors`)."""
-    if isinstance(protocol, ProtocolV1):
-        return protocol_v1_motors(protocol)
-    if protocol in _MOTOR_CACHE:
-        return _MOTOR_CACHE[protocol]
-    motors: list[ProtocolMotor] = []
-    nominals = {name: with_sensors(get_preset(name), protocol) for name in protocol.presets}
-    for name, nom in nominals.items():
-        speeds, labels = speed_grid(nom, protocol)
-        motors.append(ProtocolMotor(name, nom, nom, speeds, labels))
-    rng = np.random.default_rng(protocol.motor_seed)
-    for name, nom in nominals.items():
-        for k in range(protocol.randomized_per_preset):
-            for attempt in range(1, protocol.max_draw_attempts + 1):
-                changes = {"name": f"{name}~r{k}",
-                           **_draw(nom, rng, protocol.randomization)}
-                try:
-                    system = nom.replace(**changes)
-                except ParameterError:
-                    continue
-                speeds, labels = speed_grid(system, protocol)
-                if _usable(system, speeds, protocol):
-                    motors.append(ProtocolMotor(system.name, system, nom, speeds, labels,
-                                                attempt))
-                    break
-            else:
-                raise RuntimeError(f"no usable draw around {name!r} in "
-                                   f"{protocol.max_draw_attempts} attempts")
-    _MOTOR_CACHE[protocol] = tuple(motors)
+def protocol_motors(protocol: Protocol) -> tuple[ProtocolMotor, ...]:
+    """The protocol's motors (:meth:`.protocol.Protocol.motors`), drawn once per
+    protocol and process."""
+    if protocol not in _MOTOR_CACHE:
+        _MOTOR_CACHE[protocol] = protocol.motors()
     return _MOTOR_CACHE[protocol]
-
-
-# ---------------------------------------------------------------------------
-# stepdamp-bench v1
-# ---------------------------------------------------------------------------
-def servo_grid(system: SystemParams, protocol: ProtocolV1) -> tuple[tuple[float, ...],
-                                                                     tuple[str, ...]]:
-    """v1's servo speeds: ``servo_factors`` x f4 (rev/s), labelled ``s<factor>``."""
-    f4 = system.predicted_resonances_rps()[4]
-    return (tuple(float(f * f4) for f in protocol.servo_factors),
-            tuple(f"s{f:g}" for f in protocol.servo_factors))
-
-
-def midband_grid(system: SystemParams, protocol: ProtocolV2
-                 ) -> tuple[tuple[float, ...], tuple[str, ...]]:
-    """v2's mid-band speeds (rev/s), labelled ``m<factor>``: log-spaced through the
-    predicted unstable band of ``system`` in voltage mode (see :class:`ProtocolV2`)."""
-    band = midband(system.replace(drive_mode="voltage"))
-    if band.unstable_rps is not None:
-        lo, hi = band.unstable_rps
-    else:
-        lo, hi = band.at_rps / 1.5, band.at_rps * 1.5
-    return (tuple(float(lo * fm.exp(f * fm.log(hi / lo))) for f in protocol.midband_factors),
-            tuple(f"m{f:g}" for f in protocol.midband_factors))
 
 
 def slowest_decay_rate(a: float, b: float, c: float, d: float) -> float:
@@ -196,57 +126,15 @@ def slowest_decay_rate(a: float, b: float, c: float, d: float) -> float:
     return min(-r, rest)
 
 
-def settle_times(system: SystemParams, protocol: ProtocolV1) -> dict[str, float]:
-    """v1's settling per suite (s): open loop ``settle_open_loop_decays`` decay
-    times 1/(zeta*wn) = 2J/D of the undamped resonance; servo
-    ``settle_servo_time_constants`` time constants of the servo loop's slowest
-    pole; at least ``settle_min_s``, no upper clip."""
-    m = system.motor
-    decay_rate = m.D / (2.0 * m.J)
-    ol = protocol.settle_open_loop_decays / decay_rate if decay_rate > 0 else math.inf
-    kv, kp, ki = system.servo_gains()
-    slowest = slowest_decay_rate(m.J, kv, kp, ki)      # the servo loop's
-    servo = protocol.settle_servo_time_constants / slowest if slowest > 0 else math.inf
-    if not math.isfinite(ol):
-        raise ParameterError(f"motor {system.name!r}: D = 0 leaves its resonance undamped; "
-                             "v1 settles four decay times 2J/D, so D must be > 0")
-    if not math.isfinite(servo):
-        raise ParameterError(f"motor {system.name!r}: its servo gains (Kp_vel, Kp_pos, "
-                             "Ki_pos) leave the servo loop unstable")
-    out = {"open-loop": max(ol, protocol.settle_min_s),
-           "servo": max(servo, protocol.settle_min_s)}
-    if isinstance(protocol, ProtocolV2):    # the open-loop rule, for the voltage drive
-        out["mid-band"] = out["open-loop"]
-    return out
-
-
 def holds_its_load(system: SystemParams, margin: float) -> bool:
-    """v1's physics rule: holding torque >= margin x (peak detent + friction + load)."""
+    """The physics rule of v1: holding torque >= margin x (peak detent + friction + load)."""
     m = system.motor
     need = m.Kd1 + m.Kd2 + m.Kd4 + m.Fs + abs(m.load_torque)
     return m.Km * system.drive.holding_current >= margin * need
 
 
-def in_training_distribution(system: SystemParams, preset: SystemParams,
-                             protocol: ProtocolV1) -> bool:
-    """Whether ``system`` could be a training draw around ``preset``: every
-    randomised field within its range (as a factor, phases as values) and every
-    other field the preset's (sensors aside)."""
-    eps = 1e-12
-    for name, lo, hi in protocol.training_randomization:
-        x = getattr(system.motor, name)
-        if name not in PHASE_FIELDS:
-            x = x / getattr(preset.motor, name)
-        if not lo - eps <= x <= hi + eps:
-            return False
-    drawn = {n for n, _, _ in protocol.training_randomization} | {"current_noise_a",
-                                                                    "encoder_cpr"}
-    mine, theirs = system.to_dict(), preset.to_dict()
-    return all(mine[k] == theirs[k] for k in mine if k not in drawn and k != "name")
-
-
-def _draw(nom: SystemParams, rng: np.random.Generator,
-          ranges: Sequence[tuple[str, float, float]]) -> dict[str, Any]:
+def draw_around(nom: SystemParams, rng: np.random.Generator,
+                ranges: Sequence[tuple[str, float, float]]) -> dict[str, Any]:
     """One draw around ``nom``, field by field in ``ranges`` order: magnitudes as
     factors of the preset's, phases as values (rad)."""
     changes: dict[str, Any] = {}
@@ -255,95 +143,3 @@ def _draw(nom: SystemParams, rng: np.random.Generator,
         changes[field_name] = x if field_name in PHASE_FIELDS else \
             getattr(nom.motor, field_name) * x
     return changes
-
-
-def _apply_shift(nom: SystemParams, changes: dict[str, Any], shift: Shift,
-                 rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(the drawn changes with the shift on top, the shift's declared part)."""
-    out, declared = dict(changes), {}
-    drawn = nom.replace(**changes)
-    for field_name, lo, hi, how in shift.changes:
-        x = float(rng.uniform(lo, hi)) if hi > lo else float(lo)
-        if how == "value":
-            value: Any = int(x) if field_name == "Nr" else x
-        elif how == "factor":                  # of the preset's value: outside the box
-            value = nom.to_dict()[field_name] * x
-        else:                                   # "holding"
-            value = x * drawn.motor.Km * drawn.drive.holding_current
-        out[field_name] = value
-        if shift.declared:
-            declared[field_name] = value
-    return out, declared
-
-
-def _v1_motor(name: str, system: SystemParams, nominal: SystemParams, protocol: ProtocolV1,
-              split: str, family: str, attempts: int) -> ProtocolMotor:
-    ol = speed_grid(system, protocol)           # v1 keeps v0's open-loop grid rule
-    sv = servo_grid(system, protocol)
-    settle = settle_times(system, protocol)
-    grids: tuple[Any, ...] = (("open-loop", *ol), ("servo", *sv))
-    if isinstance(protocol, ProtocolV2):
-        grids += (("mid-band", *midband_grid(system, protocol)),)
-    return ProtocolMotor(name, system, nominal, ol[0], ol[1], attempts, split=split,
-                         family=family, grids=grids,
-                         settle=tuple((s, settle[s]) for s in settle))
-
-
-def protocol_v1_motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
-    """v1's motors: interpolation, then extrapolation, or the custom ones."""
-    if protocol in _MOTOR_CACHE:
-        return _MOTOR_CACHE[protocol]
-    motors: list[ProtocolMotor] = []
-    nominals = {name: with_sensors(get_preset(name), protocol) for name in protocol.presets}
-    rng = np.random.default_rng(protocol.motor_seed)
-
-    def draw(label: str, nom: SystemParams, shift: Shift | None) -> tuple[SystemParams,
-                                                                          SystemParams, int]:
-        for attempt in range(1, protocol.max_draw_attempts + 1):
-            changes = _draw(nom, rng, protocol.training_randomization)
-            declared: dict[str, Any] = {}
-            if shift is not None:
-                changes, declared = _apply_shift(nom, changes, shift, rng)
-            try:
-                system = nom.replace(name=label, **changes)
-                nominal = nom.replace(**declared) if declared else nom
-            except ParameterError:
-                continue
-            if holds_its_load(system, protocol.holding_margin):
-                return system, nominal, attempt
-        raise RuntimeError(f"no draw for {label!r} passes the physics rule in "
-                           f"{protocol.max_draw_attempts} attempts")
-
-    # Both splits draw from one stream, in this order, whichever splits are run.
-    interp = []
-    for name, nom in nominals.items():
-        for k in range(protocol.interpolation_per_preset):
-            interp.append((f"{name}~i{k}", *draw(f"{name}~i{k}", nom, None), name))
-    pairs = protocol.extrapolation_pairs or tuple(
-        (i, s.name) for s in protocol.shifts for i in range(len(protocol.presets)))
-    shifts = {s.name: s for s in protocol.shifts}
-    extrap = []
-    for i, shift_name in pairs:
-        preset = protocol.presets[i]
-        label = f"{preset}~x-{shift_name}"
-        extrap.append((label, *draw(label, nominals[preset], shifts[shift_name]), shift_name))
-    if "interpolation" in protocol.splits:
-        motors += [_v1_motor(n, s, nom, protocol, "interpolation", fam, a)
-                   for n, s, nom, a, fam in interp]
-    if "extrapolation" in protocol.splits:
-        motors += [_v1_motor(n, s, nom, protocol, "extrapolation", fam, a)
-                   for n, s, nom, a, fam in extrap]
-    if "custom" in protocol.splits:
-        for system in protocol.custom_motors:
-            if not holds_its_load(system, protocol.holding_margin):
-                m = system.motor
-                need = m.Kd1 + m.Kd2 + m.Kd4 + m.Fs + abs(m.load_torque)
-                raise ParameterError(
-                    f"--motors: motor {system.name!r} fails the physics rule: holding torque "
-                    f"{m.Km * system.drive.holding_current:.4g} N*m must be >= "
-                    f"{protocol.holding_margin:g} x (Kd1 + Kd2 + Kd4 + Fs + |load_torque|) = "
-                    f"{protocol.holding_margin * need:.4g} N*m")
-            motors.append(_v1_motor(system.name, system, system, protocol, "custom", "custom",
-                                    0))
-    _MOTOR_CACHE[protocol] = tuple(motors)
-    return _MOTOR_CACHE[protocol]

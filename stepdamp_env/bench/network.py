@@ -34,7 +34,9 @@ class PolicyNetwork:
     def __init__(self, layers: Sequence[Any], final_tanh: bool) -> None:
         import torch.nn as nn
 
-        from stepdamp_env.fixedmath import IDENTITY, RELU, TANH
+        from stepdamp_env.fixedmath import ACTIVATION
+
+        IDENTITY, RELU, TANH = ACTIVATION.IDENTITY, ACTIVATION.RELU, ACTIVATION.TANH
 
         weights, biases, sizes, acts = [], [], [], []
         for module in layers:

@@ -1,103 +1,32 @@
-"""The ``stepdamp-bench v0`` protocol: its specification and settings.
+"""The protocol contract: what every ``stepdamp-bench`` version says, and the
+settings all versions share.
 
-Protocol ``stepdamp-bench`` version ``v0`` (frozen: any change of a value below,
-of the motor draw, the speed grid, the scoring or the statistics makes it v1)
-=============================================================================
-
-Suites
-    ``open-loop`` (eqs. 7-8, microstepping at the holding current) and ``servo``
-    (eqs. 14-15, encoder feedback). Every policy runs both (``--suite`` picks one).
-
-Motors
-    The four presets ``patent``, ``qsh4218-51-10-049``, ``qsh5718-56-28-126``,
-    ``qsh6018-65-28-210`` plus three randomised motors drawn around each preset
-    (16 motors). The draws come from one ``numpy.random.default_rng(7733051)``
-    stream, preset by preset in that order, each field in the order R, L, Km, J,
-    Kd1, Kd2, Kd4, Fs, phi1, phi2: magnitudes scaled by U(low, high) factors
-    (R, L: 0.8-1.25; Km: 0.85-1.15; J: 0.5-2.0; Kd1, Kd2, Kd4, Fs: 0.5-1.5, the
-    env's ``DEFAULT_RANDOMIZATION``, copied here so that v0 does not follow it),
-    phases phi1, phi2 drawn U(-pi, pi) rad, validated by ``SystemParams``. A draw
-    is usable only if the undamped drive (no feedforward, noise seed 0) keeps its
-    position lag below half a full step at every speed of its grid in both
-    suites; unusable draws are rejected and the stream moves on (at most 100
-    attempts per motor), so the set is the same on every machine. Every motor,
-    preset or drawn, carries the protocol's sensors: current-sensor noise
-    ``current_noise_a`` = 0.01 A (standard deviation per sample) and an encoder
-    of ``encoder_cpr`` = 4000 counts/rev. The drawn motors are named
-    ``<preset>~r<k>``. Training must never use these motors (nor the protocol
-    seed 7733051 to draw motors).
-
-Speeds
-    Per motor: its three predicted resonant speeds f4, f2, f1
-    (``predicted_resonances``) and four off-resonance speeds 0.6*f4,
-    sqrt(2)*f4, sqrt(2)*f2 and 1.3*f1 (between 0.6x the lowest and 1.3x the
-    highest resonance, halfway between resonances on a log scale).
-
-Runs
-    Each run: ``StepperDampEnv(motor=<true motor>, mode=<suite>, speed_rps=v,
-    accel_rps2=50, measure_from_s=<window start>, **policy options)`` reset
-    with the evaluation seed (which also seeds the current-sensor noise), the
-    policy reset with its :class:`~stepdamp_env.bench.policy.PolicyContext`, stepped with
-    ``policy.act(obs)`` until the agent step in which the simulated time
-    reaches the end of the measuring window, or until the env terminates (step
-    loss, over-current); then ``env.run_metrics()``.
-    Ramp 50 rev/s^2; settling: the simulation core's default
-    (``simulation.measuring_window``: four decay times 1/(zeta*wn), clipped to
-    [0.1, 0.6] s, after the ramp); measuring window 0.3 s rounded up to whole
-    periods of the first detent harmonic. Per run the core's metrics
-    (``RunMetrics.to_dict()``) are kept.
-
-Seeds
-    Evaluation seeds 1_000_000 + k, k = 0..4. Training must use seeds below
-    1_000_000 (``TRAINING_SEED_LIMIT``).
-
-Knowledge
-    ``MotorKnowledge.nominal``: the preset the motor was drawn around (with the
-    protocol's sensors); ``identified``: ``identify(true motor,
-    method="iterative", noise_seed=<eval seed>).model``, once per (motor,
-    seed) and shared by all policies; ``exact``: the plant's own model (oracle
-    baselines only; entries that use it are flagged ``oracle``). The env option
-    ``estimate="nominal"`` is resolved against the nominal preset, never the
-    true motor, and unset action scales (``harmonic_scale_nm``,
-    ``current_scale_a``) come from the nominal motor as in training with
-    ``randomize=True``. A policy may set only ``POLICY_OPTIONS``; everything
-    that defines the plant, the operating point or what is observed is fixed.
-
-Scores (per motor and seed)
-    ``headline``: the mean RMS velocity ripple (``rms_velocity_error_rad_s``)
-    at the three resonant speeds divided by the mean of the undamped one
-    (policy ``none``, same motor, seed and speeds); lower is better, ``none``
-    scores 1. ``sweep_mean_ratio``: the mean over the whole speed grid of the
-    per-speed ratio to ``none``; ``sweep_worst_ratio``: its maximum.
-    ``rms_injected_current_a``: the mean over the grid of the RMS injected q
-    current. A run that loses steps or is terminated counts with a ripple of
-    ``FAILURE_RATIO`` = 10 times the undamped one (its own if larger); the
-    step losses are also counted beside the score.
-
-Aggregates (over motors and seeds)
-    Interquartile mean (IQM: the mean of the middle 50 % of the per-(motor,
-    seed) scores, fractional weights at the quartiles) with a 95 % percentile
-    interval from a stratified bootstrap: 2000 resamples, strata = motors
-    (each motor's seeds are resampled with replacement within it), generator
-    ``numpy.random.default_rng(2000)``. The raw per-run numbers are kept.
-
-``--quick`` (variant ``quick``, for CI): the four presets only, one seed
-(1_000_000), the resonant speeds only, a 0.1 s measuring window. Its numbers
-are not comparable with the full protocol's.
+A protocol version is one module under :mod:`stepdamp_env.bench.protocols`
+(its docstring is the version's specification) with a frozen dataclass that
+implements :class:`Protocol`: its settings as fields, its motors
+(:meth:`Protocol.motors`), how runs become ranked entries
+(:meth:`Protocol.entries`), and the class facts the runner and the report read
+(``known_suites``, ``pools_training_seeds``, ``nominal_on_failed_identification``,
+``min_training_seeds``). The runner, the statistics, the report and the CLI ask
+the object; none of them compares version strings. ``protocols.protocol_for``
+builds a registered version by name.
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
-from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
-from ..params import RESONANCE_HARMONICS, ParameterError
+from ..params import ParameterError
+
+if TYPE_CHECKING:
+    from ..params import SystemParams
+    from .motors import ProtocolMotor
 
 __all__ = [
     "PROTOCOL_NAME",
-    "PROTOCOL_VERSION",
     "TRAINING_SEED_LIMIT",
     "POLICY_OPTIONS",
     "POLICY_OPTIONS_V1",
@@ -109,13 +38,11 @@ __all__ = [
     "REFERENCE_POLICY",
     "PHASE_FIELDS",
     "Protocol",
-    "full_protocol",
-    "quick_protocol",
-    "check_suites_and_seeds",
+    "rank",
 ]
 
 PROTOCOL_NAME = "stepdamp-bench"
-PROTOCOL_VERSION = "v0"
+# Seeds below it are training seeds (agents, tuning); evaluation seeds are at or above it.
 TRAINING_SEED_LIMIT = 1_000_000
 SUITES = ("open-loop", "servo")
 #: Every suite of any protocol: v2 adds the voltage-mode drive's mid-band.
@@ -142,92 +69,93 @@ POLICY_OPTIONS_V1 = ("base_controller", "estimate", "action_mode", "agent_hz",
 # (a zero action with ``base_controller="none"``); its entry has this name.
 REFERENCE_POLICY = "none"
 
-# v0's randomisation ranges: a frozen copy of the env's DEFAULT_RANDOMIZATION.
-_V0_RANDOMIZATION: tuple[tuple[str, float, float], ...] = (
-    ("R", 0.8, 1.25), ("L", 0.8, 1.25), ("Km", 0.85, 1.15), ("J", 0.5, 2.0),
-    ("Kd1", 0.5, 1.5), ("Kd2", 0.5, 1.5), ("Kd4", 0.5, 1.5), ("Fs", 0.5, 1.5),
-    ("phi1", -math.pi, math.pi), ("phi2", -math.pi, math.pi),
-)
 # Drawn as absolute values (rad), not as factors.
 PHASE_FIELDS = ("phi1", "phi2")
-_V0_PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
-# Off-resonance speeds: (harmonic whose resonance anchors it, factor).
-_V0_OFF_RESONANCE = ((4, 0.6), (4, math.sqrt(2.0)), (2, math.sqrt(2.0)), (1, 1.3))
 
 
-def check_suites_and_seeds(suites: Sequence[str], eval_seeds: Sequence[int],
-                           known: Sequence[str] = SUITES) -> None:
-    """A protocol's suites are ``known`` ones and its evaluation seeds are never
-    training seeds."""
-    bad = [s for s in suites if s not in known]
-    if bad or not suites:
-        raise ParameterError(f"suites={suites!r}: each must be one of {list(known)}")
-    if any(s < TRAINING_SEED_LIMIT for s in eval_seeds) or not eval_seeds:
-        raise ParameterError(f"eval_seeds={eval_seeds!r}: each must be >= "
-                             f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
+def rank(group: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Entries of one table sorted by headline IQM (non-finite last, then by
+    name), each given its ``rank`` from 1."""
+    group.sort(key=lambda e: (not math.isfinite(e["headline"]["iqm"]),
+                              e["headline"]["iqm"], e["name"]))
+    for k, e in enumerate(group, 1):
+        e["rank"] = k
+    return group
 
 
-@dataclass(frozen=True)
-class Protocol:
-    """Every setting of a ``stepdamp-bench`` protocol (see the module docstring).
+class Protocol(abc.ABC):
+    """A ``stepdamp-bench`` version: the interface the runner, the statistics, the
+    report and the CLI use. Implementations are frozen dataclasses whose fields
+    include at least those annotated here."""
 
-    Use :func:`full_protocol` or :func:`quick_protocol`; other values are for
-    tests and make results that are not v0's.
-    """
+    name: str
+    version: str
+    variant: str                      # "full" or "quick"
+    suites: tuple[str, ...]
+    eval_seeds: tuple[int, ...]
+    accel_rps2: float                 # command ramp (rev/s^2)
+    window_s: float                   # measuring window (s)
+    current_noise_a: float
+    encoder_cpr: int
+    identification_method: str
+    failure_ratio: float
+    bootstrap_resamples: int
+    bootstrap_seed: int
+    confidence: float
 
-    name: str = PROTOCOL_NAME
-    version: str = PROTOCOL_VERSION
-    variant: str = "full"
-    suites: tuple[str, ...] = SUITES
-    presets: tuple[str, ...] = _V0_PRESETS
-    randomized_per_preset: int = 3
-    motor_seed: int = 7733051
-    randomization: tuple[tuple[str, float, float], ...] = _V0_RANDOMIZATION
-    max_draw_attempts: int = 100
-    usable_max_lag_steps: float = 0.5
-    validation_noise_seed: int = 0
-    eval_seeds: tuple[int, ...] = tuple(TRAINING_SEED_LIMIT + k for k in range(5))
-    resonance_harmonics: tuple[int, ...] = RESONANCE_HARMONICS
-    off_resonance: tuple[tuple[int, float], ...] = _V0_OFF_RESONANCE
-    accel_rps2: float = 50.0          # frozen: not the core's default, which may change
-    window_s: float = 0.3
-    settle: str = "core default: simulation.default_settle_s (4/(zeta*wn) in [0.1, 0.6] s)"
-    current_noise_a: float = 0.01
-    encoder_cpr: int = 4000
-    identification_method: str = "iterative"
-    failure_ratio: float = FAILURE_RATIO
-    bootstrap_resamples: int = 2000
-    bootstrap_seed: int = 2000
-    confidence: float = 0.95
+    #: The suites this version may run (``with_suites`` picks among them).
+    known_suites: ClassVar[tuple[str, ...]] = SUITES
+    #: A learned entry runs every training seed it has, each seed's runs its cells.
+    pools_training_seeds: ClassVar[bool] = False
+    #: A failed identification leaves the drive its nominal model (else the run stops).
+    nominal_on_failed_identification: ClassVar[bool] = False
+    #: Fewer training seeds than this: the report makes no claim for the entry.
+    min_training_seeds: ClassVar[int] = 1
 
-    def __post_init__(self) -> None:
-        check_suites_and_seeds(self.suites, self.eval_seeds)
-        if not (isinstance(self.randomized_per_preset, int) and self.randomized_per_preset >= 0):
-            raise ParameterError(f"randomized_per_preset={self.randomized_per_preset!r} is "
-                                 "outside its allowed range [0, inf) (integer)")
-        if not (math.isfinite(self.window_s) and self.window_s > 0):
-            raise ParameterError(f"window_s={self.window_s!r} is outside (0, inf) s")
+    @abc.abstractmethod
+    def motors(self) -> tuple["ProtocolMotor", ...]:
+        """The protocol's motors, in order (deterministic)."""
 
+    @abc.abstractmethod
+    def entries(self, names: Mapping[str, tuple[str, str]],
+                by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
+                motors: Sequence["ProtocolMotor"],
+                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+        """The board's ranked entries. ``names``: policy spec -> (entry name, spec
+        as recorded), in board order; ``by_entry``: (spec, suite) -> that
+        policy's run records; ``meta``: spec -> oracle flag, env options, card."""
+
+    @abc.abstractmethod
     def to_dict(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
-        out["randomization"] = {n: [lo, hi] for n, lo, hi in self.randomization}
-        out["off_resonance"] = [{"harmonic": h, "factor": f} for h, f in self.off_resonance]
-        out["training_seed_limit"] = TRAINING_SEED_LIMIT
-        out["policy_options"] = list(POLICY_OPTIONS)
-        out["headline"] = ("mean RMS velocity ripple at the resonant speeds / the same for "
-                           "policy 'none' (same motor, seed); IQM over motors and seeds")
-        return out
+        """The protocol as the board records it (``leaderboard.json``)."""
 
+    @abc.abstractmethod
     def with_suites(self, suites: Sequence[str]) -> "Protocol":
-        return dataclasses.replace(self, suites=tuple(suites))
+        """The same protocol on a subset of its suites."""
 
+    def with_custom_motors(self, systems: Sequence["SystemParams"]) -> "Protocol":
+        """The protocol on the user's motors (``--motors FILE``)."""
+        raise ParameterError(f"--motors: {self.name} {self.version}'s motors are frozen; "
+                             "use a protocol with a custom split (--protocol v1 or later)")
 
-def full_protocol() -> Protocol:
-    """``stepdamp-bench v0``, the full protocol."""
-    return Protocol()
+    def checked_suites(self, suites: Sequence[str]) -> tuple[str, ...]:
+        """``suites`` as a tuple, or a one-line error naming what this version has."""
+        bad = [s for s in suites if s not in self.known_suites]
+        if bad or not suites:
+            raise ParameterError(f"--suite {', '.join(bad) or '(none)'}: {self.name} "
+                                 f"{self.version} has {list(self.known_suites)}")
+        return tuple(suites)
 
+    def check_suites_and_seeds(self) -> None:
+        """Its suites are known ones and its evaluation seeds are never training seeds."""
+        bad = [s for s in self.suites if s not in self.known_suites]
+        if bad or not self.suites:
+            raise ParameterError(f"suites={self.suites!r}: each must be one of "
+                                 f"{list(self.known_suites)}")
+        if any(s < TRAINING_SEED_LIMIT for s in self.eval_seeds) or not self.eval_seeds:
+            raise ParameterError(f"eval_seeds={self.eval_seeds!r}: each must be >= "
+                                 f"{TRAINING_SEED_LIMIT} (training seeds are below it)")
 
-def quick_protocol() -> Protocol:
-    """The reduced CI variant: presets only, one seed, resonant speeds, 0.1 s window."""
-    return Protocol(variant="quick", randomized_per_preset=0,
-                    eval_seeds=(TRAINING_SEED_LIMIT,), off_resonance=(), window_s=0.1)
+    def replace(self, **changes: Any) -> "Protocol":
+        """A copy with some settings changed (validated)."""
+        return dataclasses.replace(self, **changes)     # type: ignore[type-var]

@@ -27,12 +27,12 @@ from .motors import ProtocolMotor, protocol_motors
 from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
-from .protocol_v1 import MIN_TRAINING_SEEDS, ProtocolV1
+from .protocols import protocol_class
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
 __all__ = ["RESULT_FILES", "RUNS_FILE", "format_summary", "render_markdown", "render_results",
-           "render_ladder", "entry_knowledge", "entry_rows", "render_per_motor", "is_v1", "splits",
+           "render_ladder", "entry_knowledge", "entry_rows", "render_per_motor", "has_splits", "splits",
            "plot_performance_profile",
            "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
            "plot_resonance_traces", "trace_run", "write_outputs"]
@@ -54,21 +54,21 @@ def format_summary(s: Mapping[str, Any]) -> str:
     return f"{s['iqm']:#.4g} [{lo:#.4g}, {hi:#.4g}]"
 
 
-def is_v1(board: Mapping[str, Any]) -> bool:
-    """Whether the board is a stepdamp-bench v1 board (entries per split)."""
-    return board["protocol"]["version"] != "v0"
+def has_splits(board: Mapping[str, Any]) -> bool:
+    """Whether the board's entries are per split of its motors (v1 and later)."""
+    return "splits" in board["protocol"]
 
 
-def splits(board: Mapping[str, Any]) -> list[str]:
-    """The board's splits in protocol order ([None] for v0, which has none)."""
-    return list(board["protocol"]["splits"]) if is_v1(board) else [None]
+def splits(board: Mapping[str, Any]) -> list[str | None]:
+    """The board's splits in protocol order ([None] for a protocol without splits)."""
+    return list(board["protocol"]["splits"]) if has_splits(board) else [None]
 
 
 def render_markdown(board: Mapping[str, Any]) -> str:
     """``LEADERBOARD.md``: one ranked table per suite (v1: per split and suite,
     with the probability of improvement of every pair)."""
-    if is_v1(board):
-        return _render_markdown_v1(board)
+    if has_splits(board):
+        return _render_markdown_by_split(board)
     p = board["protocol"]
     lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
              f"{len(p['motors'])} motors x {len(p['eval_seeds'])} seeds; "
@@ -116,8 +116,9 @@ def _with_versions(board: Mapping[str, Any], lines: list[str]) -> str:
                      ) + "\n"
 
 
-def _render_markdown_v1(board: Mapping[str, Any]) -> str:
+def _render_markdown_by_split(board: Mapping[str, Any]) -> str:
     p = board["protocol"]
+    fewest = protocol_class(p["version"]).min_training_seeds
     counts = {sp: sum(m.get("split") == sp for m in p["motors"]) for sp in p["splits"]}
     lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
              "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
@@ -153,8 +154,8 @@ def _render_markdown_v1(board: Mapping[str, Any]) -> str:
                     if r != e["name"] else "- | " for r in refs)
                 sl = e["step_losses"]
                 seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
-                if e.get("learned") and len(e.get("training_seeds", [])) < MIN_TRAINING_SEEDS:
-                    seeds += f" (fewer than {MIN_TRAINING_SEEDS}: no claim)"
+                if e.get("learned") and len(e.get("training_seeds", [])) < fewest:
+                    seeds += f" (fewer than {fewest}: no claim)"
                 lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
                              f"{poi}{sl['runs_lost']}/{sl['runs']} | {seeds} | "
                              f"{entry_knowledge(e)} |")
@@ -218,7 +219,7 @@ def render_ladder(board: Mapping[str, Any]) -> str:
     by = {(e["name"], e["suite"], e.get("split")): e for e in board["entries"]}
     names = [e["name"] for e in entry_rows(board, *columns[0])]
     names += sorted({e["name"] for e in board["entries"]} - set(names))
-    if is_v1(board):
+    if has_splits(board):
         title = (f"{p['name']} {p['version']} ({p['variant']}): mean RMS ripple at the "
                  "headline speeds over undamped, IQM [95 % CI] over motor x seed x "
                  "training-seed cells, two-level bootstrap (lower is better)")
@@ -245,7 +246,7 @@ def render_results(board: Mapping[str, Any], suite: str = "open-loop") -> str:
     """A compact Markdown table of one suite (for a README; v1: one per split):
     rank, policy, headline IQM and interval, step losses."""
     p = board["protocol"]
-    if is_v1(board):
+    if has_splits(board):
         return "\n".join(_results_table(board, suite, split) for split in p["splits"])
     return _results_table(board, suite, None)
 
@@ -343,7 +344,7 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
 
 
 def _knowledge(board: Mapping[str, Any], motor: ProtocolMotor, seed: int,
-               protocol: Protocol | ProtocolV1) -> MotorKnowledge:
+               protocol: Protocol) -> MotorKnowledge:
     ident = next(x["model"] for x in board["identification"]
                  if x["motor"] == motor.name and x["seed"] == seed)
     return protocol_knowledge(motor, seed, FeedforwardModel(**ident) if ident else None,
@@ -362,7 +363,7 @@ def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
                 None)
 
 
-def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol | ProtocolV1,
+def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
                   points: int = 41, suite: str = "open-loop") -> None:
     """The README's figure: RMS ripple against speed on the representative motor,
     undamped, the patent's feedforward and the best other entry, on one axis.
@@ -402,7 +403,7 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol | Prot
 
 
 def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite: str,
-              speed_rps: float, seed: int, protocol: Protocol | ProtocolV1,
+              speed_rps: float, seed: int, protocol: Protocol,
               span_s: float | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
     """(time in the window (s), velocity error w_cmd - w (rad/s)) at every PWM
@@ -436,7 +437,7 @@ def _speed_title(label: str) -> str:
 
 
 def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
-                          protocol: Protocol | ProtocolV1) -> None:
+                          protocol: Protocol) -> None:
     """Velocity error against time over the whole measuring window at the three
     resonant speeds (v1 servo: at its grid speeds), sampled every PWM period:
     ``none`` against the best entry (patent Figs. 4-7 style), representative
@@ -521,7 +522,7 @@ def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     return compact, raw
 
 
-def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol | ProtocolV1,
+def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
                   plots: bool = True) -> list[str]:
     """Write leaderboard.json, its runs file, LEADERBOARD.md and the figures into
     ``out_dir``, each atomically; returns the file names written."""
@@ -535,7 +536,7 @@ def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol | P
             fh.write(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
     write_text(os.path.join(out_dir, written[2]), render_markdown(board))
     if plots:
-        if is_v1(board):
+        if has_splits(board):
             plot_performance_profile(board, os.path.join(out_dir, "performance_profile.png"))
             written.append("performance_profile.png")
         if "open-loop" in board["protocol"]["suites"]:

@@ -2,7 +2,7 @@
 
 Protocol ``stepdamp-bench`` version ``v1`` (frozen: any change of a value below,
 of the motor draws, the speed grids, the settling, the scoring or the
-statistics makes it v2; v0 stays in :mod:`.protocol`)
+statistics makes it a new version; v0 stays in :mod:`.v0`)
 =============================================================================
 
 Training distribution (what agents and tuning may use)
@@ -147,22 +147,26 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, ClassVar, Mapping, Sequence
 
-from ..params import ALL_FIELDS, ParameterError, SystemParams, load_system, read_json_file
-from .protocol import (ALL_SUITES, FAILURE_RATIO, PHASE_FIELDS, POLICY_OPTIONS, PROTOCOL_NAME,
-                       SUITES, TRAINING_SEED_LIMIT, check_suites_and_seeds)
+import numpy as np
 
-__all__ = ["PROTOCOL_V1", "PROTOCOL_V2", "SPLITS", "MIN_TRAINING_SEEDS", "Shift", "SHIFTS",
-           "ProtocolV1", "ProtocolV2", "full_protocol_v1", "quick_protocol_v1",
-           "full_protocol_v2", "quick_protocol_v2", "load_motors_file", "protocol_for"]
+from ...params import ALL_FIELDS, ParameterError, SystemParams, load_system, read_json_file
+from ...presets import get_preset
+from ..motors import (ProtocolMotor, draw_around, holds_its_load, slowest_decay_rate,
+                      speed_grid, with_sensors)
+from ..protocol import (FAILURE_RATIO, PHASE_FIELDS, POLICY_OPTIONS, PROTOCOL_NAME,
+                        REFERENCE_POLICY, SUITES, TRAINING_SEED_LIMIT, Protocol, rank)
+from ..scoring import add_probability_of_improvement, make_entry_v1, reference_index
 
-PROTOCOL_V1 = "v1"
-PROTOCOL_V2 = "v2"
+__all__ = ["ProtocolV1", "SPLITS", "MIN_TRAINING_SEEDS", "Shift", "SHIFTS", "full_protocol_v1",
+           "quick_protocol_v1", "QUICK_SETTINGS", "servo_grid", "in_training_distribution",
+           "load_motors_file"]
+
 SPLITS = ("interpolation", "extrapolation", "custom")
-# Training seeds a learned entry must pool for a claim (fewer are marked in the report).
+# An entry with fewer training seeds makes no claim (the report says so).
 MIN_TRAINING_SEEDS = 5
-# v1's own frozen copies (equal to v0's values, never following them).
+
 _PRESETS = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
 _TRAINING_RANDOMIZATION: tuple[tuple[str, float, float], ...] = (
     ("R", 0.8, 1.25), ("L", 0.8, 1.25), ("Km", 0.85, 1.15), ("J", 0.5, 2.0),
@@ -196,7 +200,7 @@ SHIFTS: tuple[Shift, ...] = (
 
 
 @dataclass(frozen=True)
-class ProtocolV1:
+class ProtocolV1(Protocol):
     """Every setting of ``stepdamp-bench v1`` (see the module docstring).
 
     Use :func:`full_protocol_v1` or :func:`quick_protocol_v1`; other values are
@@ -205,7 +209,7 @@ class ProtocolV1:
     """
 
     name: str = PROTOCOL_NAME
-    version: str = PROTOCOL_V1
+    version: str = "v1"
     variant: str = "full"
     suites: tuple[str, ...] = SUITES
     splits: tuple[str, ...] = ("interpolation", "extrapolation")
@@ -237,8 +241,7 @@ class ProtocolV1:
     confidence: float = 0.95
 
     def __post_init__(self) -> None:
-        check_suites_and_seeds(self.suites, self.eval_seeds,
-                               ALL_SUITES if self.version == PROTOCOL_V2 else SUITES)
+        self.check_suites_and_seeds()
         bad = [s for s in self.splits if s not in SPLITS]
         if bad or not self.splits:
             raise ParameterError(f"splits={self.splits!r}: each must be one of {list(SPLITS)}")
@@ -297,50 +300,78 @@ class ProtocolV1:
         return out
 
     def with_suites(self, suites: Sequence[str]) -> "ProtocolV1":
-        return dataclasses.replace(self, suites=tuple(suites))
+        return dataclasses.replace(self, suites=self.checked_suites(suites))
 
     def with_custom_motors(self, systems: Sequence[SystemParams]) -> "ProtocolV1":
         """The ``custom`` split alone, on these motors."""
         return dataclasses.replace(self, splits=("custom",), custom_motors=tuple(systems))
 
+    # -- what the runner and the report ask ------------------------------------------
+    known_suites: ClassVar[tuple[str, ...]] = SUITES
+    pools_training_seeds: ClassVar[bool] = True
+    nominal_on_failed_identification: ClassVar[bool] = True
+    min_training_seeds: ClassVar[int] = 5
 
-@dataclass(frozen=True)
-class ProtocolV2(ProtocolV1):
-    """Every setting of ``stepdamp-bench v2``: v1 unchanged plus the ``mid-band``
-    suite (the voltage-mode drive, docs/protocol_v2.md).
+    def motors(self) -> tuple[ProtocolMotor, ...]:
+        """Interpolation, then extrapolation, or the custom motors."""
+        return _motors(self)
 
-    ``midband_factors``: the suite's speeds, log-spaced through each motor's
-    predicted unstable band [f_lo, f_hi] (:func:`stepdamp_env.analysis.midband`
-    of the motor with ``drive_mode="voltage"``): f_lo*(f_hi/f_lo)**k for k in
-    the factors. A motor without an unstable band uses
-    [f_min/1.5, 1.5*f_min] around its least damped speed f_min.
-    """
+    def suite_grids(self, system: SystemParams
+                    ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
+        """(suite, speeds in rev/s, labels) of each suite on ``system``."""
+        return (("open-loop", *speed_grid(system, self)),      # v0's open-loop grid rule
+                ("servo", *servo_grid(system, self)))
 
-    version: str = PROTOCOL_V2
-    suites: tuple[str, ...] = ALL_SUITES
-    midband_factors: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9)
+    def settle_times(self, system: SystemParams) -> dict[str, float]:
+        """Settling per suite (s): open loop ``settle_open_loop_decays`` decay
+        times 1/(zeta*wn) = 2J/D of the undamped resonance; servo
+        ``settle_servo_time_constants`` time constants of the servo loop's slowest
+        pole; at least ``settle_min_s``, no upper clip."""
+        m = system.motor
+        decay_rate = m.D / (2.0 * m.J)
+        ol = self.settle_open_loop_decays / decay_rate if decay_rate > 0 else math.inf
+        kv, kp, ki = system.servo_gains()
+        slowest = slowest_decay_rate(m.J, kv, kp, ki)      # the servo loop's
+        servo = self.settle_servo_time_constants / slowest if slowest > 0 else math.inf
+        if not math.isfinite(ol):
+            raise ParameterError(f"motor {system.name!r}: D = 0 leaves its resonance undamped; "
+                                 "v1 settles four decay times 2J/D, so D must be > 0")
+        if not math.isfinite(servo):
+            raise ParameterError(f"motor {system.name!r}: its servo gains (Kp_vel, Kp_pos, "
+                                 "Ki_pos) leave the servo loop unstable")
+        return {"open-loop": max(ol, self.settle_min_s), "servo": max(servo, self.settle_min_s)}
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not self.midband_factors or not all(0.0 <= f <= 1.0 for f in self.midband_factors):
-            raise ParameterError(f"midband_factors={self.midband_factors!r}: each must be in "
-                                 "[0, 1]")
-
-    def to_dict(self) -> dict[str, Any]:
-        out = super().to_dict()
-        out["headline"] += ("; mid-band: the voltage-mode drive (drive_mode='voltage') at "
-                            "speeds through its predicted unstable band, all headline")
+    def entries(self, names: Mapping[str, tuple[str, str]],
+                by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
+                motors: Sequence[ProtocolMotor],
+                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+        """Entries per (suite, split), ranked, with every pair's probability of
+        improvement."""
+        split_of = {m.name: m.split for m in motors}
+        strata = {m.name: m.family for m in motors}
+        out = []
+        for suite in self.suites:
+            if (REFERENCE_POLICY, suite) not in by_entry:
+                continue
+            reference = reference_index(by_entry[(REFERENCE_POLICY, suite)])
+            for split in self.splits:
+                group = [make_entry_v1(name, spec_text, suite, split,
+                                       [r for r in by_entry[(spec, suite)]
+                                        if split_of[r["motor"]] == split],
+                                       reference, self, strata,
+                                       {**meta[spec], "learned": bool(meta[spec].get("learned"))})
+                         for spec, (name, spec_text) in names.items()
+                         if (spec, suite) in by_entry]
+                add_probability_of_improvement(rank(group), self, strata)
+                out += group
         return out
 
 
-def full_protocol_v2() -> ProtocolV2:
-    """``stepdamp-bench v2``, the full protocol."""
-    return ProtocolV2()
-
-
-def quick_protocol_v2() -> ProtocolV2:
-    """v2's CI variant: v1's quick variant plus two mid-band speeds."""
-    return ProtocolV2(**_QUICK, midband_factors=(0.3, 0.7))
+# The reduced CI variant's settings (v1's; v2 adds its mid-band speeds).
+QUICK_SETTINGS: dict[str, Any] = dict(
+    variant="quick", interpolation_per_preset=1,
+    extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"), (2, "load-torque"), (3, "low-bus")),
+    off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1, bootstrap_resamples=500)
 
 
 def full_protocol_v1() -> ProtocolV1:
@@ -350,7 +381,7 @@ def full_protocol_v1() -> ProtocolV1:
 
 def quick_protocol_v1() -> ProtocolV1:
     """The reduced CI variant (see the module docstring)."""
-    return ProtocolV1(**_QUICK)
+    return ProtocolV1(**QUICK_SETTINGS)
 
 
 # The reduced CI variant's settings (v1's; v2 adds its mid-band speeds).
@@ -360,15 +391,117 @@ _QUICK: dict[str, Any] = dict(
     off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1, bootstrap_resamples=500)
 
 
-def protocol_for(version: str, quick: bool = False) -> Any:
-    """The protocol of ``--protocol VERSION`` (``--quick``: its CI variant)."""
-    from .protocol import full_protocol, quick_protocol
+PROTOCOL = {"version": "v1", "full": full_protocol_v1, "quick": quick_protocol_v1}
 
-    table = {"v0": (full_protocol, quick_protocol), "v1": (full_protocol_v1, quick_protocol_v1),
-             "v2": (full_protocol_v2, quick_protocol_v2)}
-    if version not in table:
-        raise ParameterError(f"--protocol {version!r}: allowed {sorted(table)}")
-    return table[version][1 if quick else 0]()
+
+def servo_grid(system: SystemParams, protocol: ProtocolV1) -> tuple[tuple[float, ...],
+                                                                     tuple[str, ...]]:
+    """v1's servo speeds: ``servo_factors`` x f4 (rev/s), labelled ``s<factor>``."""
+    f4 = system.predicted_resonances_rps()[4]
+    return (tuple(float(f * f4) for f in protocol.servo_factors),
+            tuple(f"s{f:g}" for f in protocol.servo_factors))
+
+
+def in_training_distribution(system: SystemParams, preset: SystemParams,
+                             protocol: ProtocolV1) -> bool:
+    """Whether ``system`` could be a training draw around ``preset``: every
+    randomised field within its range (as a factor, phases as values) and every
+    other field the preset's (sensors aside)."""
+    eps = 1e-12
+    for name, lo, hi in protocol.training_randomization:
+        x = getattr(system.motor, name)
+        if name not in PHASE_FIELDS:
+            x = x / getattr(preset.motor, name)
+        if not lo - eps <= x <= hi + eps:
+            return False
+    drawn = {n for n, _, _ in protocol.training_randomization} | {"current_noise_a",
+                                                                    "encoder_cpr"}
+    mine, theirs = system.to_dict(), preset.to_dict()
+    return all(mine[k] == theirs[k] for k in mine if k not in drawn and k != "name")
+
+
+def _apply_shift(nom: SystemParams, changes: dict[str, Any], shift: Shift,
+                 rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(the drawn changes with the shift on top, the shift's declared part)."""
+    out, declared = dict(changes), {}
+    drawn = nom.replace(**changes)
+    for field_name, lo, hi, how in shift.changes:
+        x = float(rng.uniform(lo, hi)) if hi > lo else float(lo)
+        if how == "value":
+            value: Any = int(x) if field_name == "Nr" else x
+        elif how == "factor":                  # of the preset's value: outside the box
+            value = nom.to_dict()[field_name] * x
+        else:                                   # "holding"
+            value = x * drawn.motor.Km * drawn.drive.holding_current
+        out[field_name] = value
+        if shift.declared:
+            declared[field_name] = value
+    return out, declared
+
+
+def _v1_motor(name: str, system: SystemParams, nominal: SystemParams, protocol: ProtocolV1,
+              split: str, family: str, attempts: int) -> ProtocolMotor:
+    grids = protocol.suite_grids(system)
+    settle = protocol.settle_times(system)
+    return ProtocolMotor(name, system, nominal, grids[0][1], grids[0][2], attempts, split=split,
+                         family=family, grids=grids,
+                         settle=tuple((s, settle[s]) for s in settle))
+
+
+def _motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
+    motors: list[ProtocolMotor] = []
+    nominals = {name: with_sensors(get_preset(name), protocol) for name in protocol.presets}
+    rng = np.random.default_rng(protocol.motor_seed)
+
+    def draw(label: str, nom: SystemParams, shift: Shift | None) -> tuple[SystemParams,
+                                                                          SystemParams, int]:
+        for attempt in range(1, protocol.max_draw_attempts + 1):
+            changes = draw_around(nom, rng, protocol.training_randomization)
+            declared: dict[str, Any] = {}
+            if shift is not None:
+                changes, declared = _apply_shift(nom, changes, shift, rng)
+            try:
+                system = nom.replace(name=label, **changes)
+                nominal = nom.replace(**declared) if declared else nom
+            except ParameterError:
+                continue
+            if holds_its_load(system, protocol.holding_margin):
+                return system, nominal, attempt
+        raise RuntimeError(f"no draw for {label!r} passes the physics rule in "
+                           f"{protocol.max_draw_attempts} attempts")
+
+    # Both splits draw from one stream, in this order, whichever splits are run.
+    interp = []
+    for name, nom in nominals.items():
+        for k in range(protocol.interpolation_per_preset):
+            interp.append((f"{name}~i{k}", *draw(f"{name}~i{k}", nom, None), name))
+    pairs = protocol.extrapolation_pairs or tuple(
+        (i, s.name) for s in protocol.shifts for i in range(len(protocol.presets)))
+    shifts = {s.name: s for s in protocol.shifts}
+    extrap = []
+    for i, shift_name in pairs:
+        preset = protocol.presets[i]
+        label = f"{preset}~x-{shift_name}"
+        extrap.append((label, *draw(label, nominals[preset], shifts[shift_name]), shift_name))
+    if "interpolation" in protocol.splits:
+        motors += [_v1_motor(n, s, nom, protocol, "interpolation", fam, a)
+                   for n, s, nom, a, fam in interp]
+    if "extrapolation" in protocol.splits:
+        motors += [_v1_motor(n, s, nom, protocol, "extrapolation", fam, a)
+                   for n, s, nom, a, fam in extrap]
+    if "custom" in protocol.splits:
+        for system in protocol.custom_motors:
+            if not holds_its_load(system, protocol.holding_margin):
+                m = system.motor
+                need = m.Kd1 + m.Kd2 + m.Kd4 + m.Fs + abs(m.load_torque)
+                raise ParameterError(
+                    f"--motors: motor {system.name!r} fails the physics rule: holding torque "
+                    f"{m.Km * system.drive.holding_current:.4g} N*m must be >= "
+                    f"{protocol.holding_margin:g} x (Kd1 + Kd2 + Kd4 + Fs + |load_torque|) = "
+                    f"{protocol.holding_margin * need:.4g} N*m")
+            motors.append(_v1_motor(system.name, system, system, protocol, "custom", "custom",
+                                    0))
+    return tuple(motors)
 
 
 _SENSOR_FIELDS = ("current_noise_a", "encoder_cpr")
