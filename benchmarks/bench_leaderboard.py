@@ -36,8 +36,10 @@ def time_variant(protocol: str, quick: bool, workers: int, out: str) -> tuple[fl
 
 
 def main() -> None:
+    from stepdamp_env.bench.protocols import DEFAULT_VERSION, protocol_versions
+
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--protocol", choices=["v0", "v1"], default="v1")
+    parser.add_argument("--protocol", choices=protocol_versions(), default=DEFAULT_VERSION)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-full", action="store_true")
     args = parser.parse_args()
