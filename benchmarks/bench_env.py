@@ -70,7 +70,7 @@ def bench_kernel_only(num_envs: int, seconds: float) -> float:
     venv = StepperDampVectorEnv(num_envs=num_envs)
     venv.reset(seed=0)
     # The same drives and speeds as the env's episodes, as plain kernel arrays.
-    settings = RunSettings(damping="patent-ff")
+    settings = RunSettings(base_controller="patent-ff")
     c = np.stack([build_config(system, SpeedProfile(speed_rps=float(v)), settings,
                                window_start_s=math.inf)
                   for system, v in zip(venv.systems, venv.speeds_rps)])

@@ -243,7 +243,7 @@ def probes() -> Counter:
                         "distance_rev": [float("nan"), float("inf"), "x"]}.items():
         for v in values:
             cases.append((f"SpeedProfile {key}={v!r:.30}", sim(profile={key: v}), True))
-    for key, values in {"mode": ["x", None], "damping": ["x", None, 1],
+    for key, values in {"mode": ["x", None], "base_controller": ["x", None, 1],
                         "substeps": [0, -1, 1.5, 10 ** 6, "1", None, True],
                         "settle_s": [-1.0, float("nan"), float("inf"), "x"],
                         "window_s": [0.0, -1.0, float("nan"), float("inf"), "x", None],
@@ -325,7 +325,7 @@ def soak(seconds: float) -> None:
 # ---------------------------------------------------------------------------
 # kills
 # ---------------------------------------------------------------------------
-SWEEP = ["sweep", "--speeds", "0.3:3:0.02", "--damping", "none", "patent-ff", "--no-progress",
+SWEEP = ["sweep", "--speeds", "0.3:3:0.02", "--base-controller", "none", "patent-ff", "--no-progress",
          "--workers", "2"]
 BOARD = ["leaderboard", "--quick", "--no-progress", "--workers", "2"]
 

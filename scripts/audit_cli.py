@@ -264,8 +264,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     # --- simulate: choices, motor files, --set, --estimate, --trace ---------
     sim("--mode not a choice", "--mode", "closed-loop")
     sim("--mode in capitals", "--mode", "SERVO")
-    sim("--damping not a choice", "--damping", "patent")
-    sim("--damping empty", "--damping", "")
+    sim("--base-controller not a choice", "--base-controller", "patent")
+    sim("--base-controller empty", "--base-controller", "")
     sim("--velocity-estimator misspelled", "--mode", "servo", "--velocity-estimator", "kalmann")
     sim("--motor unknown preset", "--motor", "nosuch")
     sim("--motor empty", "--motor", "")
@@ -294,13 +294,13 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
                  "microsteps=0", "Nr=1e300", f"Nr={HUGE_INT}", "encoder_cpr=nan",
                  "microsteps=inf", "pwm_hz=-1", "Vdc=0"):
         sim(f"--set {item!r}", "--set", item)
-    sim("--estimate unknown preset", "--damping", "patent-ff", "--estimate", "nosuch")
-    sim("--estimate empty", "--damping", "patent-ff", "--estimate", "")
-    sim("--estimate missing file", "--damping", "patent-ff", "--estimate",
+    sim("--estimate unknown preset", "--base-controller", "patent-ff", "--estimate", "nosuch")
+    sim("--estimate empty", "--base-controller", "patent-ff", "--estimate", "")
+    sim("--estimate missing file", "--base-controller", "patent-ff", "--estimate",
         os.path.join(tmp, "motors", "missing.json"))
-    sim("--estimate invalid JSON", "--damping", "patent-ff", "--estimate", f["m_bad"])
-    sim("--estimate JSON list", "--damping", "patent-ff", "--estimate", f["m_list"])
-    sim("--estimate JSON with null values", "--damping", "patent-ff", "--estimate",
+    sim("--estimate invalid JSON", "--base-controller", "patent-ff", "--estimate", f["m_bad"])
+    sim("--estimate JSON list", "--base-controller", "patent-ff", "--estimate", f["m_list"])
+    sim("--estimate JSON with null values", "--base-controller", "patent-ff", "--estimate",
         f["m_null"])
     sim("--trace a directory", "--trace", f["dir"])
     sim("--trace under /proc", "--trace", "/proc/stepdamp-audit.npz")
@@ -323,8 +323,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
         sweep(f"--accel {v!r}", "--accel", v)
     sweep("--substeps 0", "--substeps", "0")
     sweep("--noise-seed -1", "--noise-seed", "-1")
-    sweep("--damping not a choice", "--damping", "patent")
-    sweep("--damping one good, one not", "--damping", "none", "nosuch")
+    sweep("--base-controller not a choice", "--base-controller", "patent")
+    sweep("--base-controller one good, one not", "--base-controller", "none", "nosuch")
     sweep("--mode not a choice", "--mode", "closed-loop")
     sweep("--velocity-estimator not a choice", "--velocity-estimator", "ekf")
     sweep("--motor unknown preset", "--motor", "nosuch")
@@ -333,7 +333,7 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     sweep("--set unknown field", "--set", "foo=1")
     sweep("--set Nr=50.5", "--set", "Nr=50.5")
     sweep("--set J=nan", "--set", "J=nan")
-    sweep("--estimate unknown", "--damping", "patent-ff", "--estimate", "nosuch")
+    sweep("--estimate unknown", "--base-controller", "patent-ff", "--estimate", "nosuch")
     sweep("--out an existing file", **{"--out": f["file"]})
     sweep("--out under /proc", **{"--out": "/proc/stepdamp-audit/out"})
     sweep("--out under a file", **{"--out": os.path.join(f["file"], "out")})

@@ -338,7 +338,7 @@ def undamped_ripple(system: SystemParams, speed_rps: float, drive_mode: str,
     from .simulation import RunSettings, simulate     # this floor's own core
 
     res = simulate(system.replace(drive_mode=drive_mode), speed_rps=speed_rps,
-                   settings=RunSettings(mode="open-loop", damping="none", settle_s=settle_s,
+                   settings=RunSettings(mode="open-loop", base_controller="none", settle_s=settle_s,
                                         noise_seed=noise_seed))
     m = res.metrics
     return float(m.rms_velocity_error_norm), bool(m.step_loss)

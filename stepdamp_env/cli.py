@@ -25,7 +25,7 @@ from .io import check_output_dir, check_writable, staged_directory
 from .ray_backend import backend_map
 from .params import FeedforwardModel, ParameterError, load_system, parse_set_overrides
 from .presets import preset_names
-from .simulation import (DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
+from .simulation import (BASE_CONTROLLERS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
                          measuring_window, simulate)
 from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS, resolving_spacing
 
@@ -87,7 +87,7 @@ def _number(kind: type, low: float | None = None, high: float | None = None,
     return parse
 
 
-def _add_system_args(p: argparse.ArgumentParser, *, damping_many: bool = False) -> None:
+def _add_system_args(p: argparse.ArgumentParser, *, base_many: bool = False) -> None:
     p.add_argument("--motor", default="patent",
                    help=f"preset ({', '.join(preset_names())}) or a motor .json file")
     p.add_argument("--set", dest="overrides", action="append", default=[],
@@ -95,12 +95,13 @@ def _add_system_args(p: argparse.ArgumentParser, *, damping_many: bool = False) 
                    help="override one parameter (SI units, see `stepdamp presets`); repeatable")
     p.add_argument("--mode", choices=sorted(MODES), default="open-loop",
                    help="open-loop microstepping or encoder servo")
-    if damping_many:
-        p.add_argument("--damping", choices=DAMPINGS, nargs="+", default=["none"],
-                       help="one or several dampings; several are overlaid on one figure")
+    if base_many:
+        p.add_argument("--base-controller", choices=BASE_CONTROLLERS, nargs="+",
+                       default=["none"], help="the drive's own controller: the patent's "
+                       "feedforward, or none; several are overlaid on one figure")
     else:
-        p.add_argument("--damping", choices=DAMPINGS, default="none",
-                       help="the patent's feedforward, or none")
+        p.add_argument("--base-controller", choices=BASE_CONTROLLERS, default="none",
+                       help="the drive's own controller: the patent's feedforward, or none")
     p.add_argument("--estimate", default=None, metavar="NAME|FILE.json",
                    help="motor whose Km, Kd1/2/4, phi1/2, Fs the feedforward uses "
                         "(default: the plant's own, i.e. exact)")
@@ -116,11 +117,12 @@ def _add_system_args(p: argparse.ArgumentParser, *, damping_many: bool = False) 
                    help="current-sensor noise seed")
 
 
-def _settings(args: argparse.Namespace, damping: str | None = None) -> RunSettings:
+def _settings(args: argparse.Namespace, base: str | None = None) -> RunSettings:
     estimate = None
     if args.estimate is not None:
         estimate = FeedforwardModel.from_motor(load_system(args.estimate).motor)
-    return RunSettings(mode=args.mode, damping=damping or args.damping, substeps=args.substeps,
+    return RunSettings(mode=args.mode, base_controller=base or args.base_controller,
+                       substeps=args.substeps,
                        estimate=estimate, velocity_estimator=args.velocity_estimator,
                        noise_seed=args.noise_seed)
 
@@ -132,14 +134,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     speeds = parse_speed_range(args.speeds)     # the arguments first, then the disk
     system = load_system(args.motor, parse_set_overrides(args.overrides))
-    dampings = list(dict.fromkeys(args.damping))
-    settings = [_settings(args, d) for d in dampings]
+    bases = list(dict.fromkeys(args.base_controller))
+    settings = [_settings(args, b) for b in bases]
     check_output_dir(args.out, "--out")
     backend = backend_map(args.backend, args.ray_address)
     results = [run_sweep(system, speeds, st, accel_rps2=args.accel, workers=args.workers,
                          backend=backend,
                          progress=not args.no_progress) for st in settings]
-    names = ["sweep.json"] if len(results) == 1 else [f"sweep_{d}.json" for d in dampings]
+    names = ["sweep.json"] if len(results) == 1 else [f"sweep_{b}.json" for b in bases]
     with staged_directory(args.out, SWEEP_FILES) as stage:
         for name, result in zip(names, results):
             write_json(os.path.join(stage, name), result.to_dict())
@@ -152,7 +154,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
           f"{speeds[0]:g}..{speeds[-1]:g} rev/s")
     for result in results:
         lost = int(np.sum(result.column("step_loss")))
-        print(f"  {result.settings.damping}: step loss in {lost} of {len(speeds)} runs")
+        print(f"  {result.settings.base_controller}: step loss in {lost} of {len(speeds)} runs")
         for h, peak in result.peaks().items():
             where = f"h={h}: predicted {predicted[h]:.4f} rev/s, "
             if peak["is_resonance"]:
@@ -224,7 +226,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _run_record(args: argparse.Namespace, system: Any, result: Any) -> dict[str, Any]:
     """What ``simulate`` reports: the run's settings and metrics (SI, JSON-ready)."""
     s = result.settings
-    return {"motor": system.name, "mode": s.mode, "damping": s.damping,
+    return {"motor": system.name, "mode": s.mode, "base_controller": s.base_controller,
             "speed_rps": result.profile.speed_rps, "accel_rps2": result.profile.accel_rps2,
             "move_rev": args.move, "substeps": s.substeps, "noise_seed": s.noise_seed,
             "duration_s": result.duration_s, "window_start_s": result.window_start_s,
@@ -473,8 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the settings and metrics as JSON")
     p.set_defaults(func=_cmd_simulate)
 
-    p = command("sweep", "ripple against command speed, one or several dampings on one figure")
-    _add_system_args(p, damping_many=True)
+    p = command("sweep", "ripple against command speed, one or several base controllers on "
+                         "one figure")
+    _add_system_args(p, base_many=True)
     p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
                    help="command speeds (rev/s)")
     _add_pool_run_args(p)

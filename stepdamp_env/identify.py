@@ -55,7 +55,7 @@ class IdentificationResult:
 
     Attributes:
         model: the identified model (Km is the datasheet value the drive uses).
-        damping: identified viscous damping D (N*m*s/rad), from the two speeds.
+        D: identified viscous damping (N*m*s/rad), from the two speeds.
         method: "least-squares" or "iterative".
         speeds_rps: the identification speeds (rev/s).
         iterations: runs per speed that were needed.
@@ -66,7 +66,7 @@ class IdentificationResult:
     """
 
     model: FeedforwardModel
-    damping: float
+    D: float
     method: str
     speeds_rps: tuple[float, ...]
     iterations: int
@@ -75,7 +75,7 @@ class IdentificationResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"method": self.method, "speeds_rps": list(self.speeds_rps),
-                "iterations": self.iterations, "damping": self.damping,
+                "iterations": self.iterations, "D": self.D,
                 "residual_harmonic_nm": self.residual_harmonic_nm,
                 "model": dict(self.model.__dict__), "errors": dict(self.errors)}
 
@@ -88,8 +88,8 @@ def _servo_run(system: SystemParams, speed_rps: float, estimate: FeedforwardMode
                noise_seed: int, settle_s: float, measure_s: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Encoder angle (rad) and control effort Km*iq_cmd (N*m) over the window."""
-    damping = "none" if estimate is None else "patent-ff"
-    settings = RunSettings(mode="servo", damping=damping, estimate=estimate,
+    base = "none" if estimate is None else "patent-ff"
+    settings = RunSettings(mode="servo", base_controller=base, estimate=estimate,
                            noise_seed=noise_seed)
     profile = SpeedProfile(speed_rps=speed_rps, accel_rps2=5.0)
     config = build_config(system, profile, settings, window_start_s=math.inf)
@@ -252,6 +252,6 @@ def identify(system: SystemParams | str, *, method: str = "iterative",
         coef = total
     fs, damping = _friction(speeds, intercepts, system.motor.D)
     model = _model_from(system, coef, fs)
-    return IdentificationResult(model=model, damping=damping, method=method,
+    return IdentificationResult(model=model, D=damping, method=method,
                                 speeds_rps=speeds, iterations=iterations,
                                 residual_harmonic_nm=residual, errors=_errors(model, system))

@@ -75,7 +75,8 @@ CONFIG = layout("Config", """
     KP_POS        servo position gain (N*m/rad)
     KI_POS        servo position integral gain (N*m/(rad*s))
     MODE          a MODE code: OPEN_LOOP or SERVO
-    FF_ON         1 if the base harmonic feedforward is on ("patent-ff")
+    BASE_CONTROLLER  1.0 if the base controller is "patent-ff" (its harmonic
+                  feedforward and, in servo, its Fs term), 0.0 if "none"
     KM_EST        controller's estimate of Km (N*m/A)
     FS_EST        controller's estimate of Fs (N*m), servo feedforward
     FF_S1         controller's detent estimate as sin/cos coefficients (N*m)
@@ -165,7 +166,7 @@ CTRL = layout("Controller", """
     KP_POS      servo position gain (N*m/rad)
     KI_POS      servo position integral gain (N*m/(rad*s))
     MODE        a MODE code
-    FF_ON       1.0 if the base harmonic feedforward is on, else 0.0
+    BASE_CONTROLLER  1.0 if the base controller is "patent-ff", 0.0 if "none"
     KM_EST      controller's estimate of Km (N*m/A)
     FS_EST      controller's estimate of Fs (N*m)
     FF_S1       controller's detent estimate, sin/cos coefficients (N*m)
@@ -657,7 +658,7 @@ def controller_params(c):
     """
     return (c[CONFIG.DT], c[CONFIG.NR], c[CONFIG.HOLD], c[CONFIG.MICROSTEP], c[CONFIG.KP_I], c[CONFIG.KI_I],
             c[CONFIG.ENCODER], c[CONFIG.VEL_ALPHA], c[CONFIG.KP_VEL], c[CONFIG.KP_POS], c[CONFIG.KI_POS],
-            c[CONFIG.MODE], c[CONFIG.FF_ON], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
+            c[CONFIG.MODE], c[CONFIG.BASE_CONTROLLER], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
             c[CONFIG.FF_S1], c[CONFIG.FF_C1], c[CONFIG.FF_S2], c[CONFIG.FF_C2], c[CONFIG.FF_S4], c[CONFIG.FF_C4],
             c[CONFIG.VDC], c[CONFIG.PROFILE], c[CONFIG.SPEED], c[CONFIG.ACCEL], c[CONFIG.DISTANCE],
             c[CONFIG.I_NOISE], c[CONFIG.I_OFFSET_A], c[CONFIG.I_OFFSET_B], c[CONFIG.NOISE_SEED], c[CONFIG.VEL_EST],
@@ -672,7 +673,7 @@ def feedforward_torque(sin_x, cos_x, q, u):
     The base model (eq. 8 / eq. 15 harmonics, scaled by ff_on) plus the
     external coefficient corrections in ``u`` (see ``U_*``).
     """
-    on = q[CTRL.FF_ON]
+    on = q[CTRL.BASE_CONTROLLER]
     return harmonic_series(sin_x, cos_x,
                            on * q[CTRL.FF_S1] + u[INPUT.DS1], on * q[CTRL.FF_C1] + u[INPUT.DC1],
                            on * q[CTRL.FF_S2] + u[INPUT.DS2], on * q[CTRL.FF_C2] + u[INPUT.DC2],
@@ -757,7 +758,7 @@ def control_step(period, theta, ia, ib, cs, q, u):
             fs_ff = q[CTRL.FS_EST]
         elif omega_cmd < 0.0:
             fs_ff = -q[CTRL.FS_EST]
-        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[CTRL.FF_ON] * fs_ff)
+        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[CTRL.BASE_CONTROLLER] * fs_ff)
                   * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ])
         tau_fb = (q[CTRL.KP_VEL] * (omega_cmd - omega_fb) + q[CTRL.KP_POS] * theta_err
                   + q[CTRL.KI_POS] * pos_int)

@@ -12,7 +12,7 @@ from .params import SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 from .sweep import SweepResult
 
-__all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "DAMPING_STYLES", "finish_ripple_axes",
+__all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "BASE_CONTROLLER_STYLES", "finish_ripple_axes",
            "legend_outside", "mark_resonances", "plot_sweep", "plot_velocity_error_traces",
            "pyplot", "save_figure", "trace_speeds"]
 
@@ -25,7 +25,7 @@ POLICY_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"
                   "coral", "yellowgreen", "slategray")
 POLICY_MARKERS = ("s", "^", "D", "v", "P", "X", "<", ">", "*")
 #: The simulation core's damping settings, styled like the policies of the same name.
-DAMPING_STYLES = {"none": ("black", "o"), "patent-ff": (POLICY_COLOURS[0], POLICY_MARKERS[0])}
+BASE_CONTROLLER_STYLES = {"none": ("black", "o"), "patent-ff": (POLICY_COLOURS[0], POLICY_MARKERS[0])}
 
 
 def pyplot():
@@ -83,10 +83,10 @@ def plot_sweep(sweeps: Sequence[SweepResult], path: str | os.PathLike[str],
     fig, ax = plt.subplots(figsize=(8, 4.5))
     lost_label = "step loss"
     for sw in sweeps:
-        colour, marker = DAMPING_STYLES.get(sw.settings.damping, (None, "."))
+        colour, marker = BASE_CONTROLLER_STYLES.get(sw.settings.base_controller, (None, "."))
         ripple = sw.column("rms_velocity_error_rad_s")
         ax.semilogy(sw.speeds_rps, ripple, color=colour, marker=marker, ms=3, mfc="none",
-                    lw=1.0, label=f"{sw.settings.mode}, {sw.settings.damping}")
+                    lw=1.0, label=f"{sw.settings.mode}, {sw.settings.base_controller}")
         lost = sw.column("step_loss").astype(bool)
         if lost.any():
             ax.semilogy(sw.speeds_rps[lost], ripple[lost], "x", color="red", label=lost_label)
@@ -124,9 +124,9 @@ def plot_velocity_error_traces(system: SystemParams, settings: RunSettings | Seq
             sel = tr["t"] >= res.window_start_s - 1e-12
             t = tr["t"][sel] - res.window_start_s
             err = tr["omega_cmd"][sel] - tr["omega"][sel]
-            colour = DAMPING_STYLES.get(rs.damping, (None, ""))[0]
+            colour = BASE_CONTROLLER_STYLES.get(rs.base_controller, (None, ""))[0]
             ax.plot(t * 1e3, err, lw=0.6, color=colour,
-                    label=f"{rs.damping}: RMS {res.metrics.rms_velocity_error_rad_s:.3g} rad/s")
+                    label=f"{rs.base_controller}: RMS {res.metrics.rms_velocity_error_rad_s:.3g} rad/s")
         ax.set_ylabel("rad/s", fontsize=8)
         ax.set_title(f"{v:.3g} rev/s", fontsize=8, loc="left")
         ax.grid(True, alpha=0.3)

@@ -1,7 +1,7 @@
 """Python face of the kernel: build configuration and state, run, read metrics.
 
 >>> from stepdamp_env import simulate
->>> result = simulate("patent", mode="open-loop", damping="patent-ff", speed_rps=1.0)
+>>> result = simulate("patent", mode="open-loop", base_controller="patent-ff", speed_rps=1.0)
 >>> result.metrics.rms_velocity_error_rad_s        # doctest: +SKIP
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import asdict, dataclass, field
+from dataclasses import InitVar, asdict, dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
@@ -23,7 +23,7 @@ from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, System
 __all__ = [
     "check_converged",
     "MODES",
-    "DAMPINGS",
+    "BASE_CONTROLLERS",
     "DEFAULT_ACCEL_RPS2",
     "SpeedProfile",
     "RunSettings",
@@ -41,7 +41,9 @@ __all__ = [
 
 MODES = {"open-loop": K.MODE.OPEN_LOOP, "servo": K.MODE.SERVO}
 DRIVE_MODE_CODES = {"current": K.DRIVE.CURRENT, "voltage": K.DRIVE.VOLTAGE}
-DAMPINGS = ("none", "patent-ff")
+# The drive's own controller under any residual: nothing, or the patent's harmonic
+# feedforward (eq. 8 in open loop, eq. 15 with its Fs term in servo).
+BASE_CONTROLLERS = ("none", "patent-ff")
 VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST.LOWPASS, "kalman": K.VEL_EST.KALMAN,
                        "back-emf": K.VEL_EST.BACK_EMF}
 TWO_PI = 2.0 * math.pi
@@ -118,7 +120,7 @@ class RunSettings:
 
     Attributes:
         mode: ``"open-loop"`` (eqs. 7-8) or ``"servo"`` (eqs. 14-15).
-        damping: ``"none"`` or ``"patent-ff"``. In open loop the feedforward is
+        base_controller: ``"none"`` or ``"patent-ff"``. In open loop the feedforward is
             the eq. 8 harmonic current; in servo it is eq. 15's harmonics plus
             its Fs term. ``"none"`` leaves out every model term.
         substeps: RK4 plant steps per PWM period (1 is accurate to about 1e-5
@@ -140,22 +142,29 @@ class RunSettings:
     """
 
     mode: str = "open-loop"
-    damping: str = "none"
+    base_controller: str = "none"
     substeps: int = 1
     settle_s: float | None = None
     window_s: float = 0.5
     estimate: FeedforwardModel | None = None
     velocity_estimator: str = "lowpass"
     noise_seed: int = 0
+    # The name of base_controller before 0.11, kept only because the frozen v0
+    # fingerprint harness (tests/v0_fingerprints.py) passes it.
+    damping: InitVar[str | None] = None
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, damping: str | None) -> None:
+        if damping is not None:
+            if self.base_controller != "none":
+                raise ParameterError("give base_controller or its old name damping, not both")
+            object.__setattr__(self, "base_controller", damping)
         _check_choice("mode", self.mode, MODES)
         _check_choice("velocity_estimator", self.velocity_estimator, VELOCITY_ESTIMATORS)
         if isinstance(self.noise_seed, bool) or not isinstance(self.noise_seed, (int, np.integer)) \
                 or not 0 <= self.noise_seed < 2 ** 53:
             raise ParameterError(f"noise_seed={self.noise_seed!r} is outside its allowed range "
                                  "[0, 2**53) (integer)")
-        _check_choice("damping", self.damping, DAMPINGS)
+        _check_choice("base_controller", self.base_controller, BASE_CONTROLLERS)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise ParameterError(f"substeps={self.substeps!r} is outside its allowed range "
@@ -226,7 +235,7 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     c[K.CONFIG.VEL_ALPHA] = 1.0 - fm.exp(-TWO_PI * sv.velocity_cutoff_hz * dt)
     c[K.CONFIG.KP_VEL], c[K.CONFIG.KP_POS], c[K.CONFIG.KI_POS] = system.servo_gains()
     c[K.CONFIG.MODE] = MODES[settings.mode]
-    c[K.CONFIG.FF_ON] = 1.0 if settings.damping == "patent-ff" else 0.0
+    c[K.CONFIG.BASE_CONTROLLER] = 1.0 if settings.base_controller == "patent-ff" else 0.0
     est = settings.estimate if settings.estimate is not None else FeedforwardModel.from_motor(m)
     c[K.CONFIG.KM_EST] = est.Km
     c[K.CONFIG.FS_EST] = est.Fs
@@ -445,7 +454,7 @@ class RunResult:
 def simulate(system: SystemParams | str | Mapping[str, Any], *,
              speed_rps: float | None = None,
              profile: SpeedProfile | None = None,
-             mode: str = "open-loop", damping: str = "none",
+             mode: str = "open-loop", base_controller: str = "none",
              duration_s: float | None = None,
              settings: RunSettings | None = None,
              trace: bool = False, trace_every: int = 1,
@@ -455,7 +464,7 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     Give either ``speed_rps`` (a constant-speed profile with the default ramp)
     or a full ``profile``. ``duration_s`` defaults to the end of the measuring
     window (ramp + settle + window); a shorter duration raises. ``settings``
-    overrides ``mode``, ``damping`` and ``estimate`` when given. With
+    overrides ``mode``, ``base_controller`` and ``estimate`` when given. With
     ``trace=True`` the result holds one sample every ``trace_every`` PWM periods
     of the channels in ``kernel.TRACE_NAMES`` (SI units; ``va``/``vb`` are the
     winding voltages applied during that period).
@@ -468,7 +477,7 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     elif speed_rps is not None:
         raise ParameterError("give speed_rps or profile, not both")
     if settings is None:
-        settings = RunSettings(mode=mode, damping=damping, estimate=estimate)
+        settings = RunSettings(mode=mode, base_controller=base_controller, estimate=estimate)
     if isinstance(trace_every, bool) or not isinstance(trace_every, int) or trace_every < 1:
         raise ParameterError(f"trace_every={trace_every!r} is outside its allowed range "
                              "[1, inf) (integer)")

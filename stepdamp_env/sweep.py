@@ -75,7 +75,7 @@ class SweepResult:
             "version": __version__,
             "motor": self.system.name,
             "mode": self.settings.mode,
-            "damping": self.settings.damping,
+            "base_controller": self.settings.base_controller,
             "estimate": None if est is None else est.__dict__,
             "accel_rps2": self.accel_rps2,
             "substeps": self.settings.substeps,
@@ -197,7 +197,7 @@ def run_sweep(system: SystemParams, speeds_rps: Sequence[float],
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(jobs), desc=f"sweep {settings.mode}/{settings.damping}",
+        bar = tqdm(total=len(jobs), desc=f"sweep {settings.mode}/{settings.base_controller}",
                    unit="run")
     metrics = (pool_map if backend is None else backend)(_run_point, jobs, workers,
                                                          min_jobs=4, bar=bar)

@@ -124,7 +124,7 @@ def test_the_window_opens_in_steady_state(suite):
         rms = []
         for extra in (0.0, 1.0, 2.0, 3.0):
             res = simulate(m.system, profile=SpeedProfile(speed_rps=v, accel_rps2=50.0),
-                           settings=RunSettings(mode=suite, damping="none", window_s=0.3,
+                           settings=RunSettings(mode=suite, base_controller="none", window_s=0.3,
                                                 settle_s=m.settle_s(suite) + extra))
             rms.append(res.metrics.rms_velocity_error_rad_s)
         assert rms[0] == pytest.approx(np.mean(rms[1:]), rel=0.06), (suite, v, rms)

@@ -35,7 +35,7 @@ def test_sweep_writes_json_and_figures(tmp_path, capsys):
 
 def test_simulate_prints_metrics_and_writes_a_trace(tmp_path, capsys):
     trace = tmp_path / "run.npz"
-    rc = main(["simulate", "--motor", "qsh5718-56-28-126", "--mode", "servo", "--damping",
+    rc = main(["simulate", "--motor", "qsh5718-56-28-126", "--mode", "servo", "--base-controller",
                "patent-ff", "--speed", "0.5", "--duration", "0.8", "--trace", str(trace),
                "--json"])
     assert rc == 0

@@ -156,7 +156,7 @@ def test_zero_action_reproduces_simulation_core_bit_for_bit(mode, damping, actio
     n_steps = 250
     theta, omega, ia = _env_trajectory(n_steps, mode=mode, base_controller=damping,
                                        action_mode=action_mode, speed_rps=speed)
-    ref = simulate(system, speed_rps=speed, mode=mode, damping=damping, trace=True,
+    ref = simulate(system, speed_rps=speed, mode=mode, base_controller=damping, trace=True,
                    trace_every=20)
     tr = ref.trace
     # Trace row k holds the state at the start of PWM period 20k: after k agent steps.
@@ -185,7 +185,7 @@ def test_estimate_options_set_the_controller_model():
     assert env.drive_config[K.CONFIG.KM_EST] == 0.28
     none = StepperDampEnv(base_controller="none")
     none.reset(seed=0)
-    assert none.drive_config[K.CONFIG.FF_ON] == 0.0
+    assert none.drive_config[K.CONFIG.BASE_CONTROLLER] == 0.0
 
 
 # -- determinism and scalar/vector agreement ---------------------------------------
@@ -424,7 +424,7 @@ def test_measured_episode_gives_the_simulation_core_metrics():
     zero = np.zeros(env.action_space.shape, np.float32)
     while env.time_s < start + length - 1e-12:
         env.step(zero)
-    ref = simulate(system, speed_rps=speed, damping="patent-ff", duration_s=env.time_s).metrics
+    ref = simulate(system, speed_rps=speed, base_controller="patent-ff", duration_s=env.time_s).metrics
     got = env.run_metrics()
     # Extremes are exact; sums differ in the last bits (summed per step, then added).
     assert (got.p2p_velocity_error_rad_s, got.max_position_lag_rad, got.step_loss) == (

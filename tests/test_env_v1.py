@@ -211,7 +211,7 @@ def test_v1_render_and_copies():
 # -- the damping law -----------------------------------------------------------------
 def _ringdown(kv_gain: float, system, n_periods: int = 4000, amplitude: float = 0.05) -> float:
     """Decay rate (1/s) of the rotor released ``amplitude`` full steps off its detent at rest."""
-    settings = RunSettings(damping="none")
+    settings = RunSettings(base_controller="none")
     c = build_config(system, SpeedProfile(speed_rps=1e-6), settings, window_start_s=math.inf)
     s = initial_state(c, theta0=amplitude * system.motor.full_step_rad)
     law = np.zeros(len(K.LAW))

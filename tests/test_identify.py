@@ -27,7 +27,7 @@ def test_iterative_identification_meets_the_accuracy_targets(name):
         assert abs(e[key]) < 0.05, (key, e)
     assert abs(e["Fs"]) < 0.10, e
     assert result.iterations >= 2
-    assert result.damping == pytest.approx(system.motor.D, rel=0.2)
+    assert result.D == pytest.approx(system.motor.D, rel=0.2)
 
 
 @pytest.mark.parametrize("name", ["qsh5718-56-28-126", "qsh6018-65-28-210"])
@@ -46,8 +46,8 @@ def test_identified_feedforward_damps_like_the_oracle():
     model = identify(system, noise_seed=1).model
     speed = system.predicted_resonances_rps()[4]
     none = simulate(system, speed_rps=speed).metrics.rms_velocity_error_rad_s
-    oracle = simulate(system, speed_rps=speed, damping="patent-ff").metrics
-    ident = simulate(system, speed_rps=speed, damping="patent-ff", estimate=model).metrics
+    oracle = simulate(system, speed_rps=speed, base_controller="patent-ff").metrics
+    ident = simulate(system, speed_rps=speed, base_controller="patent-ff", estimate=model).metrics
     assert ident.rms_velocity_error_rad_s < 0.25 * none
     assert ident.rms_velocity_error_rad_s == pytest.approx(oracle.rms_velocity_error_rad_s,
                                                            rel=0.3)

@@ -123,8 +123,12 @@ def test_feedforward_model_coefficients():
 def test_run_options_are_validated():
     with pytest.raises(ParameterError, match="mode='closed'"):
         RunSettings(mode="closed")
-    with pytest.raises(ParameterError, match="damping"):
-        RunSettings(damping="magic")
+    with pytest.raises(ParameterError, match="base_controller"):
+        RunSettings(base_controller="magic")
+    # The old name (the frozen v0 harness passes it) means the same; not both at once.
+    assert RunSettings(damping="patent-ff") == RunSettings(base_controller="patent-ff")
+    with pytest.raises(ParameterError, match="not both"):
+        RunSettings(base_controller="patent-ff", damping="none")
     with pytest.raises(ParameterError, match="substeps=0"):
         RunSettings(substeps=0)
     with pytest.raises(ParameterError, match="accel_rps2"):

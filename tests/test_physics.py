@@ -32,7 +32,7 @@ def test_energy_balance_closes_over_a_whole_run(patent, mode, damping, load):
     # change + viscous + friction + load work, at a resonant speed with a ramp.
     system = patent.replace(load_torque=load)
     speed = system.predicted_resonances_rps()[4]
-    settings = RunSettings(mode=mode, damping=damping)
+    settings = RunSettings(mode=mode, base_controller=damping)
     c = build_config(system, SpeedProfile(speed), settings)
     from stepdamp_env.simulation import initial_state
 
@@ -123,7 +123,7 @@ def test_stiction_holds_below_breakaway_and_slides_above(still):
     free = base.replace(Kd1=0.0, Kd2=0.0, Kd4=0.0, D=0.0, Kp_vel=0.0, Kp_pos=0.0, Ki_pos=0.0,
                         Km=1e-9)
     fs = free.motor.Fs
-    settings = RunSettings(mode="servo", damping="none")
+    settings = RunSettings(mode="servo", base_controller="none")
     held = free.replace(load_torque=0.9 * fs)
     _, s, _, _ = run_raw(held, still, settings, n_periods=4000)
     assert s[K.STATE.THETA] == 0.0 and s[K.STATE.OMEGA] == 0.0
@@ -142,7 +142,7 @@ def test_coulomb_friction_stops_a_coasting_rotor_and_keeps_it_stopped(still):
     base = get_preset("patent")
     free = base.replace(Kd1=0.0, Kd2=0.0, Kd4=0.0, D=0.0, Kp_vel=0.0, Kp_pos=0.0, Ki_pos=0.0,
                         Km=1e-9)
-    settings = RunSettings(mode="servo", damping="none")
+    settings = RunSettings(mode="servo", base_controller="none")
     c = build_config(free, still, settings)
     from stepdamp_env.simulation import initial_state
 
@@ -204,8 +204,8 @@ def test_rk4_error_falls_with_the_fourth_power_of_the_step(patent):
 
 
 def test_same_inputs_give_bit_identical_traces(patent):
-    a = simulate(patent, speed_rps=1.3, damping="patent-ff", trace=True)
-    b = simulate(patent, speed_rps=1.3, damping="patent-ff", trace=True)
+    a = simulate(patent, speed_rps=1.3, base_controller="patent-ff", trace=True)
+    b = simulate(patent, speed_rps=1.3, base_controller="patent-ff", trace=True)
     for key in a.trace:
         assert np.array_equal(a.trace[key], b.trace[key]), key
     assert a.metrics == b.metrics

@@ -401,7 +401,7 @@ def test_parameter_sets_simulate_finite_or_refuse(values, base, mode, damping, e
         assert "speed_rps" in str(exc), str(exc)
         event("speed refused")
         return
-    run = RunSettings(mode=mode, damping=damping, substeps=substeps, settle_s=0.0,
+    run = RunSettings(mode=mode, base_controller=damping, substeps=substeps, settle_s=0.0,
                       window_s=window / pwm, estimate=estimate, velocity_estimator=estimator,
                       noise_seed=noise_seed)
     # The run ends ``window`` PWM periods after the measuring window opens (simulate
@@ -729,7 +729,7 @@ def _short_run_with_estimate(**estimate):
         model = FeedforwardModel(**estimate)
     except ParameterError:
         return
-    _short_run(PATENT, mode="servo", damping="patent-ff", estimate=model)
+    _short_run(PATENT, mode="servo", base_controller="patent-ff", estimate=model)
 
 
 def _env_steps_or_refusal(**opts):

@@ -41,9 +41,9 @@ def test_ray_leaderboard_equals_local(local_ray):
 def test_ray_sweep_equals_local(local_ray):
     system = load_system("patent")
     speeds = np.linspace(0.3, 0.9, 6)
-    local = run_sweep(system, speeds, RunSettings(damping="patent-ff"), workers=2,
+    local = run_sweep(system, speeds, RunSettings(base_controller="patent-ff"), workers=2,
                       progress=False)
-    remote = run_sweep(system, speeds, RunSettings(damping="patent-ff"), workers=2,
+    remote = run_sweep(system, speeds, RunSettings(base_controller="patent-ff"), workers=2,
                        progress=False, backend=local_ray)
     assert json.dumps(remote.to_dict(), sort_keys=True) == \
         json.dumps(local.to_dict(), sort_keys=True)

@@ -22,8 +22,8 @@ def _resonance_grid(system, span=0.15, points=16):
 
 def _check_three_peaks_and_feedforward(system):
     speeds = _resonance_grid(system)
-    undamped = run_sweep(system, speeds, RunSettings(damping="none"), progress=False)
-    damped = run_sweep(system, speeds, RunSettings(damping="patent-ff"), progress=False)
+    undamped = run_sweep(system, speeds, RunSettings(base_controller="none"), progress=False)
+    damped = run_sweep(system, speeds, RunSettings(base_controller="patent-ff"), progress=False)
     ripple = undamped.column("rms_velocity_error_rad_s")
     ripple_ff = damped.column("rms_velocity_error_rad_s")
     assert not undamped.column("step_loss").any()
@@ -48,9 +48,9 @@ def test_servo_feedforward_lowers_low_speed_ripple(name):
     # no feedforward removes, so the gain is smaller at the lowest speed.
     system = load_system(name)
     speeds = (0.2, 0.5, 1.0)
-    none = [simulate(system, speed_rps=v, mode="servo", damping="none").metrics
+    none = [simulate(system, speed_rps=v, mode="servo", base_controller="none").metrics
             for v in speeds]
-    ff = [simulate(system, speed_rps=v, mode="servo", damping="patent-ff").metrics
+    ff = [simulate(system, speed_rps=v, mode="servo", base_controller="patent-ff").metrics
           for v in speeds]
     for a, b in zip(none, ff):
         assert b.rms_velocity_error_rad_s < 0.9 * a.rms_velocity_error_rad_s, a.speed_rps
@@ -77,11 +77,11 @@ def test_feedforward_with_a_wrong_model_does_worse_than_exact():
 
     system = load_system("patent")
     speed = system.predicted_resonances_rps()[2]
-    exact = simulate(system, speed_rps=speed, damping="patent-ff").metrics
+    exact = simulate(system, speed_rps=speed, base_controller="patent-ff").metrics
     m = system.motor
     shifted = FeedforwardModel(Km=m.Km, Kd1=m.Kd1, Kd2=m.Kd2, Kd4=m.Kd4, phi1=m.phi1,
                                phi2=m.phi2 + 0.8, Fs=m.Fs)
-    wrong = simulate(system, speed_rps=speed, damping="patent-ff", estimate=shifted).metrics
+    wrong = simulate(system, speed_rps=speed, base_controller="patent-ff", estimate=shifted).metrics
     assert wrong.rms_velocity_error_rad_s > 2 * exact.rms_velocity_error_rad_s
 
 

@@ -61,7 +61,7 @@ class CalibrationRig:
             raise ParameterError("corrections_nm must hold 6 finite numbers (N*m)")
         system = self.__system
         profile = SpeedProfile(speed_rps=float(speed_rps), accel_rps2=self.accel_rps2)
-        settings = RunSettings(mode=mode, damping="patent-ff", estimate=estimate,
+        settings = RunSettings(mode=mode, base_controller="patent-ff", estimate=estimate,
                                window_s=window_s, noise_seed=self.noise_seed)
         start, length = measuring_window(system, profile, settings)
         config = build_config(system, profile, settings, window_start_s=start)

@@ -9,7 +9,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..params import FeedforwardModel, ParameterError, SystemParams
-from ..simulation import DAMPINGS, DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
+from ..simulation import BASE_CONTROLLERS as _CORE_BASE_CONTROLLERS
+from ..simulation import DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from .layout import ACTION_MODES
 from .registration import ENV_ID
 
@@ -39,7 +40,7 @@ PHASE_FIELDS = ("phi1", "phi2")
 RANDOMIZABLE_FIELDS = SCALED_FIELDS + PHASE_FIELDS
 
 # The base controller is the simulation core's damping ("patent-ff" first: the default).
-BASE_CONTROLLERS = tuple(sorted(DAMPINGS, key=lambda d: d != "patent-ff"))
+BASE_CONTROLLERS = tuple(sorted(_CORE_BASE_CONTROLLERS, key=lambda d: d != "patent-ff"))
 # Named models of the base controller ("exact": the episode's plant; "nominal": the
 # un-randomised motor); a FeedforwardModel is accepted too.
 ESTIMATES = ("exact", "nominal")

@@ -169,7 +169,7 @@ class EpisodeSampler:
         estimate = self._set_estimate()     # None: the core uses the plant's exact values
         # The sensor noise of the episode: its own stream, drawn after the speed.
         noise_seed = int(rng.integers(2 ** 53))
-        settings = RunSettings(mode=o.mode, damping=o.base_controller, substeps=int(o.substeps),
+        settings = RunSettings(mode=o.mode, base_controller=o.base_controller, substeps=int(o.substeps),
                                estimate=estimate, velocity_estimator=o.velocity_estimator,
                                noise_seed=noise_seed)
         profile = SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2)

@@ -137,7 +137,7 @@ class TaskV1:
         speed, h = d.draw_speed(rng, system)
         noise_seed = int(rng.integers(2 ** 53))
         estimate = self.episode_estimate(system)
-        settings = RunSettings(mode=o.mode, damping="patent-ff" if o.base_controller != "none"
+        settings = RunSettings(mode=o.mode, base_controller="patent-ff" if o.base_controller != "none"
                                else "none", substeps=int(o.substeps), estimate=estimate,
                                velocity_estimator=o.velocity_estimator, noise_seed=noise_seed)
         window = math.inf if o.measure_from_s is None else float(o.measure_from_s)

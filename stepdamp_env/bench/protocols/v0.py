@@ -203,7 +203,7 @@ def quick_protocol() -> ProtocolV0:
 def _usable(system: SystemParams, speeds: Sequence[float], protocol: ProtocolV0) -> bool:
     """No undamped run of the grid lags by half a full step or more (both suites)."""
     for mode in SUITES:
-        settings = RunSettings(mode=mode, damping="none", window_s=protocol.window_s,
+        settings = RunSettings(mode=mode, base_controller="none", window_s=protocol.window_s,
                                noise_seed=protocol.validation_noise_seed)
         for v in speeds:
             try:
