@@ -15,7 +15,7 @@ from stepdamp_env.bench import (MotorKnowledge, PolicyContext, policy_env_option
                                 quick_protocol, run_leaderboard)
 from stepdamp_env.bench.policy import policy_card
 from stepdamp_env.bench.rig import CalibrationRig
-from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS, N_BASE_OBS
+from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, ParameterError
 from stepdamp_env.presets import get_preset
 from stepdamp_env.response import phasors
@@ -129,7 +129,7 @@ def test_repetitive_control_converges_on_a_pure_periodic_disturbance():
     p = np.where(rc._learn != 0, 0.5 / np.where(rc._learn != 0, rc._learn, 1.0), 0.0)
     detent = rc._start + np.array([0.004 + 0.003j, -0.002j, 0.0015])
     nr = system.motor.Nr
-    obs = np.zeros(N_BASE_OBS + 6, dtype=np.float32)
+    obs = np.zeros(len(OBS) + 6, dtype=np.float32)
     steps = int(40 * ctx.agent_hz / (nr * ctx.speed_rps))
     first = None
     for k in range(rc._wait + steps):

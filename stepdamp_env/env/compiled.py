@@ -1,11 +1,10 @@
-"""Compiled per-step helpers of the environments, and the layouts they write.
+"""Compiled per-step helpers of StepperDamp-v0, and the layouts they write.
 
-The observation and parameter-row positions are defined here, in the module
-whose compiled code uses them: numba freezes module globals into its on-disk
-cache and only notices changes to this file, so a layout defined elsewhere
-could go stale in the cache. The helpers depend on no other module's compiled
-code either (the kernel's layout indices come in as the array ``KERNEL_INDEX``)
-for the same reason. :mod:`stepdamp_env.env.layout` gives the positions names.
+The layouts are declared once here (:func:`stepdamp_env.fields.layout`); the
+kernel's state and accumulator entries the step reads come in as the array
+``KERNEL_INDEX`` (named by ``KERNEL_FIELDS``, shared with v1).
+:mod:`stepdamp_env.env.layout` gives the observation positions lower-case names
+for baselines and agents.
 """
 
 from __future__ import annotations
@@ -16,10 +15,11 @@ import numpy as np
 from numba import njit
 
 from .. import kernel as K
+from ..fields import layout
 from ..fixedmath import sincos
 
-__all__ = ["OBS_BOUND", "N_BASE_OBS", "N_PRIVILEGED", "N_PAR", "N_OUT", "MAX_ACT_DIM",
-           "KERNEL_INDEX", "load_actions", "observe"]
+__all__ = ["OBS_BOUND", "OBS", "PRIVILEGED", "PARAM", "OUT", "KERNEL_FIELDS", "KERNEL_INDEX",
+           "load_actions", "observe"]
 
 _jit = njit(cache=True, error_model="numpy")
 
@@ -27,71 +27,81 @@ _jit = njit(cache=True, error_model="numpy")
 # states past it are clipped; a healthy drive stays well inside.
 OBS_BOUND = 10.0
 
-# Observation entries (float32 row): what a drive senses, scaled.
-OBS_POSITION_ERROR = 0   # (theta_cmd - encoder angle) / full step
-OBS_VELOCITY_ERROR = 1   # (omega_cmd - filtered encoder velocity) / held command speed
-OBS_SIN_X = 2            # sin, cos of the electrical (Park) angle x, of 2x and of 4x
-OBS_COS_X = 3
-OBS_SIN_2X = 4
-OBS_COS_2X = 5
-OBS_SIN_4X = 6
-OBS_COS_4X = 7
-OBS_SPEED_COMMAND = 8    # omega_cmd / speed normaliser
-OBS_ID = 9               # measured id / holding current
-OBS_IQ = 10              # measured iq / holding current
-N_BASE_OBS = 11          # then the last action (k entries), then the privileged block
-# Privileged entries, counted from the end of the last action.
-PRIV_POSITION_ERROR = 0  # true (theta_cmd - theta) / full step
-PRIV_VELOCITY_ERROR = 1  # true (omega_cmd - omega) / held command speed
-PRIV_IA = 2              # true ia / holding current
-PRIV_IB = 3              # true ib / holding current
-N_PRIVILEGED = 4
+# Observation entries (float32 row): what a drive senses, scaled; then the last
+# action (k entries), then, with ``privileged``, the PRIVILEGED block.
+OBS = layout("Observation", """
+    POSITION_ERROR  (theta_cmd - encoder angle) / full step
+    VELOCITY_ERROR  (omega_cmd - filtered encoder velocity) / held command speed
+    SIN_X           sin, cos of the electrical (Park) angle x, of 2x and of 4x
+    COS_X
+    SIN_2X
+    COS_2X
+    SIN_4X
+    COS_4X
+    SPEED_COMMAND   omega_cmd / speed normaliser
+    ID              measured id / holding current
+    IQ              measured iq / holding current
+""")
+PRIVILEGED = layout("Privileged", """
+    POSITION_ERROR  true (theta_cmd - theta) / full step
+    VELOCITY_ERROR  true (omega_cmd - omega) / held command speed
+    IA              true ia / holding current
+    IB              true ib / holding current
+""")
 
 # Per-drive episode constants (float64 row).
-P_FULL_STEP = 0     # one full step (rad)
-P_W_REF = 1         # |held command speed| (rad/s): normaliser of velocity errors
-P_HOLD = 2          # holding current (A): normaliser of currents
-P_SPEED_SCALE = 3   # normaliser of the speed command (rad/s)
-P_I_LIMIT = 4       # unsafe phase current (A)
-P_CUR_PEN = 5       # weight of the injected-current penalty
-P_TERM_PEN = 6      # penalty on termination
-P_ACT_SCALE = 7     # first of MAX_ACT_DIM columns: physical size of action entry j = 1.0 (N*m or A)
-MAX_ACT_DIM = 7
-N_PAR = P_ACT_SCALE + MAX_ACT_DIM
+PARAM = layout("EpisodeRow", """
+    FULL_STEP    one full step (rad)
+    W_REF        |held command speed| (rad/s): normaliser of velocity errors
+    HOLD         holding current (A): normaliser of currents
+    SPEED_SCALE  normaliser of the speed command (rad/s)
+    I_LIMIT      unsafe phase current (A)
+    CUR_PEN      weight of the injected-current penalty
+    TERM_PEN     penalty on termination
+    ACT_SCALE    physical size of action entry j = 1.0 (N*m or A), j = 0 .. 6
+    ACT_SCALE_1
+    ACT_SCALE_2
+    ACT_SCALE_3
+    ACT_SCALE_4
+    ACT_SCALE_5
+    ACT_SCALE_6
+""")
 
 # Per-step physical outputs (float64 row).
-O_REWARD = 0
-O_VEL_RMS = 1       # rms of w_cmd - w over the step's PWM samples (rad/s)
-O_LAG = 2           # max |theta_cmd - theta| over the step (rad)
-O_IINJ_RMS = 3      # rms injected q current (feedforward + residual) (A)
-O_PEAK_I = 4        # max |phase current| (A)
-O_STEP_LOSS = 5
-O_OVERCURRENT = 6
-O_NONFINITE = 7
-O_TERMINATED = 8
-N_OUT = 9
+OUT = layout("StepOutput", """
+    REWARD
+    VEL_RMS      rms of w_cmd - w over the step's PWM samples (rad/s)
+    LAG          max |theta_cmd - theta| over the step (rad)
+    IINJ_RMS     rms injected q current (feedforward + residual) (A)
+    PEAK_I       max |phase current| (A)
+    STEP_LOSS    1.0 if the lag passed a full step
+    OVERCURRENT  1.0 if a phase current passed the limit
+    NONFINITE    1.0 if the plant or the observation went non-finite
+    TERMINATED   1.0 if any of the three
+""")
 
-# Positions in KERNEL_INDEX of the kernel's state and accumulator entries.
-IX_THETA_FB = 0
-IX_OMEGA_FB = 1
-IX_THETA_CMD = 2
-IX_OMEGA_CMD = 3
-IX_ID_MEAS = 4
-IX_IQ_MEAS = 5
-IX_PARK_ANGLE = 6
-IX_THETA = 7
-IX_OMEGA = 8
-IX_IA = 9
-IX_IB = 10
-IX_SUM_E2_ALL = 11
-IX_COUNT_ALL = 12
-IX_SUM_IFF2_ALL = 13
-IX_MAX_LAG = 14
-IX_MAX_CURRENT = 15
-KERNEL_INDEX = np.array([K.STATE.THETA_FB, K.STATE.OMEGA_FB, K.STATE.THETA_CMD, K.STATE.OMEGA_CMD,
-                         K.STATE.ID_MEAS, K.STATE.IQ_MEAS, K.STATE.PARK_ANGLE, K.STATE.THETA, K.STATE.OMEGA,
-                         K.STATE.IA, K.STATE.IB, K.ACC.SUM_E2_ALL, K.ACC.COUNT_ALL, K.ACC.SUM_IFF2_ALL,
-                         K.ACC.MAX_LAG, K.ACC.MAX_CURRENT], dtype=np.int64)
+# The kernel state and accumulator entries the step reads (positions in
+# KERNEL_INDEX), shared by both tasks.
+KERNEL_FIELDS = layout("KernelFields", """
+    THETA_FB
+    OMEGA_FB
+    THETA_CMD
+    OMEGA_CMD
+    ID_MEAS
+    IQ_MEAS
+    PARK_ANGLE
+    THETA
+    OMEGA
+    IA
+    IB
+    SUM_E2_ALL
+    COUNT_ALL
+    SUM_IFF2_ALL
+    MAX_LAG
+    MAX_CURRENT
+""")
+KERNEL_INDEX = np.array([getattr(K.STATE, f) if f in K.STATE._fields else getattr(K.ACC, f)
+                         for f in KERNEL_FIELDS._fields], dtype=np.int64)
 
 
 @_jit
@@ -130,7 +140,7 @@ def load_actions(a, u, acc, par, offset):
                 return i
     for i in range(n):
         for j in range(k):
-            u[i, offset + j] = a[i, j] * par[i, P_ACT_SCALE + j]
+            u[i, offset + j] = a[i, j] * par[i, PARAM.ACT_SCALE + j]
         for j in range(acc.shape[1]):
             acc[i, j] = 0.0
     return -1
@@ -141,59 +151,59 @@ def observe(s, acc, a, par, ix, privileged, obs, out):
     """Scaled observation of each drive (row) into ``obs``, its step's physics into ``out``."""
     bound = OBS_BOUND
     for i in range(s.shape[0]):
-        full_step, w_ref, hold = par[i, P_FULL_STEP], par[i, P_W_REF], par[i, P_HOLD]
-        theta_fb, omega_fb = s[i, ix[IX_THETA_FB]], s[i, ix[IX_OMEGA_FB]]
-        theta_cmd, omega_cmd = s[i, ix[IX_THETA_CMD]], s[i, ix[IX_OMEGA_CMD]]
-        angle = s[i, ix[IX_PARK_ANGLE]]
+        full_step, w_ref, hold = par[i, PARAM.FULL_STEP], par[i, PARAM.W_REF], par[i, PARAM.HOLD]
+        theta_fb, omega_fb = s[i, ix[KERNEL_FIELDS.THETA_FB]], s[i, ix[KERNEL_FIELDS.OMEGA_FB]]
+        theta_cmd, omega_cmd = s[i, ix[KERNEL_FIELDS.THETA_CMD]], s[i, ix[KERNEL_FIELDS.OMEGA_CMD]]
+        angle = s[i, ix[KERNEL_FIELDS.PARK_ANGLE]]
         s1, c1 = sincos(angle)
         s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
         s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
-        # In the order of the OBS_* positions 0 .. N_BASE_OBS - 1.
+        # In the order of OBS.
         vals = (
             (theta_cmd - theta_fb) / full_step,
             (omega_cmd - omega_fb) / w_ref,
             s1, c1, s2, c2, s4, c4,
-            omega_cmd / par[i, P_SPEED_SCALE],
-            s[i, ix[IX_ID_MEAS]] / hold,
-            s[i, ix[IX_IQ_MEAS]] / hold,
+            omega_cmd / par[i, PARAM.SPEED_SCALE],
+            s[i, ix[KERNEL_FIELDS.ID_MEAS]] / hold,
+            s[i, ix[KERNEL_FIELDS.IQ_MEAS]] / hold,
         )
         nonfinite = False
-        for j in range(N_BASE_OBS):
+        for j in range(len(OBS)):
             nonfinite |= _store(obs, i, j, vals[j], bound)
-        k = N_BASE_OBS
+        k = len(OBS)
         for j in range(a.shape[1]):
             obs[i, k] = a[i, j]
             k += 1
         if privileged:
-            pv = ((theta_cmd - s[i, ix[IX_THETA]]) / full_step,
-                  (omega_cmd - s[i, ix[IX_OMEGA]]) / w_ref,
-                  s[i, ix[IX_IA]] / hold, s[i, ix[IX_IB]] / hold)
-            for j in range(N_PRIVILEGED):
+            pv = ((theta_cmd - s[i, ix[KERNEL_FIELDS.THETA]]) / full_step,
+                  (omega_cmd - s[i, ix[KERNEL_FIELDS.OMEGA]]) / w_ref,
+                  s[i, ix[KERNEL_FIELDS.IA]] / hold, s[i, ix[KERNEL_FIELDS.IB]] / hold)
+            for j in range(len(PRIVILEGED)):
                 nonfinite |= _store(obs, i, k + j, pv[j], bound)
 
-        n = max(acc[i, ix[IX_COUNT_ALL]], 1.0)
-        e2 = acc[i, ix[IX_SUM_E2_ALL]] / n
-        i2 = acc[i, ix[IX_SUM_IFF2_ALL]] / n
-        lag = acc[i, ix[IX_MAX_LAG]]
-        peak = acc[i, ix[IX_MAX_CURRENT]]
+        n = max(acc[i, ix[KERNEL_FIELDS.COUNT_ALL]], 1.0)
+        e2 = acc[i, ix[KERNEL_FIELDS.SUM_E2_ALL]] / n
+        i2 = acc[i, ix[KERNEL_FIELDS.SUM_IFF2_ALL]] / n
+        lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
+        peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
         step_loss = lag > full_step
-        overcurrent = peak > par[i, P_I_LIMIT]
+        overcurrent = peak > par[i, PARAM.I_LIMIT]
         # A non-finite plant ends the episode; the reward stays finite.
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)
                 and math.isfinite(peak)):
             nonfinite = True
         terminated = step_loss or overcurrent or nonfinite
-        reward = -(e2 / (w_ref * w_ref)) - par[i, P_CUR_PEN] * i2 / (hold * hold)
+        reward = -(e2 / (w_ref * w_ref)) - par[i, PARAM.CUR_PEN] * i2 / (hold * hold)
         if not math.isfinite(reward):
             reward = -1.0
         if terminated:
-            reward -= par[i, P_TERM_PEN]
-        out[i, O_REWARD] = reward
-        out[i, O_VEL_RMS] = math.sqrt(e2) if math.isfinite(e2) else math.inf
-        out[i, O_LAG] = lag
-        out[i, O_IINJ_RMS] = math.sqrt(i2) if math.isfinite(i2) else math.inf
-        out[i, O_PEAK_I] = peak
-        out[i, O_STEP_LOSS] = 1.0 if step_loss else 0.0
-        out[i, O_OVERCURRENT] = 1.0 if overcurrent else 0.0
-        out[i, O_NONFINITE] = 1.0 if nonfinite else 0.0
-        out[i, O_TERMINATED] = 1.0 if terminated else 0.0
+            reward -= par[i, PARAM.TERM_PEN]
+        out[i, OUT.REWARD] = reward
+        out[i, OUT.VEL_RMS] = math.sqrt(e2) if math.isfinite(e2) else math.inf
+        out[i, OUT.LAG] = lag
+        out[i, OUT.IINJ_RMS] = math.sqrt(i2) if math.isfinite(i2) else math.inf
+        out[i, OUT.PEAK_I] = peak
+        out[i, OUT.STEP_LOSS] = 1.0 if step_loss else 0.0
+        out[i, OUT.OVERCURRENT] = 1.0 if overcurrent else 0.0
+        out[i, OUT.NONFINITE] = 1.0 if nonfinite else 0.0
+        out[i, OUT.TERMINATED] = 1.0 if terminated else 0.0

@@ -11,7 +11,7 @@ The positions are those the compiled step writes (:mod:`.compiled`).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections import namedtuple
 
 import numpy as np
 
@@ -20,29 +20,14 @@ from . import compiled as C
 
 __all__ = ["ObservationIndex", "OBS", "OBSERVATION_NAMES", "OBSERVATION_UNITS",
            "PRIVILEGED_NAMES", "HARMONIC_SIN", "HARMONIC_COS", "ACTION_MODES",
-           "ACTION_NAMES", "observation_names", "OBS_BOUND", "N_BASE_OBS"]
+           "ACTION_NAMES", "observation_names", "OBS_BOUND"]
 
 OBS_BOUND = C.OBS_BOUND
-N_BASE_OBS = C.N_BASE_OBS
 
-
-class ObservationIndex(NamedTuple):
-    """Positions of the base observation entries (the same in every action mode)."""
-
-    position_error: int = C.OBS_POSITION_ERROR
-    velocity_error: int = C.OBS_VELOCITY_ERROR
-    sin_x: int = C.OBS_SIN_X
-    cos_x: int = C.OBS_COS_X
-    sin_2x: int = C.OBS_SIN_2X
-    cos_2x: int = C.OBS_COS_2X
-    sin_4x: int = C.OBS_SIN_4X
-    cos_4x: int = C.OBS_COS_4X
-    speed_command: int = C.OBS_SPEED_COMMAND
-    id: int = C.OBS_ID
-    iq: int = C.OBS_IQ
-
-
-OBS = ObservationIndex()
+#: Positions of the base observation entries (the same in every action mode),
+#: named in lower case: ``OBS.velocity_error``.
+ObservationIndex = namedtuple("ObservationIndex", [f.lower() for f in C.OBS._fields])
+OBS = ObservationIndex(*C.OBS)
 OBSERVATION_NAMES: tuple[str, ...] = ObservationIndex._fields
 # Meaning and unit of each base entry (the env's docstring table).
 OBSERVATION_UNITS: dict[str, str] = {
@@ -53,7 +38,7 @@ OBSERVATION_UNITS: dict[str, str] = {
     "speed_command": "omega_cmd / (2*pi*max(speed_range_rps[1], speed_rps))",
     "id": "measured id / holding current", "iq": "measured iq / holding current",
 }
-PRIVILEGED_NAMES = ("true_position_error", "true_velocity_error", "true_ia", "true_ib")
+PRIVILEGED_NAMES = tuple("true_" + f.lower() for f in C.PRIVILEGED._fields)
 
 # sin and cos entries of the detent harmonics h = 1, 2, 4 (in DETENT_HARMONICS order).
 HARMONIC_SIN = np.array([OBS.sin_x, OBS.sin_2x, OBS.sin_4x])

@@ -69,7 +69,7 @@ class EpisodeSampler:
             self._offset, scales = K.INPUT.DS1, (harmonic_scale,) * 6 + (current_scale,)
         self._action_scales = tuple(float(x) for x in scales)
         self._act_dim = len(scales)
-        self._obs_dim = C.N_BASE_OBS + self._act_dim + (C.N_PRIVILEGED if o.privileged else 0)
+        self._obs_dim = len(C.OBS) + self._act_dim + (len(C.PRIVILEGED) if o.privileged else 0)
         hi_speed = max(o.speed_range_rps[1], o.speed_rps or 0.0)
         self._speed_scale = TWO_PI * hi_speed
         self._nominal_estimate = FeedforwardModel.from_motor(self._nominal.motor)
@@ -127,7 +127,7 @@ class EpisodeSampler:
         n_act = self._act_dim
         high = np.full(self._obs_dim, C.OBS_BOUND, dtype=np.float32)
         high[OBS.sin_x:OBS.cos_4x + 1] = 1.0
-        high[C.N_BASE_OBS:C.N_BASE_OBS + n_act] = 1.0
+        high[len(C.OBS):len(C.OBS) + n_act] = 1.0
         return spaces.Box(-high, high, dtype=np.float32)
 
     def action_space(self) -> spaces.Box:
@@ -178,14 +178,14 @@ class EpisodeSampler:
         window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
         c[:] = build_config(system, profile, settings, window_start_s=window)
         s[:] = initial_state(c)
-        par[C.P_FULL_STEP] = system.motor.full_step_rad
-        par[C.P_W_REF] = TWO_PI * speed
-        par[C.P_HOLD] = system.drive.holding_current
-        par[C.P_SPEED_SCALE] = self._speed_scale
-        par[C.P_I_LIMIT] = o.current_limit_factor * system.drive.holding_current
-        par[C.P_CUR_PEN] = o.current_penalty
-        par[C.P_TERM_PEN] = o.termination_penalty
-        par[C.P_ACT_SCALE:C.P_ACT_SCALE + self._act_dim] = self._action_scales
+        par[C.PARAM.FULL_STEP] = system.motor.full_step_rad
+        par[C.PARAM.W_REF] = TWO_PI * speed
+        par[C.PARAM.HOLD] = system.drive.holding_current
+        par[C.PARAM.SPEED_SCALE] = self._speed_scale
+        par[C.PARAM.I_LIMIT] = o.current_limit_factor * system.drive.holding_current
+        par[C.PARAM.CUR_PEN] = o.current_penalty
+        par[C.PARAM.TERM_PEN] = o.termination_penalty
+        par[C.PARAM.ACT_SCALE:C.PARAM.ACT_SCALE + self._act_dim] = self._action_scales
         return {"speed_rps": speed, "target_harmonic": h}, system
 
     def initial_observation(self, s: np.ndarray, par: np.ndarray, obs: np.ndarray) -> None:
@@ -193,4 +193,4 @@ class EpisodeSampler:
         acc = np.zeros((1, len(K.ACC)))
         acc[0, K.ACC.COUNT_ALL] = 1.0
         C.observe(s, acc, np.zeros((1, self._act_dim), dtype=np.float32), par, C.KERNEL_INDEX,
-                  bool(self._options.privileged), obs, np.zeros((1, C.N_OUT)))
+                  bool(self._options.privileged), obs, np.zeros((1, len(C.OUT))))

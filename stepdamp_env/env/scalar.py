@@ -131,10 +131,10 @@ class StepperDampEnv(gym.Env):
         self._s2 = np.zeros((1, len(K.STATE)))
         self._acc2 = np.zeros((1, len(K.ACC)))
         self._u2 = np.zeros((1, len(K.INPUT)))
-        self._par2 = np.zeros((1, C.N_PAR))
+        self._par2 = np.zeros((1, len(C.PARAM)))
         self._a2 = np.zeros((1, f.act_dim))
         self._obs2 = np.zeros((1, f.obs_dim), dtype=np.float32)
-        self._out2 = np.zeros((1, C.N_OUT))
+        self._out2 = np.zeros((1, len(C.OUT)))
         self._bind_views()
         self._trace = np.zeros((self._n if render_mode else 0, len(K.TRACE)))
         self._history: list[np.ndarray] = []
@@ -255,14 +255,14 @@ class StepperDampEnv(gym.Env):
                   self._obs2, self._out2)
         if self.render_mode is not None:
             self._record()
-        terminated = out[C.O_TERMINATED] != 0.0
+        terminated = out[C.OUT.TERMINATED] != 0.0
         self._ended = bool(terminated)
-        info = {"velocity_error_rms_rad_s": float(out[C.O_VEL_RMS]),
-                "lag_rad": float(out[C.O_LAG]),
-                "injected_current_rms_a": float(out[C.O_IINJ_RMS]),
-                "peak_current_a": float(out[C.O_PEAK_I]),
-                "step_loss": bool(out[C.O_STEP_LOSS]), "overcurrent": bool(out[C.O_OVERCURRENT])}
-        return self._obs.copy(), float(out[C.O_REWARD]), bool(terminated), False, info
+        info = {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]),
+                "lag_rad": float(out[C.OUT.LAG]),
+                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
+                "peak_current_a": float(out[C.OUT.PEAK_I]),
+                "step_loss": bool(out[C.OUT.STEP_LOSS]), "overcurrent": bool(out[C.OUT.OVERCURRENT])}
+        return self._obs.copy(), float(out[C.OUT.REWARD]), bool(terminated), False, info
 
     # -- rendering ------------------------------------------------------------------
     def _record(self) -> None:
@@ -274,7 +274,7 @@ class StepperDampEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; pass "
                             "render_mode='rgb_array' to the constructor")
             return None
-        speed = self._par[C.P_W_REF] / TWO_PI
+        speed = self._par[C.PARAM.W_REF] / TWO_PI
         return render_episode(self._history, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")
 
 
@@ -337,8 +337,8 @@ class StepperDampBatch:
         C.observe(self._s, self._acc, self._a, self._par, C.KERNEL_INDEX, self._privileged,
                   self._obs, self._out)
         out = self._out
-        return (out[:, C.O_TERMINATED] != 0.0, out[:, C.O_STEP_LOSS] != 0.0,
-                out[:, C.O_OVERCURRENT] != 0.0)
+        return (out[:, C.OUT.TERMINATED] != 0.0, out[:, C.OUT.STEP_LOSS] != 0.0,
+                out[:, C.OUT.OVERCURRENT] != 0.0)
 
     def run_metrics(self, i: int) -> RunMetrics:
         """Row i's metrics, as the env's ``run_metrics()``."""

@@ -32,7 +32,7 @@ from .arguments import check_batch_envs, check_render_mode, check_vector_args, r
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
-from .v1_options import (ACTION_NAMES_V1, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
+from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
 
 __all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv",
@@ -86,14 +86,14 @@ class TaskV1:
         # The high-pass of the position error: corner wn/4 (13 degrees of lead at wn).
         self.law_hp_alpha = 1.0 - fm.exp(-0.25 * u.wn_rad_s / drive.pwm_hz)
         self.law_limit_a = o.law_limit_factor * drive.holding_current
-        self.n_context = V.N_CONTEXT if o.context == "visible" else 0
-        self.obs_dim = (V.N_BASE_OBS + self.act_dim + V.N_HISTORY_SIGNALS * o.history
-                        + self.n_context + (V.N_PRIVILEGED if o.privileged else 0))
+        self.n_context = len(CONTEXT_NAMES) if o.context == "visible" else 0
+        self.obs_dim = (len(V.OBS) + self.act_dim + len(V.HISTORY) * o.history
+                        + self.n_context + (len(V.PRIVILEGED) if o.privileged else 0))
 
     def observation_space(self) -> spaces.Box:
         high = np.full(self.obs_dim, C.OBS_BOUND, dtype=np.float32)
-        high[V.OBS_SIN_X:V.OBS_COS_4X + 1] = 1.0
-        high[V.N_BASE_OBS:V.N_BASE_OBS + self.act_dim] = 1.0
+        high[V.OBS.SIN_X:V.OBS.COS_4X + 1] = 1.0
+        high[len(V.OBS):len(V.OBS) + self.act_dim] = 1.0
         return spaces.Box(-high, high, dtype=np.float32)
 
     def action_space(self) -> spaces.Box:
@@ -147,16 +147,16 @@ class TaskV1:
             c[list(_FF_COLUMNS)] = self.base_coefficients(estimate, speed)
         s[:] = initial_state(c)
         u, hold = self.units, system.drive.holding_current
-        par[V.P_POS_UNIT] = u.position_unit_rad
-        par[V.P_VEL_UNIT] = u.velocity_unit_rad_s
-        par[V.P_CUR_UNIT] = u.current_unit_a
-        par[V.P_SPEED_UNIT] = u.speed_unit_rad_s
-        par[V.P_ID_CMD] = hold if o.mode == "open-loop" else 0.0
-        par[V.P_FULL_STEP] = system.motor.full_step_rad
-        par[V.P_HOLD] = hold
-        par[V.P_I_LIMIT] = o.current_limit_factor * hold
-        par[V.P_CUR_PEN] = o.current_penalty
-        par[V.P_ACT_SCALE:V.P_ACT_SCALE + self.act_dim] = self.action_scales
+        par[V.PARAM.POS_UNIT] = u.position_unit_rad
+        par[V.PARAM.VEL_UNIT] = u.velocity_unit_rad_s
+        par[V.PARAM.CUR_UNIT] = u.current_unit_a
+        par[V.PARAM.SPEED_UNIT] = u.speed_unit_rad_s
+        par[V.PARAM.ID_CMD] = hold if o.mode == "open-loop" else 0.0
+        par[V.PARAM.FULL_STEP] = system.motor.full_step_rad
+        par[V.PARAM.HOLD] = hold
+        par[V.PARAM.I_LIMIT] = o.current_limit_factor * hold
+        par[V.PARAM.CUR_PEN] = o.current_penalty
+        par[V.PARAM.ACT_SCALE:V.PARAM.ACT_SCALE + self.act_dim] = self.action_scales
         law[:] = 0.0
         law[K.LAW.HP_ALPHA] = self.law_hp_alpha
         law[K.LAW.LIMIT] = self.law_limit_a
@@ -176,11 +176,11 @@ class DriveBatch:
         self.acc = np.zeros((n, len(K.ACC)))
         self.u = np.zeros((n, len(K.INPUT)))
         self.law = np.zeros((n, len(K.LAW)))
-        self.par = np.zeros((n, V.N_PAR))
-        self.history = np.zeros((n, V.N_HISTORY_SIGNALS * t.options.history), dtype=np.float32)
+        self.par = np.zeros((n, len(V.PARAM)))
+        self.history = np.zeros((n, len(V.HISTORY) * t.options.history), dtype=np.float32)
         self.ctx = np.zeros((n, t.n_context), dtype=np.float32)
         self.obs = np.zeros((n, t.obs_dim), dtype=np.float32)
-        self.out = np.zeros((n, V.N_OUT))
+        self.out = np.zeros((n, len(V.OUT)))
         self.a = np.zeros((n, t.act_dim))
         self.t = np.zeros(n, dtype=np.int64)
         self.speeds_rps = np.zeros(n)
@@ -262,11 +262,11 @@ class DriveBatch:
         self._observe()
         self.t += 1
         out = self.out
-        terminated = out[:, V.O_TERMINATED] != 0.0
+        terminated = out[:, V.OUT.TERMINATED] != 0.0
         left = self.max_steps - self.t
         if terminated.any():
             # The worst reward of every step it did not play: ending early never pays.
-            out[terminated, V.O_REWARD] -= (REWARD_BOUND * (1.0 + self.par[terminated, V.P_CUR_PEN])
+            out[terminated, V.OUT.REWARD] -= (REWARD_BOUND * (1.0 + self.par[terminated, V.PARAM.CUR_PEN])
                                             * np.maximum(left[terminated], 0))
         truncated = (left <= 0) & ~terminated
         return terminated, truncated
@@ -274,12 +274,12 @@ class DriveBatch:
     def info(self, i: int) -> dict[str, Any]:
         """The physics of drive i's last step (SI units)."""
         out = self.out[i]
-        return {"velocity_error_rms_rad_s": float(out[V.O_VEL_RMS]),
-                "lag_rad": float(out[V.O_LAG]),
-                "injected_current_rms_a": float(out[V.O_IINJ_RMS]),
-                "damping_current_rms_a": float(out[V.O_LAW_RMS]),
-                "peak_current_a": float(out[V.O_PEAK_I]),
-                "step_loss": bool(out[V.O_STEP_LOSS]), "overcurrent": bool(out[V.O_OVERCURRENT]),
+        return {"velocity_error_rms_rad_s": float(out[V.OUT.VEL_RMS]),
+                "lag_rad": float(out[V.OUT.LAG]),
+                "injected_current_rms_a": float(out[V.OUT.IINJ_RMS]),
+                "damping_current_rms_a": float(out[V.OUT.LAW_RMS]),
+                "peak_current_a": float(out[V.OUT.PEAK_I]),
+                "step_loss": bool(out[V.OUT.STEP_LOSS]), "overcurrent": bool(out[V.OUT.OVERCURRENT]),
                 "time_s": float(self.t[i] * self.task.seconds_per_step)}
 
 
@@ -476,7 +476,7 @@ class StepperDampV1Env(gym.Env):
             self._ended = "terminated (step loss, over-current or a non-finite state)"
         elif trunc:
             self._ended = "been truncated (time limit)"
-        return d.obs[0].copy(), float(d.out[0, V.O_REWARD]), term, trunc, d.info(0)
+        return d.obs[0].copy(), float(d.out[0, V.OUT.REWARD]), term, trunc, d.info(0)
 
     def render(self) -> np.ndarray | None:
         """RGB array (H, W, 3) of velocity error and currents of the episode so far."""
@@ -561,7 +561,7 @@ class StepperDampV1VectorEnv(VectorEnv):
         d.load(actions, (self.num_envs, self.task.act_dim))
         terminated, truncated = d.advance()
         out = d.out.copy()
-        rewards = out[:, V.O_REWARD]
+        rewards = out[:, V.OUT.REWARD]
         valid = np.ones(self.num_envs, dtype=bool)
         infos: dict[str, Any] = {}
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
@@ -588,12 +588,12 @@ class StepperDampV1VectorEnv(VectorEnv):
                 infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
                 infos["final_info"], infos["_final_info"] = final_info, done.copy()
                 obs = d.obs.copy()
-        physics = {"velocity_error_rms_rad_s": out[:, V.O_VEL_RMS], "lag_rad": out[:, V.O_LAG],
-                   "injected_current_rms_a": out[:, V.O_IINJ_RMS],
-                   "damping_current_rms_a": out[:, V.O_LAW_RMS],
-                   "peak_current_a": out[:, V.O_PEAK_I],
-                   "step_loss": out[:, V.O_STEP_LOSS] != 0.0,
-                   "overcurrent": out[:, V.O_OVERCURRENT] != 0.0,
+        physics = {"velocity_error_rms_rad_s": out[:, V.OUT.VEL_RMS], "lag_rad": out[:, V.OUT.LAG],
+                   "injected_current_rms_a": out[:, V.OUT.IINJ_RMS],
+                   "damping_current_rms_a": out[:, V.OUT.LAW_RMS],
+                   "peak_current_a": out[:, V.OUT.PEAK_I],
+                   "step_loss": out[:, V.OUT.STEP_LOSS] != 0.0,
+                   "overcurrent": out[:, V.OUT.OVERCURRENT] != 0.0,
                    "time_s": d.t * self.task.seconds_per_step}
         mask = valid.copy()                 # one mask for every key, as in v0
         for key, value in physics.items():
@@ -647,7 +647,7 @@ class StepperDampV1Batch:
         d.load(actions, (d.n, d.task.act_dim))
         terminated, _ = d.advance()
         merge_accumulator_rows(self._run, d.acc)
-        return (terminated, d.out[:, V.O_STEP_LOSS] != 0.0, d.out[:, V.O_OVERCURRENT] != 0.0)
+        return (terminated, d.out[:, V.OUT.STEP_LOSS] != 0.0, d.out[:, V.OUT.OVERCURRENT] != 0.0)
 
     def run_metrics(self, i: int) -> RunMetrics:
         """Row i's metrics, as the env's ``run_metrics()``."""

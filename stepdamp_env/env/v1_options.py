@@ -29,7 +29,6 @@ ACTION_MODES_V1 = ("damping-gains", "harmonic", "current", "harmonic+current")
 CONTEXTS = ("hidden", "visible")
 CONTEXT_NAMES = ("speed_over_resonance_h4", "speed_over_resonance_h2", "speed_over_resonance_h1",
                  "model_s1", "model_c1", "model_s2", "model_c2", "model_s4", "model_c4")
-assert len(CONTEXT_NAMES) == V.N_CONTEXT
 # The per-step reward's terms are clipped to this; a terminated episode loses it
 # (times 1 + current_penalty) for every step it did not play.
 REWARD_BOUND = 10.0
@@ -37,10 +36,8 @@ REWARD_BOUND = 10.0
 # about three decay times (80-120 ms) of the resonance are held.
 DEFAULT_EPISODE_S = 0.4
 
-OBSERVATION_NAMES_V1: tuple[str, ...] = (
-    "position_error", "velocity_error", "sin_x", "cos_x", "sin_2x", "cos_2x", "sin_4x", "cos_4x",
-    "speed_command", "id_error", "iq")
-assert OBSERVATION_NAMES_V1[:9] == OBSERVATION_NAMES[:9] and len(OBSERVATION_NAMES_V1) == V.N_BASE_OBS
+OBSERVATION_NAMES_V1: tuple[str, ...] = tuple(name.lower() for name in V.OBS._fields)
+assert OBSERVATION_NAMES_V1[:9] == OBSERVATION_NAMES[:9]
 OBSERVATION_UNITS_V1: dict[str, str] = {
     "position_error": "(theta_cmd - encoder angle) / position_unit_rad",
     "velocity_error": "(omega_cmd - velocity estimate) / velocity_unit_rad_s",

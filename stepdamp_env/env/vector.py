@@ -73,9 +73,9 @@ class StepperDampVectorEnv(VectorEnv):
         self._s = np.zeros((n, len(K.STATE)))
         self._acc = np.zeros((n, len(K.ACC)))
         self._u = np.zeros((n, len(K.INPUT)))
-        self._par = np.zeros((n, C.N_PAR))
+        self._par = np.zeros((n, len(C.PARAM)))
         self._obs = np.zeros((n, f.obs_dim), dtype=np.float32)
-        self._out = np.zeros((n, C.N_OUT))
+        self._out = np.zeros((n, len(C.OUT)))
         self._t = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._all = np.ones(n, dtype=bool)
@@ -91,7 +91,7 @@ class StepperDampVectorEnv(VectorEnv):
     @property
     def speeds_rps(self) -> np.ndarray:
         """The held command speed of each drive's current episode (rev/s); a copy."""
-        return self._par[:, C.P_W_REF] / TWO_PI
+        return self._par[:, C.PARAM.W_REF] / TWO_PI
 
     @property
     def drive_states(self) -> np.ndarray:
@@ -139,8 +139,8 @@ class StepperDampVectorEnv(VectorEnv):
         self._t += 1
         # One copy of the outputs; the returned arrays are views of it, never reused.
         out = out.copy()
-        rewards = out[:, C.O_REWARD]
-        terminated = out[:, C.O_TERMINATED] != 0.0
+        rewards = out[:, C.OUT.REWARD]
+        terminated = out[:, C.OUT.TERMINATED] != 0.0
         if self.max_episode_steps is None:
             truncated = np.zeros(self.num_envs, dtype=bool)
         else:
@@ -176,26 +176,26 @@ class StepperDampVectorEnv(VectorEnv):
             else:
                 obs = obs_now
         mask = valid.copy()
-        infos["velocity_error_rms_rad_s"] = out[:, C.O_VEL_RMS]
+        infos["velocity_error_rms_rad_s"] = out[:, C.OUT.VEL_RMS]
         infos["_velocity_error_rms_rad_s"] = mask
-        infos["lag_rad"] = out[:, C.O_LAG]
+        infos["lag_rad"] = out[:, C.OUT.LAG]
         infos["_lag_rad"] = mask
-        infos["injected_current_rms_a"] = out[:, C.O_IINJ_RMS]
+        infos["injected_current_rms_a"] = out[:, C.OUT.IINJ_RMS]
         infos["_injected_current_rms_a"] = mask
-        infos["peak_current_a"] = out[:, C.O_PEAK_I]
+        infos["peak_current_a"] = out[:, C.OUT.PEAK_I]
         infos["_peak_current_a"] = mask
-        infos["step_loss"] = out[:, C.O_STEP_LOSS] != 0.0
+        infos["step_loss"] = out[:, C.OUT.STEP_LOSS] != 0.0
         infos["_step_loss"] = mask
-        infos["overcurrent"] = out[:, C.O_OVERCURRENT] != 0.0
+        infos["overcurrent"] = out[:, C.OUT.OVERCURRENT] != 0.0
         infos["_overcurrent"] = mask
         return obs, rewards, terminated, truncated, infos
 
     def _single_info(self, i: int) -> dict[str, Any]:
         out = self._out[i]
-        return {"velocity_error_rms_rad_s": float(out[C.O_VEL_RMS]), "lag_rad": float(out[C.O_LAG]),
-                "injected_current_rms_a": float(out[C.O_IINJ_RMS]),
-                "peak_current_a": float(out[C.O_PEAK_I]), "step_loss": bool(out[C.O_STEP_LOSS]),
-                "overcurrent": bool(out[C.O_OVERCURRENT])}
+        return {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]), "lag_rad": float(out[C.OUT.LAG]),
+                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
+                "peak_current_a": float(out[C.OUT.PEAK_I]), "step_loss": bool(out[C.OUT.STEP_LOSS]),
+                "overcurrent": bool(out[C.OUT.OVERCURRENT])}
 
     def render(self) -> None:
         return None
