@@ -33,7 +33,7 @@ def test_iterative_identification_meets_the_accuracy_targets(name):
 @pytest.mark.parametrize("name", ["qsh5718-56-28-126", "qsh6018-65-28-210"])
 def test_direct_least_squares_on_the_heavier_axes(name):
     # One run per speed; the servo's rejection ratio is divided out. On the
-    # lighter axes its residual ripple biases Kd2 by 10-20 % (README).
+    # lighter axes its residual ripple biases Kd2 by 10-20 % (docs/protocols.md).
     system = get_preset(name).replace(current_noise_a=0.01)
     e = identify(system, method="least-squares", noise_seed=5).errors
     assert max(abs(e["Kd1"]), abs(e["Kd2"]), abs(e["Kd4"])) < 0.05, e

@@ -12,11 +12,15 @@ from stepdamp_env.env import ACTION_NAMES, observation_names
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 README = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+ENVS = open(os.path.join(ROOT, "docs", "envs.md"), encoding="utf-8").read()
+V0_ENV = ENVS[ENVS.index("## The environment: `StepperDamp-v0`"):]
+RESULTS_PAGE = open(os.path.join(ROOT, "docs", "results.md"), encoding="utf-8").read()
+AGENTS = open(os.path.join(ROOT, "docs", "agents.md"), encoding="utf-8").read()
 RESULTS = os.path.join(ROOT, "docs", "results")
 
 
 def test_observation_table_names_every_entry_in_order():
-    section = README[README.index("**Observations**"):README.index("**Actions**")]
+    section = V0_ENV[V0_ENV.index("**Observations**"):V0_ENV.index("**Actions**")]
     named = re.findall(r"`([a-z_0-9*]+)`", section)
     expected = [n for n in observation_names(privileged=True)
                 if not n.startswith("last_action_")]
@@ -26,18 +30,43 @@ def test_observation_table_names_every_entry_in_order():
 
 
 def test_action_table_lists_every_mode():
-    section = README[README.index("**Actions**"):README.index("**Reward**")]
+    section = V0_ENV[V0_ENV.index("**Actions**"):V0_ENV.index("**Reward**")]
     for mode, names in ACTION_NAMES.items():
         assert f"| `{mode}`" in section and f"| {len(names)} |" in section
 
 
-def test_results_table_is_generated_from_the_committed_leaderboard():
+def test_results_tables_are_generated_from_the_committed_leaderboards():
+    import subprocess
+    import sys
+
     board = load_leaderboard(RESULTS)
-    assert render_ladder(board).strip() in README
+    assert render_ladder(board).strip() in README and render_ladder(board).strip() in RESULTS_PAGE
     assert board["protocol"]["variant"] == "full" and board["protocol"]["version"] == "v1"
     v0 = load_leaderboard(os.path.join(RESULTS, "v0"))
-    assert render_ladder(v0).strip() in README
+    assert render_ladder(v0).strip() in RESULTS_PAGE
     assert v0["protocol"]["variant"] == "full" and v0["protocol"]["version"] == "v0"
+    check = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "readme_table.py"),
+                            "--check"], capture_output=True, text=True)
+    assert check.returncode == 0, check.stderr
+
+
+def test_readme_is_a_front_page_and_every_link_resolves():
+    import re
+
+    assert len(README.splitlines()) <= 250
+    first = README[README.index("```python"):]
+    first = first[:first.index("```", 3)]
+    assert "gym.make(\"StepperDamp-v1\"" in first and "StepperDamp-v0" not in first
+    pages = [os.path.join(ROOT, "README.md")] + [
+        os.path.join(ROOT, "docs", n) for n in os.listdir(os.path.join(ROOT, "docs"))
+        if n.endswith(".md")]
+    for page in pages:
+        text = open(page, encoding="utf-8").read()
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if target.startswith(("http://", "https://", "#")):
+                continue
+            path = os.path.normpath(os.path.join(os.path.dirname(page), target.split("#")[0]))
+            assert os.path.exists(path), f"{page}: {target}"
 
 
 def test_overview_figure_is_the_committed_one():
@@ -55,4 +84,4 @@ def test_per_speed_figures_in_the_readme_come_from_the_committed_board():
     # ars-per-step's medians as the README quotes them (h1, h2, h4, off), both splits.
     assert "| ars-per-step | 0.77; 0.76 | 0.35; 0.95 | 0.64; 0.90 | 0.87; 0.60 |" in out
     assert "| ars-per-step | 0.96; 0.56 | 0.45; 0.82 | 0.56; 0.68 | 1.56; 0.24 |" in out
-    assert "(ARS 0.35\nand 0.64 inside the training range, 0.45 and 0.56 outside)" in README
+    assert "(ARS 0.35\nand 0.64 inside the training range, 0.45 and 0.56 outside)" in AGENTS

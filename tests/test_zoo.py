@@ -20,7 +20,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 @pytest.mark.parametrize("algo", ["ppo"])
 def test_zoo_trains_and_evaluates_the_documented_command(tmp_path, algo):
-    """The README's command, shortened: 256 steps on 4 envs, an evaluation every 64."""
+    """docs/agents.md's command, shortened: 256 steps on 4 envs, an evaluation every 64."""
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo,
            "--env", "StepperDampResidual-v0", "--gym-packages", "stepdamp_agents.residual",
            "--conf-file", os.path.join(ROOT, "agents", "hyperparams", f"{algo}.yml"),
