@@ -256,9 +256,8 @@ class Validator:
     """
 
     def __init__(self, args: Args, env_kwargs: dict[str, Any]) -> None:
-        from stepdamp_env.bench import MotorKnowledge, ProtocolMotor, full_protocol, speed_grid
-        from stepdamp_env.bench.motors import settle_times
-        from stepdamp_env.bench.protocol_v1 import full_protocol_v1
+        from stepdamp_env.bench import (MotorKnowledge, ProtocolMotor, full_protocol,
+                                        full_protocol_v1, speed_grid)
         from stepdamp_env.env import StepperDampEnv
         from stepdamp_env.params import FeedforwardModel
 
@@ -279,7 +278,7 @@ class Validator:
         self.motors = tuple(motors)
         # v1: each motor's own settling, as stepdamp-bench v1 (v0: the core's, clipped).
         v1 = full_protocol_v1()
-        self.settle = [settle_times(m.system, v1)["open-loop"] if args.env == ENV_ID_V1
+        self.settle = [v1.settle_times(m.system)["open-loop"] if args.env == ENV_ID_V1
                        else None for m in motors]
         self.seed = args.val_seed
         self.knowledge = []
