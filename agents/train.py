@@ -43,7 +43,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,8 @@ from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
+from . import arguments
+from .arguments import check_ranges, option
 from .task import ENV_ID_V1, RESIDUAL_ENV_ID, task_kwargs, task_options
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
@@ -61,30 +63,86 @@ ENV_IDS = (ENV_ID_V1, RESIDUAL_ENV_ID)
 ALGO_CHOICES = ("ars", "ppo", "sac", "td3")
 
 
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"1-5"``, ``"1,3,7"`` or ``"2"`` to a tuple of seeds."""
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, sep, hi = part.strip().partition("-")
+            out.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    except ValueError:
+        raise ParameterError(f"--seeds {text!r}: expected a range like 1-5 or a list like "
+                             "1,3,7") from None
+    if not out or len(set(out)) != len(out):
+        raise ParameterError(f"--seeds {text!r}: give each seed once, at least one")
+    return tuple(out)
+
+
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """``--set KEY=VALUE`` items to hyperparameter overrides (values parsed as YAML)."""
+    import yaml
+
+    extra = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ParameterError(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ParameterError(f"--set {item!r}: the value is not valid YAML") from None
+        if isinstance(parsed, str):
+            try:        # YAML 1.1 reads 1e-4 (no dot) as a string
+                parsed = float(parsed)
+            except ValueError:
+                pass
+        extra[key.strip()] = parsed
+    return extra
+
+
 @dataclass
 class Args:
-    """All arguments of a training run (``--name-with-dashes`` on the command line)."""
+    """All arguments of a training run; each field is its ``--name-with-dashes``
+    option too (:mod:`stepdamp_agents.arguments`), with its help and range."""
 
-    algo: str = "ars"                       # ars | ppo | sac | td3 (ars: v1 only)
-    seed: int = 1                           # torch/numpy seed; env seeds start at 1000*seed
-    seeds: tuple[int, ...] = ()             # several seeds, one after the other (out/seed<K>)
-    env: str = ENV_ID_V1                    # StepperDamp-v1 | StepperDampResidual-v0
-    out: str = "runs/residual"              # output directory
-    total_timesteps: int | None = None      # default: n_timesteps of the YAML
-    hyperparams: str | None = None          # YAML file (default agents/hyperparams/<algo>.yml)
-    motors: tuple[str, ...] = PRESETS       # presets the training motors are drawn around
-    envs_per_motor: int | None = None       # default: n_envs of the YAML / len(motors)
-    eval_freq: int = 5_000                  # agent steps between validations (0: never)
-    val_seed: int = 900_000                 # validation motors' draw seed (< TRAINING_SEED_LIMIT)
-    val_motors_per_preset: int = 2
-    checkpoint_freq: int = 10_000           # agent steps between checkpoints (0: never)
-    progress: bool = True
-    tensorboard: bool = True
-    name: str | None = None                 # policy name (default "<algo>-per-step" on v1,
-                                            # "<algo>-gain-selector" on v0)
-    extra: dict[str, Any] = field(default_factory=dict)   # YAML overrides (algo kwargs)
-    backend: str = "local"                  # --seeds: one after the other, or "ray" (tasks)
-    ray_address: str | None = None          # Ray cluster (default: a local Ray)
+    algo: str = option("ars", "algorithm (hyperparameters from agents/hyperparams/<algo>.yml; "
+                       "ars on StepperDamp-v1 only)", choices=ALGO_CHOICES)
+    seed: int = option(1, "torch/numpy seed; env seeds start at 1000*seed", low=0, high=999)
+    seeds: tuple[int, ...] = option((), "train several seeds one after the other (e.g. 1-5 or "
+                                    "1,3), each into DIR/seed<K>; replaces --seed",
+                                    metavar="K-L", parse=parse_seeds, low=0, high=999)
+    env: str = option(ENV_ID_V1, "StepperDamp-v1: per-step agents (default); "
+                      "StepperDampResidual-v0: the v0 gain selector", choices=ENV_IDS)
+    out: str = option("runs/residual", "output directory (models, logs)", metavar="DIR")
+    total_timesteps: int | None = option(None, "agent steps to train (default: n_timesteps of "
+                                         "the YAML)", metavar="STEPS", low=1, high=1e12)
+    hyperparams: str | None = option(None, "zoo YAML (default: agents/hyperparams/<algo>.yml)",
+                                     metavar="FILE.yml")
+    motors: tuple[str, ...] = option(PRESETS, "presets the training motors are drawn around",
+                                     metavar="PRESET", many=True)
+    envs_per_motor: int | None = option(None, "vectorised drives per preset (default: n_envs "
+                                        "of the YAML / motors)", metavar="N", low=1, high=4096)
+    eval_freq: int = option(5_000, "agent steps between validations (0: never)",
+                            metavar="STEPS", low=0, high=1e12)
+    val_seed: int = option(900_000, "seed of the validation motors' draw",
+                           low=0, high=TRAINING_SEED_LIMIT - 1001)
+    val_motors_per_preset: int = option(2, "validation motors drawn around each preset",
+                                        metavar="N", low=1, high=1000)
+    checkpoint_freq: int = option(10_000, "agent steps between checkpoints (0: never)",
+                                  metavar="STEPS", low=0, high=1e12)
+    progress: bool = option(True, "no progress bar", negate="no-progress")
+    tensorboard: bool = option(True, "no TensorBoard log", negate="no-tensorboard")
+    name: str | None = option(None, 'policy name in the agent config (default: "<algo>-per-step" '
+                              'on v1, "<algo>-gain-selector" on v0); on the leaderboard the '
+                              "model shows as NAME@<file stem>, e.g. ars-per-step@best")
+    extra: dict[str, Any] = option(None, "override one YAML hyperparameter (value parsed as "
+                                   "YAML); repeatable", metavar="KEY=VALUE", flag="--set",
+                                   repeat=True, parse=parse_overrides, default_factory=dict)
+    backend: str = option("local", "--seeds one after the other here, or as Ray tasks "
+                          "(extra [ray])", choices=("local", "ray"))
+    ray_address: str | None = option(None, "with --backend ray: a running cluster ('auto' or "
+                                     "HOST:PORT); default: a local Ray on this machine's cores",
+                                     metavar="ADDR")
 
 
 # ---------------------------------------------------------------------------
@@ -110,17 +168,8 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
 
 
 def check_args(args: Args) -> None:
-    """Every numeric argument in its range, else a one-line ``ParameterError``."""
-    def need(name: str, value: Any, low: int, high: float, optional: bool = False) -> None:
-        if optional and value is None:
-            return
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise ParameterError(f"--{name.replace('_', '-')} {value!r} is outside its allowed "
-                                 f"range [{low}, {high:g}] (integer)")
-
-    need("seed", args.seed, 0, 999)           # env seeds 1000*seed + k < TRAINING_SEED_LIMIT
-    for k in args.seeds:
-        need("seeds", k, 0, 999)
+    """Every argument in its range, else a one-line ``ParameterError``."""
+    check_ranges(args)         # env seeds 1000*seed + k stay below TRAINING_SEED_LIMIT
     if args.env not in ENV_IDS:
         raise ParameterError(f"--env {args.env!r} is not one of {list(ENV_IDS)}")
     if args.backend not in ("local", "ray"):
@@ -131,12 +180,6 @@ def check_args(args: Args) -> None:
         raise ParameterError(f"--algo {args.algo!r} is not one of "
                              f"{list(ALGO_CHOICES if args.env == ENV_ID_V1 else ALGO_CHOICES[1:])}"
                              f" (for --env {args.env})")
-    need("total_timesteps", args.total_timesteps, 1, 1e12, optional=True)
-    need("envs_per_motor", args.envs_per_motor, 1, 4096, optional=True)
-    need("eval_freq", args.eval_freq, 0, 1e12)
-    need("checkpoint_freq", args.checkpoint_freq, 0, 1e12)
-    need("val_seed", args.val_seed, 0, TRAINING_SEED_LIMIT - 1001)
-    need("val_motors_per_preset", args.val_motors_per_preset, 1, 1000)
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--motors {list(args.motors)}: choose presets from {list(PRESETS)}")
@@ -532,98 +575,16 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
     return logs
 
 
-def parse_seeds(text: str) -> tuple[int, ...]:
-    """``"1-5"``, ``"1,3,7"`` or ``"2"`` to a tuple of seeds."""
-    out: list[int] = []
-    try:
-        for part in text.split(","):
-            lo, sep, hi = part.strip().partition("-")
-            out.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
-    except ValueError:
-        raise ParameterError(f"--seeds {text!r}: expected a range like 1-5 or a list like "
-                             "1,3,7") from None
-    if not out or len(set(out)) != len(out):
-        raise ParameterError(f"--seeds {text!r}: give each seed once, at least one")
-    return tuple(out)
-
-
 # ---------------------------------------------------------------------------
 # Command line
 # ---------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """One option per field of :class:`Args` (``stepdamp train`` uses these too)."""
-    d = Args()
-    p.add_argument("--algo", choices=ALGO_CHOICES, default=d.algo,
-                   help="algorithm (hyperparameters from agents/hyperparams/<algo>.yml; "
-                        "ars on StepperDamp-v1 only)")
-    p.add_argument("--env", choices=ENV_IDS, default=d.env,
-                   help="StepperDamp-v1: per-step agents (default); StepperDampResidual-v0: "
-                        "the v0 gain selector")
-    p.add_argument("--seed", type=int, default=d.seed,
-                   help="torch/numpy seed in [0, 1000); env seeds start at 1000*seed")
-    p.add_argument("--seeds", default=None, metavar="K-L",
-                   help="train several seeds one after the other (e.g. 1-5 or 1,3), each "
-                        "into DIR/seed<K>; replaces --seed")
-    p.add_argument("--out", default=d.out, metavar="DIR",
-                   help="output directory (models, logs)")
-    p.add_argument("--total-timesteps", type=int, default=None, metavar="STEPS",
-                   help="agent steps to train (default: n_timesteps of the YAML)")
-    p.add_argument("--hyperparams", default=None, metavar="FILE.yml",
-                   help="zoo YAML (default: agents/hyperparams/<algo>.yml)")
-    p.add_argument("--motors", nargs="+", default=list(d.motors), metavar="PRESET",
-                   help="presets the training motors are drawn around")
-    p.add_argument("--envs-per-motor", type=int, default=None, metavar="N",
-                   help="vectorised drives per preset (default: n_envs of the YAML / motors)")
-    p.add_argument("--eval-freq", type=int, default=d.eval_freq, metavar="STEPS",
-                   help="agent steps between validations (0: never)")
-    p.add_argument("--val-seed", type=int, default=d.val_seed,
-                   help=f"seed of the validation motors' draw (< {TRAINING_SEED_LIMIT})")
-    p.add_argument("--val-motors-per-preset", type=int, default=d.val_motors_per_preset,
-                   metavar="N", help="validation motors drawn around each preset")
-    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq, metavar="STEPS",
-                   help="agent steps between checkpoints (0: never)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard log")
-    p.add_argument("--name", default=None,
-                   help='policy name in the agent config (default: "<algo>-per-step" on v1, '
-                        '"<algo>-gain-selector" on v0); on the leaderboard the model shows as '
-                        "NAME@<file stem>, e.g. ars-per-step@best")
-    p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one YAML hyperparameter (value parsed as YAML); repeatable")
-    p.add_argument("--backend", choices=("local", "ray"), default=d.backend,
-                   help="--seeds one after the other here, or as Ray tasks (extra [ray])")
-    p.add_argument("--ray-address", default=None, metavar="ADDR",
-                   help="with --backend ray: a running cluster ('auto' or HOST:PORT); "
-                        "default: a local Ray on this machine's cores")
+    arguments.add_arguments(p, Args)
 
 
 def args_from_namespace(ns: argparse.Namespace) -> Args:
-    import yaml
-
-    extra = {}
-    for item in ns.extra:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ParameterError(f"--set {item!r}: expected KEY=VALUE")
-        try:
-            parsed = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ParameterError(f"--set {item!r}: the value is not valid YAML") from None
-        if isinstance(parsed, str):
-            try:        # YAML 1.1 reads 1e-4 (no dot) as a string
-                parsed = float(parsed)
-            except ValueError:
-                pass
-        extra[key.strip()] = parsed
-    seeds = parse_seeds(ns.seeds) if ns.seeds else ()
-    return Args(algo=ns.algo, seed=ns.seed, seeds=seeds, env=ns.env, out=ns.out,
-                total_timesteps=ns.total_timesteps,
-                hyperparams=ns.hyperparams, motors=tuple(ns.motors),
-                envs_per_motor=ns.envs_per_motor, eval_freq=ns.eval_freq,
-                val_seed=ns.val_seed, val_motors_per_preset=ns.val_motors_per_preset,
-                checkpoint_freq=ns.checkpoint_freq, progress=not ns.no_progress,
-                tensorboard=not ns.no_tensorboard, name=ns.name, extra=extra,
-                backend=ns.backend, ray_address=ns.ray_address)
+    return arguments.from_namespace(Args, ns)
 
 
 def main(argv: list[str] | None = None) -> int:

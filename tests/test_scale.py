@@ -22,7 +22,7 @@ from stepdamp_env.bench import (EpisodeSpec, ScalarPolicies, quick_protocol_v1, 
 from stepdamp_env.bench.leaderboard import RESUME_DIR, identify_cached, protocol_knowledge
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.env import StepperDampEnv
-from stepdamp_env.env.scalar import StepperDampBatch
+from stepdamp_env.env.engine import StepperDampBatch
 from stepdamp_env.identify import identify
 from stepdamp_env.parallel import pool_map
 from stepdamp_env.simulation import merge_accumulator_rows, merge_accumulators

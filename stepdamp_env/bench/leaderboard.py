@@ -25,8 +25,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..env.options import EnvOptions
-from ..env.scalar import StepperDampBatch, StepperDampEnv
-from ..env.v1 import StepperDampV1Batch, StepperDampV1Env
+from ..env.engine import StepperDampBatch
+from ..env.scalar import StepperDampEnv
+from ..env.v1 import StepperDampV1Env
 from ..identify import identify
 from ..io import cache_dir, read_json_or_none, tree_digest, write_json
 from ..parallel import default_workers, pool_map
@@ -250,8 +251,7 @@ def _warm_up(system: SystemParams) -> None:
                                           action_mode="harmonic")):
         env = make()
         env.reset(seed=0)
-        kind = StepperDampV1Batch if isinstance(env, StepperDampV1Env) else StepperDampBatch
-        batch = kind([env])
+        batch = StepperDampBatch([env])
         batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
 
 

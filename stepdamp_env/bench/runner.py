@@ -21,8 +21,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..env.registration import ENV_ID_V1
-from ..env.scalar import StepperDampBatch, StepperDampEnv
-from ..env.v1 import StepperDampV1Batch, StepperDampV1Env
+from ..env.engine import StepperDampBatch
+from ..env.scalar import StepperDampEnv
+from ..env.v1 import StepperDampV1Env
 from ..params import SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
 from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
@@ -207,13 +208,12 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}
     for i, env in enumerate(envs):
-        kind = StepperDampV1Batch if isinstance(env, StepperDampV1Env) else StepperDampBatch
-        groups.setdefault((kind, kind.layout_of(env)), []).append(i)
-    for (kind, _), members in groups.items():
+        groups.setdefault(StepperDampBatch.layout_of(env), []).append(i)
+    for members in groups.values():
         # One batch: its runs are rows 0..k-1 of one reset_batch; they leave as they end.
         index = np.asarray(members, dtype=np.int64)
         policy.reset_batch([contexts[i] for i in members])
-        batch = kind([envs[i] for i in members])
+        batch = StepperDampBatch([envs[i] for i in members])
         rows = np.arange(len(members))
         steps = np.zeros(len(members), dtype=np.int64)
 

@@ -11,12 +11,14 @@ at ``pwm_hz`` (20 kHz for the presets) inside one agent step; the agent decides 
 >>> env = gym.make("StepperDamp-v0")                        # doctest: +SKIP
 >>> venv = gym.make_vec("StepperDamp-v0", num_envs=64)      # doctest: +SKIP
 
-Modules: :mod:`.options` (validated options and their defaults), :mod:`.layout`
-(named observation and action entries), :mod:`.sampler` (episode draws, a
-read-only view for policies), :mod:`.compiled` (the per-step numba helpers),
-:mod:`.scalar`, :mod:`.vector` (:class:`StepperDampVectorEnv` advances all its
-drives with one call of :func:`stepdamp_env.kernel.run_batch` and agrees with
-the scalar env step for step), :mod:`.registration`.
+One engine, two tasks: :mod:`.engine` steps N drives by one compiled call
+(:class:`DriveBatch`; :class:`StepperDampBatch` steps reset envs of either
+version together); a version is an :class:`EnvTask` that says what an episode
+is, what the agent sees, does and earns: v0's is :class:`EpisodeSampler`
+(:mod:`.sampler`, with :mod:`.options`, :mod:`.layout` and the per-step numba
+helpers :mod:`.compiled`), v1's is :class:`TaskV1` (:mod:`.v1`, with
+:mod:`.v1_options` and :mod:`.v1_compiled`). Each version's scalar env is a
+batch of one, its vector env a batch of N, so the two agree step for step.
 """
 
 from .layout import (ACTION_NAMES, HARMONIC_COS, HARMONIC_SIN, OBS, OBSERVATION_NAMES,
@@ -26,7 +28,8 @@ from .registration import DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, register_env
 from .sampler import EpisodeSampler
 from .scalar import StepperDampEnv
 from .vector import StepperDampVectorEnv
-from .v1 import DriveBatch, StepperDampV1Env, StepperDampV1VectorEnv, TaskV1
+from .engine import DriveBatch, EnvTask, StepperDampBatch
+from .v1 import StepperDampV1Env, StepperDampV1VectorEnv, TaskV1
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, EnvOptionsV1, MotorUnits,
                          observation_names_v1)
 from .wrappers import EpisodeGuard
@@ -35,5 +38,5 @@ __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptio
            "EpisodeSampler", "StepperDampEnv", "StepperDampVectorEnv", "register_envs",
            "OBS", "OBSERVATION_NAMES", "observation_names", "HARMONIC_SIN", "HARMONIC_COS",
            "ACTION_NAMES", "default_action_scales", "EpisodeGuard",
-           "ENV_ID_V1", "EnvOptionsV1", "MotorUnits", "TaskV1", "DriveBatch", "StepperDampV1Env",
+           "ENV_ID_V1", "EnvOptionsV1", "MotorUnits", "TaskV1", "DriveBatch", "EnvTask", "StepperDampBatch", "StepperDampV1Env",
            "StepperDampV1VectorEnv", "ACTION_NAMES_V1", "CONTEXT_NAMES", "observation_names_v1"]

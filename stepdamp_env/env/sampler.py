@@ -1,9 +1,11 @@
-"""Episode sampling, shared by the scalar and the vector environment.
+"""``StepperDamp-v0``'s task over the engine (:mod:`.engine`): episode sampling,
+observation, action loading, reward and termination.
 
 :class:`EpisodeSampler` is public and read-only: ``env.sampler`` tells a
 baseline or an agent the nominal system, the action layout and its physical
 scales, the decision period and the model the base controller uses in an
-episode, without reaching into the environment.
+episode, without reaching into the environment. v1's task draws its episodes
+with one too, so a seed gives the same motor and speed in v0 and v1.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from ..params import (RESONANCE_HARMONICS, FeedforwardModel, ParameterError, Sys
                       load_system, predicted_resonances)
 from ..simulation import RunSettings, SpeedProfile, build_config, check_integrable, initial_state
 from . import compiled as C
+from .engine import DriveBatch, EnvTask
 from .layout import ACTION_NAMES, OBS
 from .options import PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_action_scales
 
@@ -27,8 +30,9 @@ __all__ = ["EpisodeSampler"]
 TWO_PI = 2.0 * math.pi
 
 
-class EpisodeSampler:
-    """Draws one episode (system, speed) from a Generator and writes its arrays.
+class EpisodeSampler(EnvTask):
+    """v0's task: draws one episode (system, speed) from a Generator and writes
+    its rows; observes, loads actions and reports a step (:class:`.engine.EnvTask`).
 
     Read-only attributes (properties): ``options``, ``nominal`` (the
     un-randomised system), ``randomization``, ``n_periods`` (PWM periods per
@@ -160,9 +164,19 @@ class EpisodeSampler:
         lo, hi = o.speed_range_rps
         return float(rng.uniform(lo, hi)), 0
 
-    def new_episode(self, rng: np.random.Generator, c: np.ndarray, s: np.ndarray,
-                    par: np.ndarray) -> tuple[dict[str, Any], SystemParams]:
-        """Draw an episode into the rows ``c``, ``s``, ``par``; returns (reset info, system)."""
+    # -- the task ------------------------------------------------------------------
+    law_actions = False
+    max_episode_steps = None            # the time limit is the env's (gym's TimeLimit)
+    param_size = len(C.PARAM)
+    out_layout = C.OUT
+    extra_rows: dict[str, tuple[int, Any]] = {}
+    privileged = property(lambda self: bool(self._options.privileged),
+                          doc="Whether the observation ends with the privileged block.")
+
+    def new_episode(self, rng: np.random.Generator, drives: DriveBatch, i: int
+                    ) -> tuple[dict[str, Any], SystemParams]:
+        """Draw an episode into drive i's rows; returns (reset info, system)."""
+        c, s, par = drives.c[i], drives.s[i], drives.par[i]
         o = self._options
         system = self.draw_system(rng)
         speed, h = self.draw_speed(rng, system)
@@ -188,9 +202,22 @@ class EpisodeSampler:
         par[C.PARAM.ACT_SCALE:C.PARAM.ACT_SCALE + self._act_dim] = self._action_scales
         return {"speed_rps": speed, "target_harmonic": h}, system
 
-    def initial_observation(self, s: np.ndarray, par: np.ndarray, obs: np.ndarray) -> None:
-        """Observation before the first step into ``obs``; arguments are (1, n) rows."""
-        acc = np.zeros((1, len(K.ACC)))
-        acc[0, K.ACC.COUNT_ALL] = 1.0
-        C.observe(s, acc, np.zeros((1, self._act_dim), dtype=np.float32), par, C.KERNEL_INDEX,
-                  bool(self._options.privileged), obs, np.zeros((1, len(C.OUT))))
+    def observe(self, drives: DriveBatch, rows: slice) -> None:
+        C.observe(drives.s[rows], drives.acc[rows], drives.a[rows], drives.par[rows],
+                  C.KERNEL_INDEX, self.privileged, drives.obs[rows], drives.out[rows])
+
+    def load(self, drives: DriveBatch, a: np.ndarray) -> int:
+        return C.load_actions(a, drives.u, drives.acc, drives.par, self._offset)
+
+    def time_s(self, drives: DriveBatch) -> np.ndarray:
+        # v0 counts time in PWM periods of the kernel (published runs end on it).
+        return drives.s[:, K.STATE.PERIOD] * drives.c[:, K.CONFIG.DT]
+
+    def step_info(self, drives: DriveBatch, i: int) -> dict[str, Any]:
+        out = drives.out[i]
+        return {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]),
+                "lag_rad": float(out[C.OUT.LAG]),
+                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
+                "peak_current_a": float(out[C.OUT.PEAK_I]),
+                "step_loss": bool(out[C.OUT.STEP_LOSS]),
+                "overcurrent": bool(out[C.OUT.OVERCURRENT])}

@@ -9,17 +9,17 @@ import numpy as np
 
 from .. import kernel as K
 from ..params import ParameterError, SystemParams
-from ..simulation import (RunMetrics, merge_accumulator_rows, merge_accumulators,
-                          metrics_from_accumulators, new_accumulators)
+from ..simulation import (RunMetrics, merge_accumulators, metrics_from_accumulators,
+                          new_accumulators)
 from . import compiled as C
-from .actions import action_error, as_action
-from .arguments import check_batch_envs, check_render_mode
+from .arguments import check_render_mode
+from .engine import DriveBatch
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
 from .render import render_episode, trace_rows
 from .sampler import EpisodeSampler
 
-__all__ = ["StepperDampEnv", "StepperDampBatch"]
+__all__ = ["StepperDampEnv"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -122,21 +122,9 @@ class StepperDampEnv(gym.Env):
         self.observation_space = f.observation_space()
         self.action_space = f.action_space()
         self._act_shape = (f.act_dim,)
-        self._n = f.n_periods
-        self._offset = f.input_offset
-        self._privileged = bool(self.options.privileged)
         self._measuring = self.options.measure_from_s is not None
-        # One-row 2-D arrays for the compiled helpers, 1-D views of them for the kernel.
-        self._c2 = np.zeros((1, len(K.CONFIG)))
-        self._s2 = np.zeros((1, len(K.STATE)))
-        self._acc2 = np.zeros((1, len(K.ACC)))
-        self._u2 = np.zeros((1, len(K.INPUT)))
-        self._par2 = np.zeros((1, len(C.PARAM)))
-        self._a2 = np.zeros((1, f.act_dim))
-        self._obs2 = np.zeros((1, f.obs_dim), dtype=np.float32)
-        self._out2 = np.zeros((1, len(C.OUT)))
-        self._bind_views()
-        self._trace = np.zeros((self._n if render_mode else 0, len(K.TRACE)))
+        self._drives = DriveBatch(f, 1)
+        self._trace = np.zeros((f.n_periods if render_mode else 0, len(K.TRACE)))
         self._history: list[np.ndarray] = []
         self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
@@ -144,35 +132,25 @@ class StepperDampEnv(gym.Env):
         self._ready = False
         self._ended = False
 
-    _VIEWS = ("_c", "_s", "_acc", "_u", "_par", "_obs", "_out")
-
-    def _bind_views(self) -> None:
-        self._c, self._s, self._acc, self._u = self._c2[0], self._s2[0], self._acc2[0], self._u2[0]
-        self._par, self._obs, self._out = self._par2[0], self._obs2[0], self._out2[0]
-
-    # A copy (pickle, deepcopy) gets its own arrays: the views are bound again to
-    # them, never left pointing at copies of their own.
-    def __getstate__(self) -> dict[str, Any]:
-        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._bind_views()
-
     # -- public read-outs ------------------------------------------------------
     @property
     def drive_state(self) -> np.ndarray:
         """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
-        return self._s.copy()
+        return self._drives.s[0].copy()
 
     @property
     def drive_config(self) -> np.ndarray:
         """Copy of the kernel's configuration vector (``kernel.CONFIG``) of this episode."""
-        return self._c.copy()
+        return self._drives.c[0].copy()
 
     @property
     def sampler(self) -> EpisodeSampler:
         """The episode sampler: nominal system, action layout and scales (read-only)."""
+        return self._sampler
+
+    @property
+    def task(self) -> EpisodeSampler:
+        """The env's task over the engine (:class:`.engine.EnvTask`): its sampler."""
         return self._sampler
 
     @property
@@ -188,7 +166,7 @@ class StepperDampEnv(gym.Env):
     @property
     def time_s(self) -> float:
         """Simulated time since the episode started (s)."""
-        return float(self._s[K.STATE.PERIOD] * self._c[K.CONFIG.DT])
+        return float(self._sampler.time_s(self._drives)[0])
 
     @property
     def step_trace(self) -> np.ndarray:
@@ -200,16 +178,15 @@ class StepperDampEnv(gym.Env):
         return self._trace.copy()
 
     @property
-    def drive_arrays(self) -> dict[str, np.ndarray]:
-        """Copies of the episode's arrays, one row each, as :class:`StepperDampBatch`
-        stacks them: ``config``, ``state`` (kernel), ``sums`` (the last step's
-        metric sums), ``input``, ``par`` (the env's per-episode constants),
-        ``action`` (last), ``obs``, ``out`` (the last step's outputs) and
-        ``window_sums`` (the run's metric sums since ``measure_from_s``)."""
-        return {"config": self._c2.copy(), "state": self._s2.copy(), "sums": self._acc2.copy(),
-                "input": self._u2.copy(), "par": self._par2.copy(), "action": self._a2.copy(),
-                "obs": self._obs2.copy(), "out": self._out2.copy(),
-                "window_sums": self._run_acc[None].copy()}
+    def drive_batch(self) -> DriveBatch:
+        """A copy of this env's drive (a :class:`~.engine.DriveBatch` of one), as
+        :class:`~.engine.StepperDampBatch` stacks it."""
+        return DriveBatch.stack([self._drives])
+
+    @property
+    def window_sums(self) -> np.ndarray:
+        """A copy of the run's metric sums since ``measure_from_s`` (``kernel.ACC``)."""
+        return self._run_acc.copy()
 
     def run_metrics(self) -> RunMetrics:
         """The simulation core's metrics of the episode so far, over the window
@@ -227,16 +204,14 @@ class StepperDampEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        info, self.system = self._sampler.new_episode(self.np_random, self._c, self._s,
-                                                      self._par)
-        self._u[:] = 0.0
-        self._sampler.initial_observation(self._s2, self._par2, self._obs2)
+        info = self._drives.reset_drive(0, self.np_random)
+        self.system = self._drives.systems[0]
         self._history = []
         self._run_acc[:] = 0.0
         self._speed_rps = info["speed_rps"]
         self._ready = True
         self._ended = False
-        return self._obs.copy(), info
+        return self._drives.obs[0].copy(), info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._ready:
@@ -244,110 +219,22 @@ class StepperDampEnv(gym.Env):
         if self._ended:
             raise gym.error.ResetNeeded("the episode has terminated (step loss, over-current or "
                                         "a non-finite state); call reset() before step()")
-        self._a2[0] = as_action(action, self._act_shape)
-        if C.load_actions(self._a2, self._u2, self._acc2, self._par2, self._offset) >= 0:
-            raise action_error(action, self._act_shape)
-        K.run_periods(self._c, self._s, self._acc, self._u, self._n, self._trace, 1)
+        d = self._drives
+        d.load(action, self._act_shape)
+        terminated, _ = d.advance(self._trace)
         if self._measuring:
-            merge_accumulators(self._run_acc, self._acc)
-        out = self._out
-        C.observe(self._s2, self._acc2, self._a2, self._par2, C.KERNEL_INDEX, self._privileged,
-                  self._obs2, self._out2)
+            merge_accumulators(self._run_acc, d.acc[0])
         if self.render_mode is not None:
-            self._record()
-        terminated = out[C.OUT.TERMINATED] != 0.0
-        self._ended = bool(terminated)
-        info = {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]),
-                "lag_rad": float(out[C.OUT.LAG]),
-                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
-                "peak_current_a": float(out[C.OUT.PEAK_I]),
-                "step_loss": bool(out[C.OUT.STEP_LOSS]), "overcurrent": bool(out[C.OUT.OVERCURRENT])}
-        return self._obs.copy(), float(out[C.OUT.REWARD]), bool(terminated), False, info
+            self._history.append(trace_rows(self._trace))
+        self._ended = bool(terminated[0])
+        return (d.obs[0].copy(), float(d.out[0, C.OUT.REWARD]), self._ended, False, d.info(0))
 
     # -- rendering ------------------------------------------------------------------
-    def _record(self) -> None:
-        self._history.append(trace_rows(self._trace))
-
     def render(self) -> np.ndarray | None:
         """RGB array (H, W, 3) of velocity error and currents of the episode so far."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass "
                             "render_mode='rgb_array' to the constructor")
             return None
-        speed = self._par[C.PARAM.W_REF] / TWO_PI
+        speed = self._drives.par[0, C.PARAM.W_REF] / TWO_PI
         return render_episode(self._history, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")
-
-
-class StepperDampBatch:
-    """Reset ``StepperDamp-v0`` envs of one layout stepped together: one compiled
-    call per step for all of them (the batched episode runner's drive).
-
-    Each row continues its env's episode exactly as the env's own ``step`` would,
-    bit for bit (the kernel advances each row alone); the envs themselves are
-    left as they were. The envs must share the action layout, agent rate and
-    observation (motors, speeds, seeds and windows may differ) and measure
-    (``measure_from_s``). Rows end for good: :meth:`keep` drops the others.
-
-    Attributes:
-        obs: (n, obs_dim) float32, the rows' latest observations.
-        systems, speeds_rps: each row's plant and held command speed (rev/s).
-    """
-
-    _ARRAYS = ("_c", "_s", "_acc", "_u", "_par", "_a", "_obs", "_out", "_run")
-
-    @staticmethod
-    def layout_of(env: StepperDampEnv) -> tuple:
-        """What envs stepped together must share (equal tuples: one batch)."""
-        return (env.sampler.n_periods, env.sampler.input_offset, bool(env.options.privileged),
-                env.action_space.shape, env.observation_space.shape)
-
-    def __init__(self, envs: Sequence[StepperDampEnv]) -> None:
-        check_batch_envs(envs, self.layout_of, "StepperDampBatch")
-        first = envs[0]
-        sampler = first.sampler
-        self._n, self._offset = sampler.n_periods, sampler.input_offset
-        self._privileged = bool(first.options.privileged)
-        self._act_dim = first.action_space.shape[0]
-        rows = [env.drive_arrays for env in envs]
-        for name, key in (("_c", "config"), ("_s", "state"), ("_acc", "sums"), ("_u", "input"),
-                          ("_par", "par"), ("_a", "action"), ("_obs", "obs"), ("_out", "out"),
-                          ("_run", "window_sums")):
-            setattr(self, name, np.concatenate([r[key] for r in rows]))
-        self.systems = [env.system for env in envs]
-        self.speeds_rps = np.array([env.speed_rps for env in envs])
-
-    @property
-    def obs(self) -> np.ndarray:
-        return self._obs
-
-    @property
-    def time_s(self) -> np.ndarray:
-        """Each row's simulated time (s), as the env's ``time_s``."""
-        return self._s[:, K.STATE.PERIOD] * self._c[:, K.CONFIG.DT]
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance every row one agent step with ``actions`` (n, act_dim); returns
-        the masks (terminated, step_loss, overcurrent) of this step."""
-        shape = (len(self.systems), self._act_dim)
-        self._a[:] = as_action(actions, shape)
-        if C.load_actions(self._a, self._u, self._acc, self._par, self._offset) >= 0:
-            raise action_error(actions, shape)
-        K.run_batch(self._c, self._s, self._acc, self._u, self._n)
-        merge_accumulator_rows(self._run, self._acc)
-        C.observe(self._s, self._acc, self._a, self._par, C.KERNEL_INDEX, self._privileged,
-                  self._obs, self._out)
-        out = self._out
-        return (out[:, C.OUT.TERMINATED] != 0.0, out[:, C.OUT.STEP_LOSS] != 0.0,
-                out[:, C.OUT.OVERCURRENT] != 0.0)
-
-    def run_metrics(self, i: int) -> RunMetrics:
-        """Row i's metrics, as the env's ``run_metrics()``."""
-        return metrics_from_accumulators(self._run[i], self.systems[i],
-                                         float(self.speeds_rps[i]))
-
-    def keep(self, rows: np.ndarray) -> None:
-        """Keep only ``rows`` (indices into the current rows, in order)."""
-        for name in self._ARRAYS:
-            setattr(self, name, getattr(self, name)[rows])
-        self.systems = [self.systems[i] for i in rows]
-        self.speeds_rps = self.speeds_rps[rows]

@@ -1,8 +1,8 @@
 """``StepperDamp-v1``: the residual damping task in units the motor sets, scalar and vector.
 
-Both classes advance a :class:`DriveBatch` (N drives, one compiled call per
-step: :func:`stepdamp_env.kernel.run_batch_law`); the scalar env is a batch of
-one, so the two agree step for step by construction.
+:class:`TaskV1` is the task; both envs advance the engine's
+:class:`~.engine.DriveBatch` (N drives, one compiled call per step); the scalar
+env is a batch of one, so the two agree step for step by construction.
 """
 
 from __future__ import annotations
@@ -22,32 +22,35 @@ from .. import kernel as K
 from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..response import phasors, torque_paths
 from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, initial_state,
-                          merge_accumulator_rows, merge_accumulators,
-                          metrics_from_accumulators, new_accumulators)
+                          merge_accumulators, metrics_from_accumulators, new_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
-from .actions import action_error, as_action
+from .arguments import check_render_mode, check_vector_args, reseed
+from .engine import DriveBatch, EnvTask
 from .options import default_action_scales
-from .arguments import check_batch_envs, check_render_mode, check_vector_args, reseed
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
 
-__all__ = ["TaskV1", "DriveBatch", "StepperDampV1Env", "StepperDampV1VectorEnv",
-           "StepperDampV1Batch"]
+__all__ = ["TaskV1", "StepperDampV1Env", "StepperDampV1VectorEnv"]
 
 TWO_PI = 2.0 * math.pi
 _FF_COLUMNS = (K.CONFIG.FF_S1, K.CONFIG.FF_C1, K.CONFIG.FF_S2, K.CONFIG.FF_C2, K.CONFIG.FF_S4, K.CONFIG.FF_C4)
 
 
-class TaskV1:
-    """What one v1 env is: its options, the drive's units, spaces and action scales.
+class TaskV1(EnvTask):
+    """``StepperDamp-v1``'s task over the engine (:class:`.engine.EnvTask`): its
+    options, the drive's units, spaces and action scales; observation, action
+    loading, reward and termination.
 
     Read-only. Episodes are drawn by v0's :class:`EpisodeSampler` (``draws``), so a
     seed gives the same motor and speed in v0 and v1.
     """
+
+    param_size = len(V.PARAM)
+    out_layout = V.OUT
 
     def __init__(self, options: EnvOptionsV1) -> None:
         self.options = o = options
@@ -89,6 +92,9 @@ class TaskV1:
         self.n_context = len(CONTEXT_NAMES) if o.context == "visible" else 0
         self.obs_dim = (len(V.OBS) + self.act_dim + len(V.HISTORY) * o.history
                         + self.n_context + (len(V.PRIVILEGED) if o.privileged else 0))
+        self.privileged = bool(o.privileged)
+        self.extra_rows = {"history": (len(V.HISTORY) * o.history, np.float32),
+                           "ctx": (self.n_context, np.float32)}
 
     def observation_space(self) -> spaces.Box:
         high = np.full(self.obs_dim, C.OBS_BOUND, dtype=np.float32)
@@ -128,10 +134,10 @@ class TaskV1:
         return np.concatenate([[speed_rps / res[h] for h in (4, 2, 1)], model / kd]
                               ).astype(np.float32)
 
-    def new_episode(self, rng: np.random.Generator, c: np.ndarray, s: np.ndarray,
-                    par: np.ndarray, law: np.ndarray, ctx: np.ndarray
+    def new_episode(self, rng: np.random.Generator, drives: DriveBatch, i: int
                     ) -> tuple[dict[str, Any], SystemParams]:
-        """Draw an episode into the rows; returns (reset info, system)."""
+        """Draw an episode into drive i's rows; returns (reset info, system)."""
+        c, s, par, law = drives.c[i], drives.s[i], drives.par[i], drives.law[i]
         o, d = self.options, self.draws
         system = d.draw_system(rng)
         speed, h = d.draw_speed(rng, system)
@@ -161,126 +167,38 @@ class TaskV1:
         law[K.LAW.HP_ALPHA] = self.law_hp_alpha
         law[K.LAW.LIMIT] = self.law_limit_a
         if self.n_context:
-            ctx[:] = self.context(estimate, speed)
+            drives.extra["ctx"][i] = self.context(estimate, speed)
         return {"speed_rps": speed, "target_harmonic": h}, system
 
+    def observe(self, drives: DriveBatch, rows: slice) -> None:
+        V.observe(drives.s[rows], drives.acc[rows], drives.law[rows], drives.a[rows],
+                  drives.par[rows], C.KERNEL_INDEX, V.LAW_INDEX, drives.extra["history"][rows],
+                  drives.extra["ctx"][rows], self.privileged, C.OBS_BOUND, REWARD_BOUND,
+                  drives.obs[rows], drives.out[rows])
 
-class DriveBatch:
-    """N drives of one :class:`TaskV1`: their arrays, their resets, their steps."""
+    def load(self, drives: DriveBatch, a: np.ndarray) -> int:
+        dest = drives.law if self.law_actions else drives.u
+        return V.load_actions(a, dest, self.input_offset, drives.par, drives.acc, drives.law,
+                              V.LAW_INDEX)
 
-    def __init__(self, task: TaskV1, n: int) -> None:
-        self.task = t = task
-        self.n = n
-        self.c = np.zeros((n, len(K.CONFIG)))
-        self.s = np.zeros((n, len(K.STATE)))
-        self.acc = np.zeros((n, len(K.ACC)))
-        self.u = np.zeros((n, len(K.INPUT)))
-        self.law = np.zeros((n, len(K.LAW)))
-        self.par = np.zeros((n, len(V.PARAM)))
-        self.history = np.zeros((n, len(V.HISTORY) * t.options.history), dtype=np.float32)
-        self.ctx = np.zeros((n, t.n_context), dtype=np.float32)
-        self.obs = np.zeros((n, t.obs_dim), dtype=np.float32)
-        self.out = np.zeros((n, len(V.OUT)))
-        self.a = np.zeros((n, t.act_dim))
-        self.t = np.zeros(n, dtype=np.int64)
-        self.speeds_rps = np.zeros(n)
-        self.systems: list[SystemParams | None] = [None] * n
-        # Each drive's episode length in steps (the task's; a batch of several
-        # envs' drives, StepperDampV1Batch, holds each env's own).
-        self.max_steps = np.full(n, t.max_episode_steps, dtype=np.int64)
-        self._privileged = bool(t.options.privileged)
-
-    _ROWS = ("c", "s", "acc", "u", "law", "par", "history", "ctx", "obs", "out", "a", "t",
-             "speeds_rps", "max_steps")
-
-    @property
-    def _dest(self) -> np.ndarray:
-        return self.law if self.task.law_actions else self.u
-
-    @classmethod
-    def stack(cls, batches: Sequence["DriveBatch"], rows: Sequence[int] | None = None
-              ) -> "DriveBatch":
-        """One batch of the drives of ``batches`` (which share the first one's
-        layout), or of the ``rows`` of a single batch; arrays are copied."""
-        first = batches[0]
-        if rows is not None:
-            arrays = {k: getattr(first, k)[np.asarray(rows, dtype=np.int64)] for k in cls._ROWS}
-            systems = [first.systems[i] for i in rows]
-        else:
-            arrays = {k: np.concatenate([getattr(b, k) for b in batches]) for k in cls._ROWS}
-            systems = [sys_ for b in batches for sys_ in b.systems]
-        out = cls(first.task, len(systems))
-        for k, v in arrays.items():
-            setattr(out, k, v)
-        out.systems = systems
-        return out
-
-    def reset_drive(self, i: int, rng: np.random.Generator) -> dict[str, Any]:
-        info, self.systems[i] = self.task.new_episode(rng, self.c[i], self.s[i], self.par[i],
-                                                      self.law[i], self.ctx[i])
-        self.u[i] = 0.0
-        self.a[i] = 0.0
-        self.t[i] = 0
-        self.history[i] = 0.0
-        self.speeds_rps[i] = info["speed_rps"]
-        self.acc[i] = 0.0
-        self.acc[i, K.ACC.COUNT_ALL] = 1.0
-        self._observe(slice(i, i + 1))
-        return info
-
-    def _observe(self, rows: slice = slice(None)) -> None:
-        V.observe(self.s[rows], self.acc[rows], self.law[rows], self.a[rows], self.par[rows],
-                  C.KERNEL_INDEX, V.LAW_INDEX, self.history[rows], self.ctx[rows],
-                  self._privileged, C.OBS_BOUND, REWARD_BOUND, self.obs[rows], self.out[rows])
-
-    def load(self, actions: Any, shape: tuple[int, ...]) -> None:
-        """Check the actions (of ``shape``: (n, k), or (k,) for one drive) and scale
-        them into the kernel's inputs or the law's gains."""
-        a = as_action(actions, shape).reshape(self.n, self.task.act_dim)
-        if V.load_actions(a, self._dest, self.task.input_offset, self.par, self.acc, self.law,
-                          V.LAW_INDEX) >= 0:
-            raise action_error(actions, shape)
-        self.a[:] = a
-
-    def advance(self, trace: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Run one agent step of every drive; returns (terminated, truncated) masks.
-
-        ``out`` holds each drive's physics and reward (the termination loss included).
-        """
-        n = self.task.n_periods
-        # Without gain actions the law stays off: the kernel's plain loop.
-        if trace is not None:
-            if self.task.law_actions:
-                K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
-                                  trace, 1)
-            else:
-                K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
-        elif self.task.law_actions:
-            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
-        else:
-            K.run_batch(self.c, self.s, self.acc, self.u, n)
-        self._observe()
-        self.t += 1
-        out = self.out
-        terminated = out[:, V.OUT.TERMINATED] != 0.0
-        left = self.max_steps - self.t
+    def end_of_step(self, drives: DriveBatch, terminated: np.ndarray, left: np.ndarray) -> None:
         if terminated.any():
             # The worst reward of every step it did not play: ending early never pays.
-            out[terminated, V.OUT.REWARD] -= (REWARD_BOUND * (1.0 + self.par[terminated, V.PARAM.CUR_PEN])
-                                            * np.maximum(left[terminated], 0))
-        truncated = (left <= 0) & ~terminated
-        return terminated, truncated
+            drives.out[terminated, V.OUT.REWARD] -= (
+                REWARD_BOUND * (1.0 + drives.par[terminated, V.PARAM.CUR_PEN])
+                * np.maximum(left[terminated], 0))
 
-    def info(self, i: int) -> dict[str, Any]:
-        """The physics of drive i's last step (SI units)."""
-        out = self.out[i]
+    def step_info(self, drives: DriveBatch, i: int) -> dict[str, Any]:
+        out = drives.out[i]
         return {"velocity_error_rms_rad_s": float(out[V.OUT.VEL_RMS]),
                 "lag_rad": float(out[V.OUT.LAG]),
                 "injected_current_rms_a": float(out[V.OUT.IINJ_RMS]),
                 "damping_current_rms_a": float(out[V.OUT.LAW_RMS]),
                 "peak_current_a": float(out[V.OUT.PEAK_I]),
                 "step_loss": bool(out[V.OUT.STEP_LOSS]), "overcurrent": bool(out[V.OUT.OVERCURRENT]),
-                "time_s": float(self.t[i] * self.task.seconds_per_step)}
+                "time_s": float(drives.t[i] * self.seconds_per_step)}
+
+
 
 
 _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), version 1.
@@ -432,7 +350,7 @@ class StepperDampV1Env(gym.Env):
     @property
     def drive_batch(self) -> DriveBatch:
         """A copy of this env's drive (a :class:`DriveBatch` of one), as
-        :class:`StepperDampV1Batch` stacks it."""
+        :class:`~.engine.StepperDampBatch` stacks it."""
         return DriveBatch.stack([self._drives])
 
     @property
@@ -603,58 +521,3 @@ class StepperDampV1VectorEnv(VectorEnv):
 
     def render(self) -> None:
         return None
-
-
-class StepperDampV1Batch:
-    """Reset ``StepperDamp-v1`` envs of one layout stepped together, as
-    :class:`~stepdamp_env.env.scalar.StepperDampBatch` does for v0: one compiled
-    call per step, each row bit for bit its env's own ``step``; the envs are
-    left as they were. They must share the task's layout (action mode, agent
-    rate, observation) and measure (``measure_from_s``); their motors, speeds,
-    seeds, windows and episode lengths may differ.
-    """
-
-    @staticmethod
-    def layout_of(env: StepperDampV1Env) -> tuple:
-        """What envs stepped together must share (equal tuples: one batch)."""
-        t = env.task
-        return (t.n_periods, t.seconds_per_step, t.law_actions, t.input_offset, t.act_dim,
-                t.obs_dim, t.n_context, t.options.history, bool(t.options.privileged))
-
-    def __init__(self, envs: Sequence[StepperDampV1Env]) -> None:
-        check_batch_envs(envs, self.layout_of, "StepperDampV1Batch")
-        self._d = DriveBatch.stack([env.drive_batch for env in envs])
-        self._run = np.stack([env.window_sums for env in envs])
-
-    @property
-    def obs(self) -> np.ndarray:
-        """(n, obs_dim) float32: the rows' latest observations."""
-        return self._d.obs
-
-    @property
-    def systems(self) -> list[SystemParams | None]:
-        return self._d.systems
-
-    @property
-    def time_s(self) -> np.ndarray:
-        """Each row's simulated time (s), as the env's ``time_s``."""
-        return self._d.t * self._d.task.seconds_per_step
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance every row one agent step; returns the masks (terminated,
-        step_loss, overcurrent) of this step."""
-        d = self._d
-        d.load(actions, (d.n, d.task.act_dim))
-        terminated, _ = d.advance()
-        merge_accumulator_rows(self._run, d.acc)
-        return (terminated, d.out[:, V.OUT.STEP_LOSS] != 0.0, d.out[:, V.OUT.OVERCURRENT] != 0.0)
-
-    def run_metrics(self, i: int) -> RunMetrics:
-        """Row i's metrics, as the env's ``run_metrics()``."""
-        return metrics_from_accumulators(self._run[i], self._d.systems[i],
-                                         float(self._d.speeds_rps[i]))
-
-    def keep(self, rows: np.ndarray) -> None:
-        """Keep only ``rows`` (indices into the current rows, in order)."""
-        self._d = DriveBatch.stack([self._d], rows)
-        self._run = self._run[rows]

@@ -10,11 +10,10 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .. import kernel as K
 from ..params import ParameterError, SystemParams
 from . import compiled as C
-from .actions import action_error, as_action
 from .arguments import check_vector_args, reseed
+from .engine import DriveBatch
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import DEFAULT_EPISODE_STEPS
 from .sampler import EpisodeSampler
@@ -66,21 +65,10 @@ class StepperDampVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         self._act_shape = (n, f.act_dim)
-        self._steps_per_call = f.n_periods
-        self._offset = f.input_offset
-        self._privileged = bool(self.options.privileged)
-        self._c = np.zeros((n, len(K.CONFIG)))
-        self._s = np.zeros((n, len(K.STATE)))
-        self._acc = np.zeros((n, len(K.ACC)))
-        self._u = np.zeros((n, len(K.INPUT)))
-        self._par = np.zeros((n, len(C.PARAM)))
-        self._obs = np.zeros((n, f.obs_dim), dtype=np.float32)
-        self._out = np.zeros((n, len(C.OUT)))
-        self._t = np.zeros(n, dtype=np.int64)
+        self._drives = DriveBatch(f, n)
+        self._drives.max_steps[:] = -1 if max_episode_steps is None else int(max_episode_steps)
         self._autoreset = np.zeros(n, dtype=bool)
-        self._all = np.ones(n, dtype=bool)
         self._rngs: list[np.random.Generator | None] = [None] * n
-        self.systems: list[SystemParams | None] = [None] * n
         self._ready = False
 
     @property
@@ -89,27 +77,29 @@ class StepperDampVectorEnv(VectorEnv):
         return self._sampler
 
     @property
+    def task(self) -> EpisodeSampler:
+        """The envs' task over the engine (:class:`.engine.EnvTask`): its sampler."""
+        return self._sampler
+
+    @property
+    def systems(self) -> list[SystemParams | None]:
+        """The system of each drive's current episode."""
+        return list(self._drives.systems)
+
+    @property
     def speeds_rps(self) -> np.ndarray:
         """The held command speed of each drive's current episode (rev/s); a copy."""
-        return self._par[:, C.PARAM.W_REF] / TWO_PI
+        return self._drives.par[:, C.PARAM.W_REF] / TWO_PI
 
     @property
     def drive_states(self) -> np.ndarray:
         """Copy of the kernel's state rows (``kernel.STATE``; SI units), one per drive."""
-        return self._s.copy()
+        return self._drives.s.copy()
 
     def _reset_drive(self, i: int) -> dict[str, Any]:
-        rng = self._rngs[i]
-        if rng is None:
-            rng, _ = seeding.np_random(None)
-            self._rngs[i] = rng
-        info, self.systems[i] = self._sampler.new_episode(rng, self._c[i], self._s[i],
-                                                          self._par[i])
-        self._u[i] = 0.0
-        self._t[i] = 0
-        self._sampler.initial_observation(self._s[i:i + 1], self._par[i:i + 1],
-                                          self._obs[i:i + 1])
-        return info
+        if self._rngs[i] is None:
+            self._rngs[i], _ = seeding.np_random(None)
+        return self._drives.reset_drive(i, self._rngs[i])
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -122,30 +112,20 @@ class StepperDampVectorEnv(VectorEnv):
             speeds[i], harm[i] = info["speed_rps"], info["target_harmonic"]
         self._autoreset[mask] = False
         self._ready = True
-        return self._obs.copy(), {"speed_rps": speeds, "_speed_rps": mask.copy(),
-                                  "target_harmonic": harm, "_target_harmonic": mask.copy()}
+        return self._drives.obs.copy(), {"speed_rps": speeds, "_speed_rps": mask.copy(),
+                                         "target_harmonic": harm, "_target_harmonic": mask.copy()}
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                           dict[str, Any]]:
         if not self._ready:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = as_action(actions, self._act_shape)
-        bad = C.load_actions(a, self._u, self._acc, self._par, self._offset)
-        if bad >= 0:
-            raise action_error(actions, self._act_shape)
-        K.run_batch(self._c, self._s, self._acc, self._u, self._steps_per_call)
-        out = self._out
-        C.observe(self._s, self._acc, a, self._par, C.KERNEL_INDEX, self._privileged, self._obs, out)
-        self._t += 1
+        d = self._drives
+        d.load(actions, self._act_shape)
+        terminated, truncated = d.advance()
         # One copy of the outputs; the returned arrays are views of it, never reused.
-        out = out.copy()
+        out = d.out.copy()
         rewards = out[:, C.OUT.REWARD]
-        terminated = out[:, C.OUT.TERMINATED] != 0.0
-        if self.max_episode_steps is None:
-            truncated = np.zeros(self.num_envs, dtype=bool)
-        else:
-            truncated = (self._t >= self.max_episode_steps) & ~terminated
-        valid = self._all
+        valid = np.ones(self.num_envs, dtype=bool)
         infos: dict[str, Any] = {}
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             if self._autoreset.any():
@@ -158,21 +138,21 @@ class StepperDampVectorEnv(VectorEnv):
                 terminated &= valid
                 truncated &= valid
             self._autoreset = terminated | truncated
-            obs = self._obs.copy()
+            obs = d.obs.copy()
         else:
             done = terminated | truncated
-            obs_now = self._obs.copy()
+            obs_now = d.obs.copy()
             if done.any():
                 idx = np.flatnonzero(done)
                 final_obs = np.full(self.num_envs, None, dtype=object)
                 final_info = np.full(self.num_envs, None, dtype=object)
                 for i in idx:
                     final_obs[i] = obs_now[i].copy()
-                    final_info[i] = self._single_info(int(i))
+                    final_info[i] = d.info(int(i))
                     self._reset_drive(int(i))
                 infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
                 infos["final_info"], infos["_final_info"] = final_info, done.copy()
-                obs = self._obs.copy()
+                obs = d.obs.copy()
             else:
                 obs = obs_now
         mask = valid.copy()
@@ -189,13 +169,6 @@ class StepperDampVectorEnv(VectorEnv):
         infos["overcurrent"] = out[:, C.OUT.OVERCURRENT] != 0.0
         infos["_overcurrent"] = mask
         return obs, rewards, terminated, truncated, infos
-
-    def _single_info(self, i: int) -> dict[str, Any]:
-        out = self._out[i]
-        return {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]), "lag_rad": float(out[C.OUT.LAG]),
-                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
-                "peak_current_a": float(out[C.OUT.PEAK_I]), "step_loss": bool(out[C.OUT.STEP_LOSS]),
-                "overcurrent": bool(out[C.OUT.OVERCURRENT])}
 
     def render(self) -> None:
         return None

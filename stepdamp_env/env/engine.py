@@ -1,0 +1,249 @@
+"""The one stepping engine of the environments: N drives and one task.
+
+An env version is a task (:class:`EnvTask`): what an episode is (motor, speed,
+the drive's configuration), what the agent sees (observation), does (how an
+action enters the drive) and earns (reward, termination). ``StepperDamp-v0``'s
+task is :class:`.sampler.EpisodeSampler`, ``StepperDamp-v1``'s
+:class:`.v1.TaskV1`. :class:`DriveBatch` holds the rows of N drives (the
+kernel's configuration, state, sums, inputs and damping law; the task's
+per-episode constants, observation and outputs) and steps them by one compiled
+call; each version's scalar env is a batch of one, its vector env a batch of N,
+and :class:`StepperDampBatch` steps reset envs of either version together (the
+leaderboard's runner). Every row is stepped alone by the kernel, so a row gives
+the same bits in any batch.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, Sequence
+
+import numpy as np
+
+from .. import kernel as K
+from ..params import SystemParams
+from ..simulation import RunMetrics, merge_accumulator_rows, metrics_from_accumulators
+from .actions import action_error, as_action
+from .arguments import check_batch_envs
+
+__all__ = ["EnvTask", "DriveBatch", "StepperDampBatch"]
+
+
+class EnvTask(abc.ABC):
+    """An env version over :class:`DriveBatch`. Attributes every task sets:
+    ``n_periods`` (PWM periods per agent step), ``seconds_per_step``, ``act_dim``,
+    ``obs_dim``, ``input_offset`` (where an action's entries go in the kernel's
+    inputs, or in the law's gains when ``law_actions``), ``max_episode_steps``
+    (None: no limit of the task's own), ``param_size`` and ``out_layout`` (the
+    task's per-episode row and per-step outputs, :mod:`stepdamp_env.fields`
+    layouts with ``REWARD``, ``TERMINATED``, ``STEP_LOSS``, ``OVERCURRENT``) and
+    ``extra_rows`` (name -> (width, dtype) of any other per-drive rows)."""
+
+    n_periods: int
+    seconds_per_step: float
+    act_dim: int
+    obs_dim: int
+    input_offset: int
+    law_actions: bool
+    max_episode_steps: int | None
+    param_size: int
+    out_layout: Any
+    extra_rows: dict[str, tuple[int, Any]]
+
+    @abc.abstractmethod
+    def new_episode(self, rng: np.random.Generator, drives: "DriveBatch", i: int
+                    ) -> tuple[dict[str, Any], SystemParams]:
+        """Draw an episode into drive i's rows; returns (reset info, system)."""
+
+    @abc.abstractmethod
+    def observe(self, drives: "DriveBatch", rows: slice) -> None:
+        """The rows' observations into ``drives.obs``, their step's physics and
+        reward into ``drives.out``."""
+
+    @abc.abstractmethod
+    def load(self, drives: "DriveBatch", a: np.ndarray) -> int:
+        """Scale the actions ``a`` (n, act_dim) into the drives' inputs and zero
+        their step sums; the first bad row (nothing changed then), or -1."""
+
+    def end_of_step(self, drives: "DriveBatch", terminated: np.ndarray,
+                    left: np.ndarray) -> None:
+        """Adjust ``drives.out`` once the step's terminations are known (``left``:
+        steps each drive had still to play). Default: nothing."""
+
+    @abc.abstractmethod
+    def step_info(self, drives: "DriveBatch", i: int) -> dict[str, Any]:
+        """The physics of drive i's last step (SI units)."""
+
+    def time_s(self, drives: "DriveBatch") -> np.ndarray:
+        """Each drive's simulated time in its episode (s). Default: its steps times
+        ``seconds_per_step``."""
+        return drives.t * self.seconds_per_step
+
+    def layout(self) -> tuple:
+        """What drives stepped together must share (equal tuples: one batch)."""
+        return (type(self), self.n_periods, self.seconds_per_step, self.law_actions,
+                self.input_offset, self.act_dim, self.obs_dim,
+                tuple(sorted((k, w) for k, (w, _) in self.extra_rows.items())))
+
+
+class DriveBatch:
+    """N drives of one task: their rows, their resets, their steps."""
+
+    _ROWS = ("c", "s", "acc", "u", "law", "par", "obs", "out", "a", "t", "speeds_rps",
+             "max_steps")
+
+    def __init__(self, task: EnvTask, n: int) -> None:
+        self.task = task
+        self.n = n
+        self.c = np.zeros((n, len(K.CONFIG)))
+        self.s = np.zeros((n, len(K.STATE)))
+        self.acc = np.zeros((n, len(K.ACC)))
+        self.u = np.zeros((n, len(K.INPUT)))
+        self.law = np.zeros((n, len(K.LAW)))
+        self.par = np.zeros((n, task.param_size))
+        self.obs = np.zeros((n, task.obs_dim), dtype=np.float32)
+        self.out = np.zeros((n, len(task.out_layout)))
+        self.a = np.zeros((n, task.act_dim))
+        self.t = np.zeros(n, dtype=np.int64)
+        self.speeds_rps = np.zeros(n)
+        self.systems: list[SystemParams | None] = [None] * n
+        # Each drive's episode length in steps (a batch of several envs' drives
+        # holds each env's own; -1: none).
+        limit = task.max_episode_steps
+        self.max_steps = np.full(n, -1 if limit is None else limit, dtype=np.int64)
+        self.extra = {k: np.zeros((n, w), dtype=dt) for k, (w, dt) in task.extra_rows.items()}
+
+    def row_names(self) -> tuple[str, ...]:
+        return self._ROWS
+
+    @classmethod
+    def stack(cls, batches: Sequence["DriveBatch"], rows: Sequence[int] | None = None
+              ) -> "DriveBatch":
+        """One batch of the drives of ``batches`` (which share the first one's
+        layout), or of the ``rows`` of a single batch; arrays are copied."""
+        first = batches[0]
+        if rows is not None:
+            idx = np.asarray(rows, dtype=np.int64)
+            arrays = {k: getattr(first, k)[idx] for k in cls._ROWS}
+            extra = {k: v[idx] for k, v in first.extra.items()}
+            systems = [first.systems[i] for i in rows]
+        else:
+            arrays = {k: np.concatenate([getattr(b, k) for b in batches]) for k in cls._ROWS}
+            extra = {k: np.concatenate([b.extra[k] for b in batches]) for k in first.extra}
+            systems = [sys_ for b in batches for sys_ in b.systems]
+        out = cls(first.task, len(systems))
+        for k, v in arrays.items():
+            setattr(out, k, v)
+        out.extra = extra
+        out.systems = systems
+        return out
+
+    def reset_drive(self, i: int, rng: np.random.Generator) -> dict[str, Any]:
+        """A new episode of drive i: drawn by the task, observed once."""
+        for rows in self.extra.values():
+            rows[i] = 0.0
+        info, self.systems[i] = self.task.new_episode(rng, self, i)
+        self.u[i] = 0.0
+        self.a[i] = 0.0
+        self.t[i] = 0
+        self.speeds_rps[i] = info["speed_rps"]
+        self.acc[i] = 0.0
+        self.acc[i, K.ACC.COUNT_ALL] = 1.0
+        self.task.observe(self, slice(i, i + 1))
+        return info
+
+    def load(self, actions: Any, shape: tuple[int, ...]) -> None:
+        """Check the actions (of ``shape``: (n, k), or (k,) for one drive) and let
+        the task put them into the drives."""
+        a = as_action(actions, shape).reshape(self.n, self.task.act_dim)
+        if self.task.load(self, a) >= 0:
+            raise action_error(actions, shape)
+        self.a[:] = a
+
+    def advance(self, trace: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Run one agent step of every drive; returns (terminated, truncated) masks.
+        ``trace`` (one drive only): its PWM periods, one row each."""
+        n = self.task.n_periods
+        # Without gain actions the law stays off: the kernel's plain loop.
+        if trace is not None:
+            if self.task.law_actions:
+                K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
+                                  trace, 1)
+            else:
+                K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
+        elif self.task.law_actions:
+            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
+        else:
+            K.run_batch(self.c, self.s, self.acc, self.u, n)
+        self.task.observe(self, slice(None))
+        self.t += 1
+        out = self.task.out_layout
+        terminated = self.out[:, out.TERMINATED] != 0.0
+        limited = self.max_steps >= 0
+        left = np.where(limited, self.max_steps - self.t, np.iinfo(np.int64).max)
+        self.task.end_of_step(self, terminated, left)
+        truncated = limited & (left <= 0) & ~terminated
+        return terminated, truncated
+
+    def info(self, i: int) -> dict[str, Any]:
+        return self.task.step_info(self, i)
+
+
+class StepperDampBatch:
+    """Reset envs of one version and layout stepped together: one compiled call
+    per step for all of them (the batched episode runner's drive).
+
+    Each row continues its env's episode exactly as the env's own ``step`` would,
+    bit for bit; the envs are left as they were. The envs must share the task's
+    layout (:meth:`EnvTask.layout`: action mode, agent rate, observation) and
+    measure (``measure_from_s``); motors, speeds, seeds and windows may differ.
+    Rows end for good: :meth:`keep` drops the others.
+    """
+
+    @staticmethod
+    def layout_of(env: Any) -> tuple:
+        """What envs stepped together must share (equal tuples: one batch)."""
+        return env.task.layout()
+
+    def __init__(self, envs: Sequence[Any]) -> None:
+        check_batch_envs(envs, self.layout_of, "StepperDampBatch")
+        self._d = DriveBatch.stack([env.drive_batch for env in envs])
+        self._run = np.stack([env.window_sums for env in envs])
+
+    @property
+    def obs(self) -> np.ndarray:
+        """(n, obs_dim) float32: the rows' latest observations."""
+        return self._d.obs
+
+    @property
+    def systems(self) -> list[SystemParams | None]:
+        return self._d.systems
+
+    @property
+    def speeds_rps(self) -> np.ndarray:
+        return self._d.speeds_rps
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Each row's simulated time (s), as the env's ``time_s``."""
+        return self._d.task.time_s(self._d)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance every row one agent step; returns the masks (terminated,
+        step_loss, overcurrent) of this step."""
+        d = self._d
+        d.load(actions, (d.n, d.task.act_dim))
+        terminated, _ = d.advance()
+        merge_accumulator_rows(self._run, d.acc)
+        out = d.task.out_layout
+        return (terminated, d.out[:, out.STEP_LOSS] != 0.0, d.out[:, out.OVERCURRENT] != 0.0)
+
+    def run_metrics(self, i: int) -> RunMetrics:
+        """Row i's metrics, as the env's ``run_metrics()``."""
+        return metrics_from_accumulators(self._run[i], self._d.systems[i],
+                                         float(self._d.speeds_rps[i]))
+
+    def keep(self, rows: np.ndarray) -> None:
+        """Keep only ``rows`` (indices into the current rows, in order)."""
+        self._d = DriveBatch.stack([self._d], rows)
+        self._run = self._run[rows]
