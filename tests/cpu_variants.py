@@ -75,10 +75,11 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
     return out
 
 
-def run_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False,
-                timeout_s: float = 3600.0) -> dict[str, Any]:
-    """:func:`quick_boards` in a fresh process under the variant's environment
-    (no identification cache: every variant identifies for itself)."""
+def start_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False
+                  ) -> subprocess.Popen:
+    """:func:`quick_boards` started in a fresh process under the variant's
+    environment (no identification cache: every variant identifies for itself);
+    :func:`finish_variant` collects it. Variants started together run side by side."""
     env_vars, workers = VARIANTS[name]
     env = {k: v for k, v in os.environ.items() if k not in env_vars}
     env.update(env_vars)
@@ -87,11 +88,29 @@ def run_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = Fa
                MPLBACKEND="Agg")
     code = (f"import sys, json; sys.path.insert(0, {HERE!r}); import cpu_variants as V; "
             f"print(json.dumps(V.quick_boards({list(protocols)!r}, {workers}, {full!r})))")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, timeout=timeout_s)
-    if out.returncode != 0:
-        raise RuntimeError(f"variant {name} failed:\n{out.stderr[-3000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    proc.variant = name                     # type: ignore[attr-defined]
+    return proc
+
+
+def finish_variant(proc: subprocess.Popen, timeout_s: float = 3600.0) -> dict[str, Any]:
+    """The started variant's result; RuntimeError with its stderr if it failed."""
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+    if proc.returncode != 0:
+        raise RuntimeError(f"variant {proc.variant} failed:\n{stderr[-3000:]}")
+    return json.loads(stdout.strip().splitlines()[-1])
+
+
+def run_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False,
+                timeout_s: float = 3600.0) -> dict[str, Any]:
+    """:func:`quick_boards` in a fresh process under the variant's environment."""
+    return finish_variant(start_variant(name, protocols, full), timeout_s)
 
 
 def differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
