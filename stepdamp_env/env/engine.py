@@ -16,6 +16,7 @@ the same bits in any batch.
 from __future__ import annotations
 
 import abc
+from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
@@ -56,9 +57,9 @@ class EnvTask(abc.ABC):
         """Draw an episode into drive i's rows; returns (reset info, system)."""
 
     @abc.abstractmethod
-    def observe(self, drives: "DriveBatch", rows: slice) -> None:
-        """The rows' observations into ``drives.obs``, their step's physics and
-        reward into ``drives.out``."""
+    def observe(self, drives: "DriveBatch", rows: slice | None) -> None:
+        """The rows' (all for None) observations into ``drives.obs``, their step's
+        physics and reward into ``drives.out`` (``drives.view(rows)``)."""
 
     @abc.abstractmethod
     def load(self, drives: "DriveBatch", a: np.ndarray) -> int:
@@ -67,8 +68,9 @@ class EnvTask(abc.ABC):
 
     def end_of_step(self, drives: "DriveBatch", terminated: np.ndarray,
                     left: np.ndarray) -> None:
-        """Adjust ``drives.out`` once the step's terminations are known (``left``:
-        steps each drive had still to play). Default: nothing."""
+        """Adjust ``drives.out`` when drives terminated this step (``terminated``: the
+        mask, not all False; ``left``: steps each drive had still to play, for a
+        task with a limit). Default: nothing."""
 
     @abc.abstractmethod
     def step_info(self, drives: "DriveBatch", i: int) -> dict[str, Any]:
@@ -113,8 +115,14 @@ class DriveBatch:
         self.max_steps = np.full(n, -1 if limit is None else limit, dtype=np.int64)
         self.extra = {k: np.zeros((n, w), dtype=dt) for k, (w, dt) in task.extra_rows.items()}
 
-    def row_names(self) -> tuple[str, ...]:
-        return self._ROWS
+    def view(self, rows: slice | None) -> Any:
+        """The drives' rows (all for None) as views, by the batch's attribute names
+        (``c``, ``s``, ``acc``, ``u``, ``law``, ``par``, ``obs``, ``out``, ``a``,
+        ``t``, ``extra``)."""
+        if rows is None:
+            return self
+        return SimpleNamespace(extra={k: v[rows] for k, v in self.extra.items()},
+                               **{k: getattr(self, k)[rows] for k in self._ROWS})
 
     @classmethod
     def stack(cls, batches: Sequence["DriveBatch"], rows: Sequence[int] | None = None
@@ -160,12 +168,29 @@ class DriveBatch:
             raise action_error(actions, shape)
         self.a[:] = a
 
-    def advance(self, trace: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Run one agent step of every drive; returns (terminated, truncated) masks.
-        ``trace`` (one drive only): its PWM periods, one row each."""
+    def advance(self) -> tuple[np.ndarray, np.ndarray]:
+        """Run one agent step of every drive; returns (terminated, truncated) masks."""
         n = self.task.n_periods
         # Without gain actions the law stays off: the kernel's plain loop.
-        if trace is not None:
+        if self.task.law_actions:
+            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
+        else:
+            K.run_batch(self.c, self.s, self.acc, self.u, n)
+        self.task.observe(self, None)
+        self.t += 1
+        terminated = self.out[:, self.task.out_layout.TERMINATED] != 0.0
+        # max_steps < 0 (no limit of the task's own) never truncates.
+        left = self.max_steps - self.t
+        if terminated.any():
+            self.task.end_of_step(self, terminated, left)
+        truncated = (left <= 0) & (self.max_steps >= 0) & ~terminated
+        return terminated, truncated
+
+    def advance_one(self, trace: np.ndarray) -> tuple[bool, bool]:
+        """:meth:`advance` for a batch of one (a scalar env), with Python flags;
+        ``trace`` gets its PWM periods, one row each (zero rows: none kept)."""
+        n = self.task.n_periods
+        if len(trace):
             if self.task.law_actions:
                 K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
                                   trace, 1)
@@ -175,15 +200,13 @@ class DriveBatch:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:
             K.run_batch(self.c, self.s, self.acc, self.u, n)
-        self.task.observe(self, slice(None))
+        self.task.observe(self, None)
         self.t += 1
-        out = self.task.out_layout
-        terminated = self.out[:, out.TERMINATED] != 0.0
-        limited = self.max_steps >= 0
-        left = np.where(limited, self.max_steps - self.t, np.iinfo(np.int64).max)
-        self.task.end_of_step(self, terminated, left)
-        truncated = limited & (left <= 0) & ~terminated
-        return terminated, truncated
+        if self.out[0, self.task.out_layout.TERMINATED] != 0.0:
+            self.task.end_of_step(self, np.ones(1, dtype=bool), self.max_steps - self.t)
+            return True, False
+        limit = int(self.max_steps[0])
+        return False, 0 <= limit <= int(self.t[0])
 
     def info(self, i: int) -> dict[str, Any]:
         return self.task.step_info(self, i)

@@ -44,6 +44,7 @@ class EpisodeSampler(EnvTask):
 
     def __init__(self, options: EnvOptions) -> None:
         self._options = o = options
+        self._privileged = bool(o.privileged)
         self._nominal: SystemParams = load_system(o.motor, o.overrides)
         # Refused at construction, not at the first reset (a randomised draw can
         # still be refused at its reset).
@@ -202,9 +203,9 @@ class EpisodeSampler(EnvTask):
         par[C.PARAM.ACT_SCALE:C.PARAM.ACT_SCALE + self._act_dim] = self._action_scales
         return {"speed_rps": speed, "target_harmonic": h}, system
 
-    def observe(self, drives: DriveBatch, rows: slice) -> None:
-        C.observe(drives.s[rows], drives.acc[rows], drives.a[rows], drives.par[rows],
-                  C.KERNEL_INDEX, self.privileged, drives.obs[rows], drives.out[rows])
+    def observe(self, drives: DriveBatch, rows: slice | None) -> None:
+        d = drives.view(rows)
+        C.observe(d.s, d.acc, d.a, d.par, C.KERNEL_INDEX, self._privileged, d.obs, d.out)
 
     def load(self, drives: DriveBatch, a: np.ndarray) -> int:
         return C.load_actions(a, drives.u, drives.acc, drives.par, self._offset)

@@ -221,12 +221,12 @@ class StepperDampEnv(gym.Env):
                                         "a non-finite state); call reset() before step()")
         d = self._drives
         d.load(action, self._act_shape)
-        terminated, _ = d.advance(self._trace)
+        terminated, _ = d.advance_one(self._trace)
         if self._measuring:
             merge_accumulators(self._run_acc, d.acc[0])
         if self.render_mode is not None:
             self._history.append(trace_rows(self._trace))
-        self._ended = bool(terminated[0])
+        self._ended = terminated
         return (d.obs[0].copy(), float(d.out[0, C.OUT.REWARD]), self._ended, False, d.info(0))
 
     # -- rendering ------------------------------------------------------------------

@@ -170,11 +170,10 @@ class TaskV1(EnvTask):
             drives.extra["ctx"][i] = self.context(estimate, speed)
         return {"speed_rps": speed, "target_harmonic": h}, system
 
-    def observe(self, drives: DriveBatch, rows: slice) -> None:
-        V.observe(drives.s[rows], drives.acc[rows], drives.law[rows], drives.a[rows],
-                  drives.par[rows], C.KERNEL_INDEX, V.LAW_INDEX, drives.extra["history"][rows],
-                  drives.extra["ctx"][rows], self.privileged, C.OBS_BOUND, REWARD_BOUND,
-                  drives.obs[rows], drives.out[rows])
+    def observe(self, drives: DriveBatch, rows: slice | None) -> None:
+        d = drives.view(rows)
+        V.observe(d.s, d.acc, d.law, d.a, d.par, C.KERNEL_INDEX, V.LAW_INDEX, d.extra["history"],
+                  d.extra["ctx"], self.privileged, C.OBS_BOUND, REWARD_BOUND, d.obs, d.out)
 
     def load(self, drives: DriveBatch, a: np.ndarray) -> int:
         dest = drives.law if self.law_actions else drives.u
@@ -384,12 +383,12 @@ class StepperDampV1Env(gym.Env):
             raise gym.error.ResetNeeded(f"the episode has {self._ended}; call reset() before step()")
         d = self._drives
         d.load(action, (self.task.act_dim,))
-        terminated, truncated = d.advance(self._trace)
+        terminated, truncated = d.advance_one(self._trace)
         if self.options.measure_from_s is not None:
             merge_accumulators(self._run_acc, d.acc[0])
         if self.render_mode is not None:
             self._frames.append(trace_rows(self._trace))
-        term, trunc = bool(terminated[0]), bool(truncated[0])
+        term, trunc = terminated, truncated
         if term:
             self._ended = "terminated (step loss, over-current or a non-finite state)"
         elif trunc:
