@@ -9,7 +9,11 @@ model-based baselines.
 * :mod:`stepdamp_agents.residual`: zero-residual policies, zero-residual warm-up,
   and the v0 residual envs (the gain selector's);
 * :mod:`stepdamp_agents.task`: the v0 residual task's id and reference configuration;
-* :mod:`stepdamp_agents.train`: the training script (``stepdamp train``);
+* :mod:`stepdamp_agents.train`: the training script (``stepdamp train``), one loop
+  for every family; :mod:`stepdamp_agents.train_per_step` and
+  :mod:`stepdamp_agents.train_gain_selector`: what each family brings to it
+  (:class:`stepdamp_agents.family.TrainingFamily`); :mod:`stepdamp_agents.arguments`:
+  a dataclass's fields as command-line options;
 * :mod:`stepdamp_agents.policy`: loading models, the v0 agent as a leaderboard policy;
 * ``hyperparams/{ars,ppo,sac,td3}.yml``: rl-baselines3-zoo hyperparameters, keyed
   by ``StepperDamp-v1`` (and ``StepperDampResidual-v0`` for the gain selector);

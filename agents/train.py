@@ -11,6 +11,12 @@ train the same thing::
     stepdamp train --algo ppo --env StepperDampResidual-v0 --seed 1 --out runs/gain
     python -m stepdamp_agents.train --algo td3 --total-timesteps 20000 --out runs/smoke
 
+The loop below is the same for every agent family; what a family brings (its
+env, its policy file's config, how a saved model acts, its validation's
+settling) is one module each: :mod:`stepdamp_agents.train_per_step` and
+:mod:`stepdamp_agents.train_gain_selector` (:class:`~.family.TrainingFamily`),
+picked by ``--env``.
+
 What it does, in order, for each seed:
 
 1. builds the training env: ``envs_per_motor`` native vectorised drives around
@@ -49,17 +55,21 @@ from typing import Any
 import numpy as np
 
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
-from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
 from . import arguments
 from .arguments import check_ranges, option
-from .task import ENV_ID_V1, RESIDUAL_ENV_ID, task_kwargs, task_options
+from .family import TrainingFamily
+from .task import ENV_ID_V1, RESIDUAL_ENV_ID
+from .train_gain_selector import FAMILY as GAIN_SELECTOR
+from .train_per_step import FAMILY as PER_STEP
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
 PRESETS = tuple(preset_names())
-ENV_IDS = (ENV_ID_V1, RESIDUAL_ENV_ID)
+#: The agent families, by the env they train on (``--env``).
+FAMILIES: dict[str, TrainingFamily] = {f.env_id: f for f in (PER_STEP, GAIN_SELECTOR)}
+ENV_IDS = tuple(FAMILIES)
 ALGO_CHOICES = ("ars", "ppo", "sac", "td3")
 
 
@@ -176,10 +186,10 @@ def check_args(args: Args) -> None:
         raise ParameterError(f"--backend {args.backend!r} is not one of ['local', 'ray']")
     if args.ray_address is not None and args.backend != "ray":
         raise ParameterError("--ray-address needs --backend ray")
-    if args.algo not in ALGO_CHOICES or (args.algo == "ars" and args.env != ENV_ID_V1):
-        raise ParameterError(f"--algo {args.algo!r} is not one of "
-                             f"{list(ALGO_CHOICES if args.env == ENV_ID_V1 else ALGO_CHOICES[1:])}"
-                             f" (for --env {args.env})")
+    algos = FAMILIES[args.env].algos
+    if args.algo not in algos:
+        raise ParameterError(f"--algo {args.algo!r} is not one of {list(algos)} "
+                             f"(for --env {args.env})")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--motors {list(args.motors)}: choose presets from {list(PRESETS)}")
@@ -254,9 +264,8 @@ def parse_policy_kwargs(text: str) -> dict[str, Any]:
 def split_hyperparams(hp: dict[str, Any], env_id: str = RESIDUAL_ENV_ID) -> dict[str, Any]:
     """Zoo keys to (n_envs, n_timesteps, env kwargs, wrapper kwargs, algo kwargs).
 
-    The env and wrapper kwargs are the task's reference (v1:
-    :data:`stepdamp_agents.per_step.REFERENCE_TASK`, no wrapper; v0:
-    :mod:`stepdamp_agents.task`) updated by the YAML's ``env_kwargs``.
+    The env and wrapper kwargs are the family's reference task updated by the
+    YAML's ``env_kwargs`` (:meth:`TrainingFamily.task_kwargs`).
     """
     hp = dict(hp)
     n_envs = int(hp.pop("n_envs", 16))
@@ -264,10 +273,7 @@ def split_hyperparams(hp: dict[str, Any], env_id: str = RESIDUAL_ENV_ID) -> dict
     if "env_wrapper" in hp:
         raise ParameterError(f"hyperparameter env_wrapper: {env_id} is the residual "
                              "task already; set its kwargs under env_kwargs")
-    if env_id == ENV_ID_V1:
-        env_kwargs, wrapper_kwargs = task_options(hp.pop("env_kwargs", None)), {}
-    else:
-        env_kwargs, wrapper_kwargs = task_kwargs(hp.pop("env_kwargs", None))
+    env_kwargs, wrapper_kwargs = FAMILIES[env_id].task_kwargs(hp.pop("env_kwargs", None))
     policy = hp.pop("policy", "LinearPolicy" if "n_delta" in hp else "ResidualMlpPolicy")
     if isinstance(hp.get("policy_kwargs"), str):
         hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])   # zoo's convention
@@ -299,8 +305,7 @@ class Validator:
     """
 
     def __init__(self, args: Args, env_kwargs: dict[str, Any]) -> None:
-        from stepdamp_env.bench import (MotorKnowledge, ProtocolMotor, full_protocol,
-                                        full_protocol_v1, speed_grid)
+        from stepdamp_env.bench import MotorKnowledge, ProtocolMotor, full_protocol, speed_grid
         from stepdamp_env.env import StepperDampEnv
         from stepdamp_env.params import FeedforwardModel
 
@@ -319,10 +324,9 @@ class Validator:
                 motors.append(ProtocolMotor(system.name, system, env.sampler.nominal, speeds,
                                             labels))
         self.motors = tuple(motors)
-        # v1: each motor's own settling, as stepdamp-bench v1 (v0: the core's, clipped).
-        v1 = full_protocol_v1()
-        self.settle = [v1.settle_times(m.system)["open-loop"] if args.env == ENV_ID_V1
-                       else None for m in motors]
+        # The family's settling (per-step: each motor's own, as stepdamp-bench v1).
+        settle = FAMILIES[args.env].validation_settle()
+        self.settle = [settle(m.system) for m in motors]
         self.seed = args.val_seed
         self.knowledge = []
         for m in motors:
@@ -359,30 +363,12 @@ class Validator:
 
 
 def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
-    hyperparams = args.hyperparams or f"agents/hyperparams/{args.algo}.yml"
-    if args.env == ENV_ID_V1:
-        from .task import INTERFACE_OPTIONS
-
-        return {"name": args.name or f"{args.algo}-per-step", "algo": args.algo,
-                "env_id": ENV_ID_V1, "base": "ff-delay-comp", "estimate": "identified",
-                "env_options": {k: v for k, v in sp["env_kwargs"].items()
-                                if k in INTERFACE_OPTIONS},
-                "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
-                             "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
-                             "hyperparams": hyperparams}}
-    wk = sp["wrapper_kwargs"]
-    return {"name": args.name or f"{args.algo}-gain-selector", "algo": args.algo,
-            "base": wk.get("base", "patent-ff"),
-            "residual_scale": float(wk.get("residual_scale", 0.25)),
-            "residual_action": wk.get("residual_action", "harmonic"),
-            "hold_steps": int(wk.get("hold_steps", 1)),
-            "feedback_gain": float(wk.get("feedback_gain", 0.1)),
-            "estimate": "identified",
-            "env_options": {k: sp["env_kwargs"][k] for k in ("agent_hz", "velocity_estimator")
-                            if k in sp["env_kwargs"]},
-            "training": {"seed": args.seed, "env_seed": 1000 * args.seed,
-                         "motors": list(args.motors), "env_kwargs": sp["env_kwargs"],
-                         "wrapper_kwargs": wk, "hyperparams": hyperparams}}
+    family = FAMILIES[args.env]
+    training = {"seed": args.seed, "env_seed": 1000 * args.seed, "motors": list(args.motors),
+                "env_kwargs": sp["env_kwargs"],
+                "hyperparams": args.hyperparams or f"agents/hyperparams/{args.algo}.yml"}
+    return family.agent_config(args.name or f"{args.algo}-{family.kind}", args.algo,
+                               sp["env_kwargs"], sp["wrapper_kwargs"], training)
 
 
 def set_start_action(model: Any, action: Any, algo: str) -> None:
@@ -421,13 +407,11 @@ def train(args: Args) -> dict[str, Any]:
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
 
-    from .per_step import ALGOS, SameEpisodes, StepAgent, make_training_env
-    from .policy import ResidualAgent
-    from .residual import make_residual_vec_env
+    from .per_step import ALGOS
 
     check_args(args)
     torch.set_num_threads(1)
-    v1 = args.env == ENV_ID_V1
+    family = FAMILIES[args.env]
     sp = split_hyperparams(load_hyperparams(args), args.env)
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
     total = int(args.total_timesteps or sp["n_timesteps"])
@@ -436,17 +420,8 @@ def train(args: Args) -> dict[str, Any]:
     env_kwargs.pop("motor", None)
     algo_kwargs = dict(sp["algo_kwargs"])
     _check_algo_kwargs(algo_kwargs)
-    if v1:
-        env = make_training_env(args.motors, per_motor, 1000 * args.seed, env_kwargs)
-        if args.algo == "ars":
-            # Every candidate of an update on the same episodes, one per drive,
-            # the blocks cycling through this seed's 1000 training seeds.
-            env = SameEpisodes(env, 1000 * args.seed, span=1000)
-            algo_kwargs.setdefault("n_eval_episodes", env.num_envs)
-    else:
-        max_steps = int(env_kwargs.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
-        env = make_residual_vec_env(args.motors, per_motor, 1000 * args.seed,
-                                    max_episode_steps=max_steps, **wk, **env_kwargs)
+    env = family.make_env(args.motors, per_motor, 1000 * args.seed, env_kwargs, wk, args.algo,
+                          algo_kwargs)
     os.makedirs(args.out, exist_ok=True)
     config = _agent_config(args, sp)
     start_action = algo_kwargs.pop("start_action", None)
@@ -465,8 +440,7 @@ def train(args: Args) -> dict[str, Any]:
                              f"{first}") from None
     if start_action is not None:
         set_start_action(model, start_action, args.algo)
-    if v1:
-        env.seed(1000 * args.seed)      # SB3 seeded the env with args.seed: the run's own seeds
+    family.after_build(env, 1000 * args.seed)
     formats = ["csv"]
     if args.tensorboard:
         try:
@@ -485,7 +459,7 @@ def train(args: Args) -> dict[str, Any]:
     def evaluate(tag: str) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
-        agent = StepAgent(path) if v1 else ResidualAgent(path)
+        agent = family.load_agent(path)
         res = validator.score(lambda: agent)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
         log["evaluations"].append(res)
