@@ -35,16 +35,16 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from . import fixedmath as fm
 from .params import ParameterError, SystemParams
 
-__all__ = ["OperatingPoint", "MidBand", "operating_point", "jacobian", "rotor_damping",
-           "bridge_limit_rps", "bridge_gain", "midband", "MIDBAND_SCAN_RPS", "HIGH_RIPPLE", "BAND_SETTLE_S", "undamped_ripple",
-           "MeasuredBand", "measured_band"]
+__all__ = ["OperatingPoint", "MidBand", "RotorMode", "operating_point", "jacobian",
+           "rotor_damping", "bridge_limit_rps", "bridge_gain", "midband", "MIDBAND_SCAN_RPS",
+           "HIGH_RIPPLE", "BAND_SETTLE_S", "undamped_ripple", "MeasuredBand", "measured_band"]
 
 TWO_PI = 2.0 * math.pi
 #: Speeds (rev/s) :func:`midband` scans: (lowest, highest, step).
@@ -166,7 +166,7 @@ def operating_point(system: SystemParams, speed_rps: float) -> OperatingPoint:
     z[free] = x
     # The residual in N*m over the holding torque, and in V over the bus voltage
     # (integrator rows: in A over the holding current).
-    ki = system.current_gains()[1] if n == 6 else 0.0
+    ki = system.current_gains().ki if n == 6 else 0.0
     weights = np.array([m.J / (m.Km * d.holding_current), m.L / d.Vdc, m.L / d.Vdc]
                        + [1.0 / (ki * d.holding_current) if ki > 0 else 0.0] * (n - 4))
     scaled = residual(x) * weights
@@ -211,7 +211,15 @@ def _central_differences(f: Any, x: np.ndarray, steps: np.ndarray) -> np.ndarray
     return np.column_stack(cols)
 
 
-def rotor_damping(system: SystemParams, speed_rps: float) -> tuple[float, complex]:
+class RotorMode(NamedTuple):
+    """The rotor's oscillatory mode: its damping ratio (negative: it grows) and
+    eigenvalue (1/s)."""
+
+    damping_ratio: float
+    eigenvalue: complex
+
+
+def rotor_damping(system: SystemParams, speed_rps: float) -> RotorMode:
     """(damping ratio, eigenvalue in 1/s) of the rotor's oscillatory mode at
     ``speed_rps``: the least damped complex pair. Negative: the oscillation grows."""
     lam = np.linalg.eigvals(jacobian(system, speed_rps))
@@ -219,12 +227,12 @@ def rotor_damping(system: SystemParams, speed_rps: float) -> tuple[float, comple
     osc = [x for x in lam if x.imag > 1e-9 * wn]
     if not osc:                                   # overdamped: the slowest real pole
         x = max(lam, key=lambda v: v.real)
-        return (1.0 if x.real < 0 else -1.0), complex(x)
+        return RotorMode(1.0 if x.real < 0 else -1.0, complex(x))
     # The least damped oscillatory pair: the rotor's (the windings' and the current
     # loops' pairs are damped by R and the PI); nearest-to-wn would miss it where
     # the voltage-fed winding stiffens the rotor well above wn.
     x = min(osc, key=lambda v: -v.real / abs(v))
-    return float(-x.real / abs(x)), complex(x)
+    return RotorMode(float(-x.real / abs(x)), complex(x))
 
 
 def bridge_limit_rps(system: SystemParams) -> float:
@@ -267,7 +275,7 @@ class MidBand:
 
 def _zeta(system: SystemParams, v: float) -> float | None:
     try:
-        return rotor_damping(system, v)[0]
+        return rotor_damping(system, v).damping_ratio
     except ParameterError:
         return None
 

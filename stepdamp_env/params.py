@@ -40,13 +40,15 @@ import math
 import numbers
 import os
 from dataclasses import dataclass, field, fields
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
 from . import fixedmath as fm
 
 __all__ = [
+    "CurrentGains",
+    "ServoGains",
     "MotorParams",
     "DriveParams",
     "DRIVE_MODES",
@@ -68,6 +70,21 @@ __all__ = [
     "required_substeps",
     "RESONANCE_HARMONICS",
 ]
+
+
+class CurrentGains(NamedTuple):
+    """The d and q current PI loops' gains."""
+
+    kp: float           #: V/A
+    ki: float           #: V/(A*s)
+
+
+class ServoGains(NamedTuple):
+    """The servo's gains (eq. 15 of the patent)."""
+
+    kp_vel: float       #: N*m*s/rad
+    kp_pos: float       #: N*m/rad
+    ki_pos: float       #: N*m/(rad*s)
 
 
 class ParameterError(ValueError):
@@ -380,8 +397,8 @@ class SystemParams:
         return SystemParams.from_dict({"name": self.name, **overrides}, base=self)
 
     # -- derived quantities ----------------------------------------------------
-    def current_gains(self) -> tuple[float, float]:
-        """(Kp, Ki) of the d and q current PI loops in V/A and V/(A*s)."""
+    def current_gains(self) -> CurrentGains:
+        """(kp, ki) of the d and q current PI loops in V/A and V/(A*s)."""
         dt = 1.0 / self.drive.pwm_hz
         g = delayed_loop_gain(self.drive.current_bandwidth_hz * dt)
         x = self.motor.R * dt / self.motor.L
@@ -396,16 +413,16 @@ class SystemParams:
             kp = self.drive.Kp_current
         if self.drive.Ki_current is not None:
             ki = self.drive.Ki_current
-        return kp, ki
+        return CurrentGains(kp, ki)
 
-    def servo_gains(self) -> tuple[float, float, float]:
+    def servo_gains(self) -> ServoGains:
         """(Kp_vel, Kp_pos, Ki_pos) of eq. 15 in N*m*s/rad, N*m/rad, N*m/(rad*s)."""
         ws = 2.0 * math.pi * self.servo.velocity_cutoff_hz / 5.0
         J = self.motor.J
         kv = self.servo.Kp_vel if self.servo.Kp_vel is not None else 3.0 * J * ws
         kp = self.servo.Kp_pos if self.servo.Kp_pos is not None else 3.0 * J * ws * ws
         ki = self.servo.Ki_pos if self.servo.Ki_pos is not None else J * ws * ws * ws
-        return kv, kp, ki
+        return ServoGains(kv, kp, ki)
 
     def natural_frequency(self) -> float:
         """Open-loop rotor resonance wn = sqrt(Km*holding_current*Nr/J) (rad/s)."""

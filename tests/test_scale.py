@@ -45,7 +45,7 @@ def specs():
             model = identify(m.system, method=protocol.identification_method,
                              noise_seed=seed).model
             knowledge = protocol_knowledge(m, seed, model, protocol)
-            for v in m.speeds(suite)[0][:3]:
+            for v in m.speeds(suite).speeds_rps[:3]:
                 rows.append(EpisodeSpec(knowledge, m.system, v, seed, m.settle_s(suite)))
         out[suite] = rows
     return protocol, out

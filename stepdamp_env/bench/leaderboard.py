@@ -180,7 +180,7 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
         knowledge = _WORKER["knowledge"][(i, seed)]
         if motor is not motors[i]:          # the suite's drive mode (v2's mid-band)
             knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
-        specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite)[0][j], seed,
+        specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j], seed,
                                  motor.settle_s(batch.suite)))
     if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
         results = [run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
@@ -195,7 +195,7 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     for (i, seed, j), spec, result in zip(batch.runs, specs, results):
         motor = motors[i]
         records.append(result.record(motor.name, seed, spec.speed_rps,
-                                     motor.speeds(batch.suite)[1][j], batch.training_seed))
+                                     motor.speeds(batch.suite).labels[j], batch.training_seed))
     return records
 
 
@@ -397,7 +397,7 @@ def _batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
         for ts in source.factories(pooled=protocol.pools_training_seeds):
             for suite in suites[spec][0]:
                 runs = [(i, seed, j) for i, m in enumerate(motors) for seed in protocol.eval_seeds
-                        for j in range(len(m.speeds(suite)[0]))]
+                        for j in range(len(m.speeds(suite).speeds_rps))]
                 batches += [LeaderboardBatch(spec, suite, ts, tuple(runs[k:k + BATCH_RUNS]))
                             for k in range(0, len(runs), BATCH_RUNS)]
     return batches

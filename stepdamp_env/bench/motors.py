@@ -8,15 +8,22 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
 from ..params import SystemParams
 from .protocol import PHASE_FIELDS, SUITE_DRIVE_MODE, Protocol
 
-__all__ = ["ProtocolMotor", "protocol_motors", "speed_grid", "with_sensors", "holds_its_load",
+__all__ = ["SpeedGrid", "ProtocolMotor", "protocol_motors", "speed_grid", "with_sensors", "holds_its_load",
            "draw_around", "slowest_decay_rate"]
+
+
+class SpeedGrid(NamedTuple):
+    """A suite's speeds of one motor and their labels (e.g. "h=4", "off-0.7")."""
+
+    speeds_rps: tuple[float, ...]
+    labels: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -35,12 +42,12 @@ class ProtocolMotor:
     grids: tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...] = ()
     settle: tuple[tuple[str, float], ...] = ()
 
-    def speeds(self, suite: str) -> tuple[tuple[float, ...], tuple[str, ...]]:
-        """(speeds in rev/s, labels) of a suite (v0: one grid for both)."""
+    def speeds(self, suite: str) -> SpeedGrid:
+        """The speeds (rev/s) and labels of a suite (v0: one grid for both)."""
         for name, speeds, labels in self.grids:
             if name == suite:
-                return speeds, labels
-        return self.speeds_rps, self.speed_labels
+                return SpeedGrid(speeds, labels)
+        return SpeedGrid(self.speeds_rps, self.speed_labels)
 
     def settle_s(self, suite: str) -> float | None:
         """Settling before the window (s); None: the core's default (v0)."""
