@@ -681,35 +681,22 @@ def feedforward_torque(sin_x, cos_x, q, u):
 
 
 @_jit_inline
-def control_step(period, theta, ia, ib, cs, q, u):
-    """The controller of PWM period ``period`` (a count) : a pure function.
-
-    ``theta``, ``ia``, ``ib`` are the true shaft angle and winding currents
-    (the current sensors add their offset and noise here); ``cs`` =
-    (integrator d, integrator q, previous encoder angle, velocity estimate,
-    position-error integral, Kalman angle estimate, previous measured ia, ib,
-    voltages va, vb applied during the period that just ended) is the
-    controller's state (the caller sets the last two);
-    ``q`` is :func:`controller_params`, ``u`` the external inputs.
-
-    Returns (new cs, (va, vb) winding voltages to apply next period,
-    (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle, sin angle,
-    cos angle)).
-    """
-    int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
-        vb_old = cs
-    dt, nr = q[CTRL.DT], q[CTRL.NR]
-    t = period * dt
-    theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL], q[CTRL.DISTANCE])
-    # Velocity estimate from the encoder (a drive senses it in either mode).
-    theta_fb = quantise(theta, q[CTRL.ENCODER])
+def sense_currents(period, ia, ib, q):
+    """The current sensors' readings (A) of the true ``ia``, ``ib``: offset and,
+    if set, noise drawn for ``period``."""
     if q[CTRL.I_NOISE] != 0.0:
         noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period)
-        ia = ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a
-        ib = ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b
-    else:
-        ia = ia + q[CTRL.I_OFFSET_A]
-        ib = ib + q[CTRL.I_OFFSET_B]
+        return (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a,
+                ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b)
+    return ia + q[CTRL.I_OFFSET_A], ib + q[CTRL.I_OFFSET_B]
+
+
+@_jit_inline
+def estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_prev, ib_prev,
+                      va_old, vb_old, theta_cmd, omega_cmd, q):
+    """The drive's velocity estimate (rad/s) by ``q[CTRL.VEL_EST]``; returns
+    (omega_fb, theta_est), the Kalman filter's angle (rad) unchanged by the others."""
+    dt, nr = q[CTRL.DT], q[CTRL.NR]
     if q[CTRL.VEL_EST] == VEL_EST.BACK_EMF:
         # No encoder for the speed: the back-EMF over the period that just
         # ended, from its applied voltage and the measured currents at both
@@ -724,67 +711,74 @@ def control_step(period, theta, ia, ib, cs, q, u):
             x_mid = nr * (theta_fb + 0.5 * q[CTRL.ENCODER])
         s_p, c_p = sincos(x_mid)
         w_raw = (c_p * eb - s_p * ea) * (1.0 / q[CTRL.KM_EST])
-        omega_fb = omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb)
-    elif q[CTRL.VEL_EST] == VEL_EST.KALMAN:
+        return omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb), theta_est
+    if q[CTRL.VEL_EST] == VEL_EST.KALMAN:
         # Steady-state Kalman filter, constant-velocity model, measuring the
         # centre of the encoder count.
         predicted = theta_est + dt * omega_fb
         innovation = theta_fb + 0.5 * q[CTRL.ENCODER] - predicted
-        theta_est = predicted + q[CTRL.KF_K0] * innovation
-        omega_fb = omega_fb + q[CTRL.KF_K1] * innovation
-    else:
-        omega_fb = omega_fb + q[CTRL.VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt)
-                                               - omega_fb)
+        return (omega_fb + q[CTRL.KF_K1] * innovation,
+                predicted + q[CTRL.KF_K0] * innovation)
+    return (omega_fb + q[CTRL.VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt) - omega_fb),
+            theta_est)
 
+
+@_jit_inline
+def current_command(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u):
+    """The mode's current command: returns (pos_int, Park angle (rad), its sine
+    and cosine, id_cmd, iq_cmd, iq_injected (A))."""
+    nr, dt = q[CTRL.NR], q[CTRL.DT]
     if q[CTRL.MODE] == MODE.OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
         angle = nr * quantise(theta_cmd, q[CTRL.MICROSTEP])
         sin_a, cos_a = sincos(angle)
-        id_cmd = q[CTRL.HOLD]
         iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ]
-        iq_cmd = iq_inj
-    else:
-        # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
-        # floored count lags by half a count on average); Fs is fed forward
-        # with the command's sign.
-        theta_meas = theta_fb + 0.5 * q[CTRL.ENCODER]
-        angle = nr * theta_meas
-        sin_a, cos_a = sincos(angle)
-        id_cmd = 0.0
-        theta_err = theta_cmd - theta_meas
-        pos_int = pos_int + theta_err * dt
-        fs_ff = 0.0
-        if omega_cmd > 0.0:
-            fs_ff = q[CTRL.FS_EST]
-        elif omega_cmd < 0.0:
-            fs_ff = -q[CTRL.FS_EST]
-        iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[CTRL.BASE_CONTROLLER] * fs_ff)
-                  * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ])
-        tau_fb = (q[CTRL.KP_VEL] * (omega_cmd - omega_fb) + q[CTRL.KP_POS] * theta_err
-                  + q[CTRL.KI_POS] * pos_int)
-        iq_cmd = tau_fb * (1.0 / q[CTRL.KM_EST]) + iq_inj
+        return pos_int, angle, sin_a, cos_a, q[CTRL.HOLD], iq_inj, iq_inj
+    # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
+    # floored count lags by half a count on average); Fs is fed forward
+    # with the command's sign.
+    theta_meas = theta_fb + 0.5 * q[CTRL.ENCODER]
+    angle = nr * theta_meas
+    sin_a, cos_a = sincos(angle)
+    theta_err = theta_cmd - theta_meas
+    pos_int = pos_int + theta_err * dt
+    fs_ff = 0.0
+    if omega_cmd > 0.0:
+        fs_ff = q[CTRL.FS_EST]
+    elif omega_cmd < 0.0:
+        fs_ff = -q[CTRL.FS_EST]
+    iq_inj = ((feedforward_torque(sin_a, cos_a, q, u) + q[CTRL.BASE_CONTROLLER] * fs_ff)
+              * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ])
+    tau_fb = (q[CTRL.KP_VEL] * (omega_cmd - omega_fb) + q[CTRL.KP_POS] * theta_err
+              + q[CTRL.KI_POS] * pos_int)
+    return pos_int, angle, sin_a, cos_a, 0.0, tau_fb * (1.0 / q[CTRL.KM_EST]) + iq_inj, iq_inj
 
-    id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
-    if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
-        # No current feedback: the steady-state winding voltages in the frame
-        # of the angle for the commanded currents at the command's electrical
-        # speed, the back-EMF estimated from the command speed (docs/model.md,
-        # "Voltage-mode drive"). They are applied during the next period, so
-        # the inverse Park turns them to that period's middle, 1.5 periods on.
-        w_e = nr * omega_cmd
-        r_est, l_est = q[CTRL.R_EST], q[CTRL.L_EST]
-        vd = r_est * id_cmd - w_e * l_est * iq_cmd
-        vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[CTRL.KM_EST] * omega_cmd
-        sin_v, cos_v = sincos_shifted(angle, sin_a, cos_a, 1.5 * dt * w_e)
-        va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
-        v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
-        return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
-                 vb_old),
-                (v_alpha - v_gamma, v_beta - v_gamma),
-                (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a,
-                 cos_a))
-    # PI in DQ, inverse Park, SVPWM, all at one sine and cosine.
-    kp, ki = q[CTRL.KP_I], q[CTRL.KI_I]
+
+@_jit_inline
+def voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q):
+    """Voltage mode: no current feedback; the winding voltages (va, vb in V) for
+    the commanded currents.
+
+    The steady-state winding voltages in the frame of the angle at the command's
+    electrical speed, the back-EMF estimated from the command speed (docs/model.md,
+    "Voltage-mode drive"). They are applied during the next period, so the
+    inverse Park turns them to that period's middle, 1.5 periods on.
+    """
+    w_e = q[CTRL.NR] * omega_cmd
+    r_est, l_est = q[CTRL.R_EST], q[CTRL.L_EST]
+    vd = r_est * id_cmd - w_e * l_est * iq_cmd
+    vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[CTRL.KM_EST] * omega_cmd
+    sin_v, cos_v = sincos_shifted(angle, sin_a, cos_a, 1.5 * q[CTRL.DT] * w_e)
+    va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
+    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
+    return v_alpha - v_gamma, v_beta - v_gamma
+
+
+@_jit_inline
+def current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a, cos_a, q):
+    """The DQ current PI loops, inverse Park and SVPWM, all at one sine and cosine;
+    returns (int_d, int_q, va, vb in V)."""
+    kp, ki, dt = q[CTRL.KP_I], q[CTRL.KI_I], q[CTRL.DT]
     err_d = id_cmd - id_m
     err_q = iq_cmd - iq_m
     vd = pi_output(err_d, int_d, kp)
@@ -794,8 +788,47 @@ def control_step(period, theta, ia, ib, cs, q, u):
     va = v_alpha - v_gamma
     vb = v_beta - v_gamma
     vd_app, vq_app = park_sc(va, vb, sin_a, cos_a)
-    int_d = pi_update(err_d, int_d, vd, vd_app, kp, ki, dt)
-    int_q = pi_update(err_q, int_q, vq, vq_app, kp, ki, dt)
+    return (pi_update(err_d, int_d, vd, vd_app, kp, ki, dt),
+            pi_update(err_q, int_q, vq, vq_app, kp, ki, dt), va, vb)
+
+
+@_jit_inline
+def control_step(period, theta, ia, ib, cs, q, u):
+    """The controller of PWM period ``period`` (a count): a pure function, one
+    job per piece: the command, the sensors (:func:`sense_currents`), the
+    velocity estimate (:func:`estimate_velocity`), the mode's current command
+    (:func:`current_command`) and the drive (:func:`current_loop`, or
+    :func:`voltage_drive`).
+
+    ``theta``, ``ia``, ``ib`` are the true shaft angle and winding currents;
+    ``cs`` = (integrator d, integrator q, previous encoder angle, velocity
+    estimate, position-error integral, Kalman angle estimate, previous measured
+    ia, ib, voltages va, vb applied during the period that just ended) is the
+    controller's state (the caller sets the last two);
+    ``q`` is :func:`controller_params`, ``u`` the external inputs.
+
+    Returns (new cs, (va, vb) winding voltages to apply next period,
+    (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle, sin angle,
+    cos angle)).
+    """
+    int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
+        vb_old = cs
+    t = period * q[CTRL.DT]
+    theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL], q[CTRL.DISTANCE])
+    # Velocity estimate from the encoder (a drive senses it in either mode).
+    theta_fb = quantise(theta, q[CTRL.ENCODER])
+    ia, ib = sense_currents(period, ia, ib, q)
+    omega_fb, theta_est = estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib,
+                                            ia_prev, ib_prev, va_old, vb_old, theta_cmd,
+                                            omega_cmd, q)
+    pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command(
+        theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u)
+    id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
+    if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
+        va, vb = voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
+    else:
+        int_d, int_q, va, vb = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a,
+                                            cos_a, q)
     return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old, vb_old),
             (va, vb),
             (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
