@@ -104,3 +104,22 @@ def test_version_is_defined_once_and_cited_alike():
     with open(os.path.join(root, "CITATION.cff"), encoding="utf-8") as fh:
         cited = re.search(r"^version: (\S+)$", fh.read(), re.M).group(1)
     assert stepdamp_env.__version__ == __version__ == cited
+
+
+def test_every_package_folder_is_installed():
+    """A regular (not editable) install ships only the packages pyproject.toml
+    lists: every folder with an ``__init__.py`` must be among them."""
+    import tomllib
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "pyproject.toml"), "rb") as fh:
+        tool = tomllib.load(fh)["tool"]["setuptools"]
+    dirs = {name: path for name, path in tool["package-dir"].items()}
+    found = set()
+    for top in ("stepdamp_env", "stepdamp_baselines", "stepdamp_agents"):
+        base = os.path.join(root, dirs.get(top, top))
+        for here, _, files in os.walk(base):
+            if "__init__.py" in files and "__pycache__" not in here:
+                rel = os.path.relpath(here, base)
+                found.add(top if rel == "." else top + "." + rel.replace(os.sep, "."))
+    assert found == set(tool["packages"])
