@@ -19,15 +19,16 @@ import abc
 from types import SimpleNamespace
 from typing import Any, Sequence
 
+import gymnasium as gym
 import numpy as np
 
 from .. import kernel as K
-from ..params import SystemParams
+from ..params import ParameterError, SystemParams
 from ..simulation import RunMetrics, merge_accumulator_rows, metrics_from_accumulators
 from .actions import action_error, as_action
 from .arguments import check_batch_envs
 
-__all__ = ["EnvTask", "DriveBatch", "StepperDampBatch"]
+__all__ = ["EnvTask", "DriveBatch", "OneDriveEnv", "StepperDampBatch"]
 
 
 class EnvTask(abc.ABC):
@@ -210,6 +211,70 @@ class DriveBatch:
 
     def info(self, i: int) -> dict[str, Any]:
         return self.task.step_info(self, i)
+
+
+class OneDriveEnv:
+    """What a scalar env of any version reads off its drive, a :class:`DriveBatch`
+    of one (``_drives``), with its ``task``, its trace rows (``_trace``), its
+    window's metric sums (``_run_acc``), ``system`` and ``options``."""
+
+    task: EnvTask
+    _drives: DriveBatch
+    _trace: np.ndarray
+    _run_acc: np.ndarray
+    system: SystemParams | None
+
+    @property
+    def drive_state(self) -> np.ndarray:
+        """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
+        return self._drives.s[0].copy()
+
+    @property
+    def speed_rps(self) -> float:
+        """The held command speed of the current episode (rev/s; 0 before reset)."""
+        return float(self._drives.speeds_rps[0])
+
+    @property
+    def seconds_per_step(self) -> float:
+        """Simulated time of one agent step (s)."""
+        return self.task.seconds_per_step
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the episode started (s)."""
+        return float(self.task.time_s(self._drives)[0])
+
+    @property
+    def step_trace(self) -> np.ndarray:
+        """The PWM periods of the last step, one row each (columns ``kernel.TRACE``:
+        time (s), angles (rad), speeds (rad/s), currents (A), voltages (V)).
+
+        Recorded only with a ``render_mode``; otherwise an empty (0, len(TRACE)) array.
+        """
+        return self._trace.copy()
+
+    @property
+    def drive_batch(self) -> DriveBatch:
+        """A copy of this env's drive (a :class:`DriveBatch` of one), as
+        :class:`StepperDampBatch` stacks it."""
+        return DriveBatch.stack([self._drives])
+
+    @property
+    def window_sums(self) -> np.ndarray:
+        """A copy of the run's metric sums since ``measure_from_s`` (``kernel.ACC``)."""
+        return self._run_acc.copy()
+
+    def run_metrics(self) -> RunMetrics:
+        """The simulation core's metrics of the episode so far, over the window
+        that opens at ``measure_from_s`` (lag, current peak: whole episode).
+
+        Needs ``measure_from_s``; raises ``ValueError`` if the window is empty.
+        """
+        if self.options.measure_from_s is None:            # type: ignore[attr-defined]
+            raise ParameterError("run_metrics() needs the option measure_from_s")
+        if self.system is None:
+            raise gym.error.ResetNeeded("call reset() before run_metrics()")
+        return metrics_from_accumulators(self._run_acc, self.system, self.speed_rps)
 
 
 class StepperDampBatch:

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from .. import kernel as K
-from ..params import ParameterError, SystemParams
-from ..simulation import (RunMetrics, merge_accumulators, metrics_from_accumulators,
-                          new_accumulators)
+from ..params import SystemParams
+from ..simulation import merge_accumulators, new_accumulators
 from . import compiled as C
 from .arguments import check_render_mode
-from .engine import DriveBatch
+from .engine import DriveBatch, OneDriveEnv
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
 from .render import render_episode, trace_rows
@@ -24,7 +23,7 @@ __all__ = ["StepperDampEnv"]
 TWO_PI = 2.0 * np.pi
 
 
-class StepperDampEnv(gym.Env):
+class StepperDampEnv(OneDriveEnv, gym.Env):
     __doc__ = """Residual active damping of a hybrid stepper drive (US 7,733,051).
 
     ## Description
@@ -128,16 +127,10 @@ class StepperDampEnv(gym.Env):
         self._history: list[np.ndarray] = []
         self._run_acc = new_accumulators()
         self.system: SystemParams | None = None
-        self._speed_rps = 0.0
         self._ready = False
         self._ended = False
 
     # -- public read-outs ------------------------------------------------------
-    @property
-    def drive_state(self) -> np.ndarray:
-        """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
-        return self._drives.s[0].copy()
-
     @property
     def drive_config(self) -> np.ndarray:
         """Copy of the kernel's configuration vector (``kernel.CONFIG``) of this episode."""
@@ -153,53 +146,6 @@ class StepperDampEnv(gym.Env):
         """The env's task over the engine (:class:`.engine.EnvTask`): its sampler."""
         return self._sampler
 
-    @property
-    def speed_rps(self) -> float:
-        """The held command speed of the current episode (rev/s; 0 before reset)."""
-        return self._speed_rps
-
-    @property
-    def seconds_per_step(self) -> float:
-        """Simulated time of one agent step (s)."""
-        return self._sampler.seconds_per_step
-
-    @property
-    def time_s(self) -> float:
-        """Simulated time since the episode started (s)."""
-        return float(self._sampler.time_s(self._drives)[0])
-
-    @property
-    def step_trace(self) -> np.ndarray:
-        """The PWM periods of the last step, one row each (columns ``kernel.T_*``:
-        time (s), angles (rad), speeds (rad/s), currents (A), voltages (V)).
-
-        Recorded only with a ``render_mode``; otherwise an empty (0, N_TRACE) array.
-        """
-        return self._trace.copy()
-
-    @property
-    def drive_batch(self) -> DriveBatch:
-        """A copy of this env's drive (a :class:`~.engine.DriveBatch` of one), as
-        :class:`~.engine.StepperDampBatch` stacks it."""
-        return DriveBatch.stack([self._drives])
-
-    @property
-    def window_sums(self) -> np.ndarray:
-        """A copy of the run's metric sums since ``measure_from_s`` (``kernel.ACC``)."""
-        return self._run_acc.copy()
-
-    def run_metrics(self) -> RunMetrics:
-        """The simulation core's metrics of the episode so far, over the window
-        that opens at ``measure_from_s`` (lag, current peak: whole episode).
-
-        Needs ``measure_from_s``; raises ``ValueError`` if the window is empty.
-        """
-        if not self._measuring:
-            raise ParameterError("run_metrics() needs the option measure_from_s")
-        if self.system is None:
-            raise gym.error.ResetNeeded("call reset() before run_metrics()")
-        return metrics_from_accumulators(self._run_acc, self.system, self._speed_rps)
-
     # -- API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -208,7 +154,6 @@ class StepperDampEnv(gym.Env):
         self.system = self._drives.systems[0]
         self._history = []
         self._run_acc[:] = 0.0
-        self._speed_rps = info["speed_rps"]
         self._ready = True
         self._ended = False
         return self._drives.obs[0].copy(), info

@@ -21,12 +21,12 @@ from .. import fixedmath as fm
 from .. import kernel as K
 from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
 from ..response import phasors, torque_paths
-from ..simulation import (RunMetrics, RunSettings, SpeedProfile, build_config, initial_state,
-                          merge_accumulators, metrics_from_accumulators, new_accumulators)
+from ..simulation import (RunSettings, SpeedProfile, build_config, initial_state,
+                          merge_accumulators, new_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
 from .arguments import check_render_mode, check_vector_args, reseed
-from .engine import DriveBatch, EnvTask
+from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
@@ -305,7 +305,7 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """
 
 
-class StepperDampV1Env(gym.Env):
+class StepperDampV1Env(OneDriveEnv, gym.Env):
     __doc__ = _DOC
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -323,47 +323,6 @@ class StepperDampV1Env(gym.Env):
         self.system: SystemParams | None = None
         self._ready = False
         self._ended: str | None = None
-
-    @property
-    def drive_state(self) -> np.ndarray:
-        """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
-        return self._drives.s[0].copy()
-
-    @property
-    def speed_rps(self) -> float:
-        """The held command speed of the current episode (rev/s; 0 before reset)."""
-        return float(self._drives.speeds_rps[0])
-
-    @property
-    def time_s(self) -> float:
-        """Simulated time of the current episode (s), as v0's ``time_s``."""
-        return float(self._drives.t[0] * self.task.seconds_per_step)
-
-    @property
-    def step_trace(self) -> np.ndarray:
-        """The PWM periods of the last step, one row each (columns ``kernel.T_*``,
-        as v0's ``step_trace``). Recorded only with a ``render_mode``; otherwise
-        an empty (0, N_TRACE) array."""
-        return self._trace.copy()
-
-    @property
-    def drive_batch(self) -> DriveBatch:
-        """A copy of this env's drive (a :class:`DriveBatch` of one), as
-        :class:`~.engine.StepperDampBatch` stacks it."""
-        return DriveBatch.stack([self._drives])
-
-    @property
-    def window_sums(self) -> np.ndarray:
-        """A copy of the run's metric sums since ``measure_from_s`` (``kernel.A_*``)."""
-        return self._run_acc.copy()
-
-    def run_metrics(self) -> RunMetrics:
-        """The simulation core's metrics of the episode so far (needs ``measure_from_s``)."""
-        if self.options.measure_from_s is None:
-            raise ParameterError("run_metrics() needs the option measure_from_s")
-        if self.system is None:
-            raise gym.error.ResetNeeded("call reset() before run_metrics()")
-        return metrics_from_accumulators(self._run_acc, self.system, self.speed_rps)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
