@@ -169,29 +169,12 @@ class DriveBatch:
             raise action_error(actions, shape)
         self.a[:] = a
 
-    def advance(self) -> tuple[np.ndarray, np.ndarray]:
-        """Run one agent step of every drive; returns (terminated, truncated) masks."""
+    def _step_drives(self, trace: np.ndarray | None) -> None:
+        """The kernel's step of every drive, then the task's observation. ``trace``
+        (one drive only) gets its PWM periods, one row each."""
         n = self.task.n_periods
         # Without gain actions the law stays off: the kernel's plain loop.
-        if self.task.law_actions:
-            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
-        else:
-            K.run_batch(self.c, self.s, self.acc, self.u, n)
-        self.task.observe(self, None)
-        self.t += 1
-        terminated = self.out[:, self.task.out_layout.TERMINATED] != 0.0
-        # max_steps < 0 (no limit of the task's own) never truncates.
-        left = self.max_steps - self.t
-        if terminated.any():
-            self.task.end_of_step(self, terminated, left)
-        truncated = (left <= 0) & (self.max_steps >= 0) & ~terminated
-        return terminated, truncated
-
-    def advance_one(self, trace: np.ndarray) -> tuple[bool, bool]:
-        """:meth:`advance` for a batch of one (a scalar env), with Python flags;
-        ``trace`` gets its PWM periods, one row each (zero rows: none kept)."""
-        n = self.task.n_periods
-        if len(trace):
+        if trace is not None and len(trace):
             if self.task.law_actions:
                 K.run_periods_law(self.c[0], self.s[0], self.acc[0], self.u[0], self.law[0], n,
                                   trace, 1)
@@ -203,6 +186,22 @@ class DriveBatch:
             K.run_batch(self.c, self.s, self.acc, self.u, n)
         self.task.observe(self, None)
         self.t += 1
+
+    def advance(self) -> tuple[np.ndarray, np.ndarray]:
+        """Run one agent step of every drive; returns (terminated, truncated) masks."""
+        self._step_drives(None)
+        terminated = self.out[:, self.task.out_layout.TERMINATED] != 0.0
+        # max_steps < 0 (no limit of the task's own) never truncates.
+        left = self.max_steps - self.t
+        if terminated.any():
+            self.task.end_of_step(self, terminated, left)
+        truncated = (left <= 0) & (self.max_steps >= 0) & ~terminated
+        return terminated, truncated
+
+    def advance_one(self, trace: np.ndarray) -> tuple[bool, bool]:
+        """:meth:`advance` for a batch of one (a scalar env), with Python flags;
+        ``trace`` gets its PWM periods, one row each (zero rows: none kept)."""
+        self._step_drives(trace)
         if self.out[0, self.task.out_layout.TERMINATED] != 0.0:
             self.task.end_of_step(self, np.ones(1, dtype=bool), self.max_steps - self.t)
             return True, False
