@@ -194,7 +194,7 @@ class StepAgent:
     env_id = ENV_ID_V1
 
     def __init__(self, path: str, name: str | None = None) -> None:
-        from .policy import load_agent_config, load_model
+        from .policy import load_agent_config, load_model, training_coverage
 
         self.path = path
         self.config = load_agent_config(path)
@@ -204,7 +204,8 @@ class StepAgent:
                         if k in INTERFACE_OPTIONS}
         self.estimate = self.config.get("estimate", "identified")
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=self.estimate,
-                               learned=True, oracle=self.estimate == "exact")
+                               learned=True, oracle=self.estimate == "exact",
+                               trained_on=training_coverage(self.config))
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         return {"base_controller": "ff-delay-comp", **self.options,

@@ -28,7 +28,7 @@ import numpy as np
 from stepdamp_env.bench.network import predict_rows
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
-__all__ = ["ResidualAgent", "load_agent_config", "load_model", "clear_model_cache",
+__all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "load_model", "clear_model_cache",
            "agent_config_path"]
 
 # Loaded models by the sha256 of their file's bytes (never by path: a file
@@ -45,6 +45,43 @@ def agent_config_path(path: str) -> str:
 def load_agent_config(path: str) -> dict[str, Any]:
     with open(agent_config_path(path), encoding="utf-8") as fh:
         return json.load(fh)
+
+
+def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float], ...]:
+    """What an agent's training covered, as ``PolicyCard.trained_on``: its env's
+    suite (open-loop or servo, on the current-mode drive, the only one agents
+    train on so far) and the speeds it drew (rev/s). Those are the uniform range
+    ``speed_range_rps`` and, with ``resonance_prob`` > 0, each training motor's
+    resonances f_h (1 +- ``resonance_spread``), where f_h scales with
+    sqrt(Km/J) over the randomisation box. The ranges are merged where they
+    overlap."""
+    from stepdamp_env.env.options import DEFAULT_RANDOMIZATION, EnvOptions
+    from stepdamp_env.presets import get_preset
+
+    training = config.get("training", {})
+    kwargs = training.get("env_kwargs", {})
+    if kwargs.get("drive_mode", "current") != "current":
+        return ()
+    ranges = [tuple(float(v) for v in kwargs.get("speed_range_rps",
+                                                   EnvOptions.speed_range_rps))]
+    if float(kwargs.get("resonance_prob", EnvOptions.resonance_prob)) > 0.0:
+        box = kwargs.get("randomize", False)
+        box = DEFAULT_RANDOMIZATION if box is True else (box or {})
+        km_lo, km_hi = box.get("Km", (1.0, 1.0))
+        j_lo, j_hi = box.get("J", (1.0, 1.0))
+        spread = float(kwargs.get("resonance_spread", EnvOptions.resonance_spread))
+        for name in training.get("motors", []):
+            for f in get_preset(name).predicted_resonances_rps().values():
+                ranges.append((f * (km_lo / j_hi) ** 0.5 * (1.0 - spread),
+                               f * (km_hi / j_lo) ** 0.5 * (1.0 + spread)))
+    merged: list[list[float]] = []
+    for lo, hi in sorted(ranges):
+        if merged and lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    suite = str(kwargs.get("mode", "open-loop"))
+    return tuple((suite, lo, hi) for lo, hi in merged)
 
 
 def load_model(path: str) -> Any:
@@ -99,7 +136,8 @@ class ResidualAgent:
         self.feedback_gain = float(self.config.get("feedback_gain", 0.0))
         which = self.config.get("estimate", "identified")
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=which,
-                               learned=True, oracle=which == "exact")
+                               learned=True, oracle=which == "exact",
+                               trained_on=training_coverage(self.config))
         self._constants = EpisodeConstants(1)
         self._step = 0
         self._gain = np.zeros(1)

@@ -22,6 +22,8 @@
                           agents act on)
 ``oracle-floor``          exact cancellation and state feedback on the true state
                           (oracle): how far the ripple can fall on this drive
+``privileged-bound``      oracle-floor's law with its gain and rate chosen per suite on
+                          v3's dev split: v3's privileged bound
 ========================  ==========================================================
 
 Every baseline implements the policy contract of :mod:`stepdamp_env.bench.policy`.
@@ -34,19 +36,19 @@ from stepdamp_env.bench.policy import Policy, ZeroAction, reference_policy
 from stepdamp_env.bench.protocol import REFERENCE_POLICY
 from stepdamp_env.bench.registry import register_policy
 
-from .feedback import OracleFloor, SensorlessDamping, TunedConstantGain, VelocityFeedback
+from .feedback import OracleFloor, PrivilegedBound, SensorlessDamping, TunedConstantGain, VelocityFeedback
 from .harmonic import AdaptiveFF, DelayCompensatedFF
 from .learning import CalibratedTable, RepetitiveControl
 
 __all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
            "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "OracleFloor",
-           "BASELINE_NAMES",
+           "PrivilegedBound", "BASELINE_NAMES",
            "make_baseline", "register_policies"]
 
 BASELINE_NAMES = (REFERENCE_POLICY, "patent-ff-oracle", "patent-ff-identified",
                   "ff-delay-comp", "adaptive-ff", "velocity-feedback", "sensorless-damping",
                   "calibrated-table", "repetitive-control", "tuned-constant-gain",
-                  "oracle-floor")
+                  "oracle-floor", "privileged-bound")
 
 _DESCRIPTIONS = {
     "patent-ff-oracle": "patent feedforward, exact model (oracle)",
@@ -60,11 +62,13 @@ _DESCRIPTIONS = {
     "tuned-constant-gain": "ff-delay-comp plus v1's damping law at a constant gain tuned on "
                            "training motors",
     "oracle-floor": "exact cancellation and true-state feedback (oracle floor)",
+    "privileged-bound": "oracle-floor's law tuned per suite on v3's dev split (privileged)",
 }
 
 _CLASSES = {"velocity-feedback": VelocityFeedback, "sensorless-damping": SensorlessDamping,
             "calibrated-table": CalibratedTable, "repetitive-control": RepetitiveControl,
-            "tuned-constant-gain": TunedConstantGain, "oracle-floor": OracleFloor}
+            "tuned-constant-gain": TunedConstantGain, "oracle-floor": OracleFloor,
+            "privileged-bound": PrivilegedBound}
 
 
 def make_baseline(name: str) -> Policy:

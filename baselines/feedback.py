@@ -330,10 +330,14 @@ class OracleFloor(_FeedbackOnFF):
         dt_a = 1.0 / context.agent_hz
         self._hp_alpha = 1.0 - fm.exp(-wn / 5.0 * dt_a)
         hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
-        zeta = self.zeta_add if context.mode == "open-loop" else 0.0
+        zeta = self._zeta(context)
         target = _law_target(plant, context.mode, context.agent_hz, zeta, wn)
         self.gains = design_gains(target, complex(1.0, 0.0), hp / complex(0.0, wn))
         self._lp = None
+
+    def _zeta(self, context: PolicyContext) -> float:
+        """The added damping ratio of this run: ``zeta_add`` in open loop, 0 in servo."""
+        return self.zeta_add if context.mode == "open-loop" else 0.0
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         e_w = float(observation[self._i_w]) * self._w_ref
@@ -361,6 +365,73 @@ class OracleFloor(_FeedbackOnFF):
         self._rows_state[0, rows] = lp
         a, b = r["gains"][rows, 0], r["gains"][rows, 1]
         return self._row_current(a * e_w + b * (e_theta - lp), rows)
+
+
+# privileged-bound's law per suite: added damping ratio, decision rate (Hz) and
+# feedforward ("delay-comp": the exact model through the true current path;
+# "patent": the exact model, uncompensated; "none"), chosen on v3's dev split
+# (scripts/bound_tuning.py; docs/protocol_v3.md has its table).
+PRIVILEGED_SETTINGS: dict[str, tuple[float, float, str]] = {
+    "open-loop": (2.0, 5000.0, "delay-comp"),
+    "servo": (0.1, 5000.0, "delay-comp"),
+    "mid-band": (0.05, 5000.0, "none"),
+}
+FEEDFORWARDS = ("delay-comp", "patent", "none")
+
+
+class PrivilegedBound(OracleFloor):
+    """``privileged-bound`` (privileged): the bound of stepdamp-bench v3.
+
+    oracle-floor's law (feedback on the true speed and position error) with its
+    added damping ratio, decision rate and feedforward chosen per suite on v3's
+    dev split, never on a scored motor (``scripts/bound_tuning.py``; the
+    setting whose interval of IQM attenuation over the 16 dev motors has the
+    highest lower end, so that a knife-edge gain is not chosen). The
+    feedforward is the exact model sent through the true plant's current path
+    (``delay-comp``, oracle-floor's), the exact model uncompensated
+    (``patent``), or none. The suite is read from the run: servo from the
+    mode, mid-band from the plant's voltage-mode drive. Settings:
+    ``PRIVILEGED_SETTINGS``, (zeta_add, agent_hz, feedforward) per suite.
+    """
+
+    def __init__(self, settings: dict[str, tuple[float, float, str]] | None = None) -> None:
+        super().__init__()
+        self.name = "privileged-bound"
+        self.settings = dict(PRIVILEGED_SETTINGS if settings is None else settings)
+        for suite, (zeta, hz, ff) in self.settings.items():
+            if ff not in FEEDFORWARDS or not (zeta >= 0.0 and hz > 0.0):
+                raise ValueError(f"settings[{suite!r}] = {(zeta, hz, ff)!r}: zeta_add >= 0, "
+                                 f"agent_hz > 0, feedforward one of {list(FEEDFORWARDS)}")
+        # The env options are chosen before the mode is known: open loop and servo
+        # (both on the current-mode drive) must share the rate and the base.
+        ol, sv = self.settings["open-loop"], self.settings["servo"]
+        if ol[1] != sv[1] or (ol[2] == "none") != (sv[2] == "none"):
+            raise ValueError("settings: open-loop and servo must share agent_hz and "
+                             "whether there is a feedforward")
+
+    @staticmethod
+    def _suite(knowledge: MotorKnowledge, mode: str) -> str:
+        plant = knowledge.plant
+        if plant is not None and plant.drive.drive_mode == "voltage":
+            return "mid-band"
+        return mode
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        out = super().env_options(knowledge)
+        # The mode is not known here: open loop and servo share their rate and base.
+        zeta, hz, ff = self.settings[self._suite(knowledge, "open-loop")]
+        out["agent_hz"] = hz
+        if ff == "none":
+            out["base_controller"] = "none"
+        return out
+
+    def reset(self, context: PolicyContext) -> None:
+        super().reset(context)
+        if self.settings[self._suite(context.knowledge, context.mode)][2] != "delay-comp":
+            self._action[:6] = 0.0          # the base's own feedforward, or none
+
+    def _zeta(self, context: PolicyContext) -> float:
+        return self.settings[self._suite(context.knowledge, context.mode)][0]
 
 
 class TunedConstantGain:

@@ -1,6 +1,7 @@
 """Write the result tables of README.md and docs/results.md from the committed
-boards (``docs/results``: v1; ``docs/results/v0``: v0), between their markers
-``<!-- results:begin -->`` / ``<!-- results:end -->`` (and ``results-v0:``).
+boards (``docs/results/v3``: v3, the default; ``docs/results``: v1;
+``docs/results/v0``: v0), between their markers ``<!-- results:begin -->`` /
+``<!-- results:end -->`` (and ``results-v3:``, ``results-v0:``).
 Never typed by hand: ``tests/test_readme.py`` checks them with ``--check``.
 
     python scripts/readme_table.py [--check]
@@ -16,8 +17,9 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # file -> (marker name, board directory) pairs
 TARGETS = {
-    "README.md": (("results", "docs/results"),),
-    "docs/results.md": (("results", "docs/results"), ("results-v0", "docs/results/v0")),
+    "README.md": (("results", "docs/results/v3"),),
+    "docs/results.md": (("results-v3", "docs/results/v3"), ("results", "docs/results"),
+                        ("results-v0", "docs/results/v0")),
 }
 
 

@@ -296,14 +296,23 @@ def _edge(system: SystemParams, lo: float, hi: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def midband(system: SystemParams, scan: tuple[float, float, float] = MIDBAND_SCAN_RPS
-            ) -> MidBand:
+def midband(system: SystemParams, scan: tuple[float, float, float] = MIDBAND_SCAN_RPS,
+            first_band_only: bool = False) -> MidBand:
     """The unstable speed band of ``system`` with its own ``drive_mode``: the
     damping ratio on the grid ``scan`` = (low, high, step) in rev/s, the band's
-    edges refined by bisection. Only the first band is reported."""
+    edges refined by bisection. Only the first band is reported; with
+    ``first_band_only`` the scan stops where that band has closed (the least
+    damped speed is then the least damped one scanned; the speeds above, where
+    the drive stalls, cost the most)."""
     lo_s, hi_s, step = scan
     speeds = np.arange(lo_s, hi_s + 0.5 * step, step)
-    zetas = [_zeta(system, float(v)) for v in speeds]
+    zetas: list[float | None] = []
+    for v in speeds:
+        zetas.append(_zeta(system, float(v)))
+        if first_band_only and len(zetas) > 1 and zetas[-1] is not None \
+                and zetas[-1] >= 0 and any(z is not None and z < 0 for z in zetas):
+            break
+    speeds = speeds[:len(zetas)]
     stall = next((float(v) for v, z in zip(speeds, zetas) if z is None), None)
     known = [(float(v), z) for v, z in zip(speeds, zetas) if z is not None]
     if not known:

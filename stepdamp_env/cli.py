@@ -324,8 +324,7 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench import default_policy_names, run_leaderboard, write_outputs
     from .bench.protocols import protocol_class, protocol_for, protocol_versions
     from .bench.protocols.v1 import load_motors_file
-    from .bench.report import (RESULT_FILES, entry_rows, format_summary, render_per_motor,
-                               splits)
+    from .bench.report import RESULT_FILES, entry_line, entry_rows, render_per_motor, splits
 
     from .bench.leaderboard import RESUME_DIR
 
@@ -341,6 +340,10 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
                                  f"{list(protocol.known_suites)}; --protocol {' or '.join(has)} "
                                  f"has {args.suite}")
         protocol = protocol.with_suites((args.suite,))
+    if args.split is not None:
+        if args.motors is not None:
+            raise ParameterError("--split: give --split or --motors (the custom split), not both")
+        protocol = protocol.with_splits((args.split,))
     named = default_policy_names()
     chosen = list(named) if args.entries is None else [b for g in args.entries for b in g]
     unknown = sorted(set(chosen) - set(named))
@@ -360,9 +363,7 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
             where = suite if split is None else f"{suite}, {split}"
             print(f"{protocol.name} {protocol.version} ({protocol.variant}), {where}:")
             for e in entry_rows(board, suite, split):
-                print(f"  {e['rank']:2d}. {e['name']:28s} headline IQM "
-                      f"{format_summary(e['headline']):32s} step losses "
-                      f"{e['step_losses']['runs_lost']}/{e['step_losses']['runs']}")
+                print("  " + entry_line(e))
             if split == "custom":
                 print(render_per_motor(board, suite, split), end="")
     print(f"wall {board['wall_seconds']:.1f} s, simulated {board['simulated_seconds']:.0f} s")
@@ -524,6 +525,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--suite", choices=["open-loop", "servo", "mid-band", "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
+    p.add_argument("--split", choices=["dev", "interpolation", "extrapolation"], default=None,
+                   help="v3: run one split; 'dev' is the split for tuning, ablations and "
+                        "model selection (never scored). Default: interpolation and "
+                        "extrapolation")
     _add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--no-resume", action="store_true",

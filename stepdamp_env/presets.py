@@ -21,7 +21,8 @@ def _patent() -> SystemParams:
 
     Where the patent is silent the values are ASSUMED, those of a 57 mm
     (NEMA 23) hybrid stepper of the patent's torque constant. J puts the three
-    resonances at about 0.58, 1.2 and 2.3 rev/s; the 1st and 2nd detent
+    predicted resonances (``predicted_resonances_rps``) at 0.672, 1.343 and
+    2.687 rev/s (h = 4, 2, 1; tests/test_bench_v3.py); the 1st and 2nd detent
     harmonics stand for the manufacturing imperfections that give a real motor
     its 2nd and 1st harmonic resonances.
     """
@@ -67,7 +68,8 @@ def _patent() -> SystemParams:
 #   microsteps, 1.5 kHz current loops, 4000 count/rev encoder) ASSUMED to be
 #   the patent's.
 # The detent also modulates the spring by +-4*Nr*Kd4; past a modulation depth
-# eps = 4*Kd4/T_hold of about 4*zeta that drives a parametric (Mathieu)
+# eps = 4*Kd4/T_hold of about 4*zeta (the total damping ratio: mechanical D
+# plus the drive's electrical damping) that drives a parametric (Mathieu)
 # resonance at the h=2 speed which no feedforward at the command angle removes
 # (README, "Known limits"): the QSH4218-35-10-027 (eps = 0.2) is left out for that.
 _SQRT2 = math.sqrt(2.0)

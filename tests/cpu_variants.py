@@ -1,8 +1,9 @@
 """The quick boards under emulated CPUs: the same numbers on every x86-64 CPU.
 
-Each variant runs the quick boards of v0, v1 and v2 (every default entry: the
-identification, estimators, adaptive laws, learned networks and statistics
-all run) in a fresh process whose environment makes the libraries take the
+Each variant runs the quick boards of v0, v1, v2 and v3 (the identification,
+estimators, adaptive laws, learned networks and statistics all run; v3 with
+every default entry, v0-v2 with the 16 entries their fingerprints were stored
+with: an entry's probabilities depend on the others) in a fresh process whose environment makes the libraries take the
 code paths of another CPU:
 
 * ``OPENBLAS_CORETYPE``: OpenBLAS's kernels for an older or newer core;
@@ -17,9 +18,10 @@ code paths of another CPU:
 Every variant must give the stored fingerprints (``tests/data/quick_boards.json``),
 which the native run gives too (``tests/test_cpu_determinism.py``). The full
 boards: ``python benchmarks/bench_determinism.py``. To store the quick boards'
-fingerprints again (only at a re-baseline, which CHANGELOG must state):
+fingerprints again (only at a re-baseline, which CHANGELOG must state, or for a
+new protocol):
 
-    python tests/cpu_variants.py --store
+    python tests/cpu_variants.py --store [--protocol v3]
 """
 
 from __future__ import annotations
@@ -34,7 +36,13 @@ from typing import Any, Sequence
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 STORED = os.path.join(HERE, "data", "quick_boards.json")
-PROTOCOLS = ("v0", "v1", "v2")
+PROTOCOLS = ("v0", "v1", "v2", "v3")
+#: The entries of the v0-v2 quick boards (the defaults of 0.11.0): a new default
+#: entry changes no frozen board.
+FROZEN_ENTRIES = ("none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp",
+                  "adaptive-ff", "velocity-feedback", "sensorless-damping", "calibrated-table",
+                  "repetitive-control", "tuned-constant-gain", "oracle-floor", "ars-per-step",
+                  "ars-per-step-25hz", "ppo-gain-selector", "ppo-per-step", "td3-per-step")
 _ABOVE_V2 = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 _ABOVE_V3 = "X86_V4 AVX512_ICL AVX512_SPR"
 _NO_FMA_LIBC = "glibc.cpu.hwcaps=-AVX2,-FMA"
@@ -66,11 +74,14 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
                                     run_leaderboard)
     from stepdamp_env.bench.provenance import entry_fingerprints
 
+    from stepdamp_env.bench.protocols.v3 import full_protocol_v3, quick_protocol_v3
+
     make = {"v0": (quick_protocol, full_protocol), "v1": (quick_protocol_v1, full_protocol_v1),
-            "v2": (quick_protocol_v2, full_protocol_v2)}
+            "v2": (quick_protocol_v2, full_protocol_v2), "v3": (quick_protocol_v3, full_protocol_v3)}
     out = {}
     for name in protocols:
-        board = run_leaderboard(make[name][full](), workers=workers, progress=False)
+        entries = None if name == "v3" else list(FROZEN_ENTRIES)
+        board = run_leaderboard(make[name][full](), entries, workers=workers, progress=False)
         out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
     return out
 
@@ -135,11 +146,13 @@ def main(argv: list[str] | None = None) -> int:
                    help="variants to run (default: all)")
     p.add_argument("--protocol", action="append", choices=PROTOCOLS)
     p.add_argument("--store", action="store_true",
-                   help="store the native quick boards' fingerprints (a re-baseline)")
+                   help="store the native quick boards' fingerprints of --protocol (default: "
+                        "all; a re-baseline of a published protocol, or a new one)")
     args = p.parse_args(argv)
     protocols = tuple(args.protocol or PROTOCOLS)
-    if args.store:
-        data = run_variant("native", PROTOCOLS)
+    if args.store:          # the given protocols' (default: all), the others kept
+        data = stored() if os.path.exists(STORED) else {}
+        data.update(run_variant("native", protocols))
         with open(STORED, "w", encoding="utf-8") as fh:
             json.dump(data, fh, indent=1, sort_keys=True)
             fh.write("\n")

@@ -219,8 +219,9 @@ def test_protocol_versions():
     assert protocol_for("v1") == full_protocol_v1()
     assert protocol_for("v1", True) == quick_protocol_v1()
     assert protocol_for("v2").version == "v2" and protocol_for("v2", True).variant == "quick"
+    assert protocol_for("v3").version == "v3"
     with pytest.raises(ParameterError, match="--protocol"):
-        protocol_for("v3")
+        protocol_for("v4")
     json.dumps(full_protocol_v1().to_dict())
 
 
@@ -255,7 +256,8 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
     motors.write_text(json.dumps([{"base": "patent", "name": "my-nema23", "J": 6e-5},
                                   {"base": "qsh4218-51-10-049", "name": "my-nema17"}]))
     out = tmp_path / "board"
-    r = _cli("leaderboard", "--quick", "--motors", str(motors), "--entries", "ff-delay-comp",
+    r = _cli("leaderboard", "--protocol", "v1", "--quick", "--motors", str(motors),
+             "--entries", "ff-delay-comp",
              "patent-ff-oracle", "ppo-gain-selector", "--suite", "open-loop", "--no-plots",
              "--no-progress",
              "--workers", "2", "--out", str(out))
@@ -305,12 +307,12 @@ def test_motors_option_errors_are_one_line(tmp_path):
     assert r.returncode == 2 and "--protocol v1" in r.stderr
 
 
-def test_default_leaderboard_is_v1_with_its_figures_and_report(tmp_path, capsys):
+def test_v1_leaderboard_with_its_figures_and_report(tmp_path, capsys):
     from stepdamp_env.cli import main
 
     out = tmp_path / "lb"
-    assert main(["leaderboard", "--quick", "--entries", "ff-delay-comp", "--out", str(out),
-                 "--no-progress", "--workers", "2"]) == 0
+    assert main(["leaderboard", "--protocol", "v1", "--quick", "--entries", "ff-delay-comp",
+                 "--out", str(out), "--no-progress", "--workers", "2"]) == 0
     board = json.loads((out / "leaderboard.json").read_text())
     assert board["protocol"]["version"] == "v1"
     keys = {(e["name"], e["suite"], e["split"]) for e in board["entries"]}

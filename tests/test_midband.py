@@ -239,8 +239,9 @@ def test_cli_analyse_and_suite_errors(tmp_path):
     rows = json.loads(out.stdout)
     assert [r["drive_mode"] for r in rows] == ["current", "voltage"]
     assert rows[1]["unstable_rps"][0] == pytest.approx(3.5, abs=0.05)
-    bad = subprocess.run([sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--quick",
-                          "--suite", "mid-band", "--out", str(tmp_path / "x")],
+    bad = subprocess.run([sys.executable, "-m", "stepdamp_env.cli", "leaderboard",
+                          "--protocol", "v1", "--quick", "--suite", "mid-band",
+                          "--out", str(tmp_path / "x")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
     assert "--protocol v2" in bad.stderr

@@ -36,7 +36,7 @@ from ..simulation import RunSettings, SpeedProfile, simulate
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
-from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
+from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
 from .provenance import board_fingerprint, environment, package_versions
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
@@ -102,7 +102,7 @@ def _source(spec: str) -> PolicySource:
 
 
 def _make(spec: str, training_seed: int | None) -> Any:
-    source = _source(spec)
+    source = _source(REFERENCE_POLICY if spec == REFERENCE_ROW else spec)
     return source.make() if training_seed is None else source.training_seeds[training_seed]()
 
 
@@ -178,6 +178,8 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     for i, seed, j in batch.runs:
         motor = motors[i].for_suite(batch.suite)
         knowledge = _WORKER["knowledge"][(i, seed)]
+        if batch.spec == REFERENCE_ROW:     # policy none on the motor without the phenomenon
+            motor = protocol.reference_motor(motors[i], batch.suite)
         if motor is not motors[i]:          # the suite's drive mode (v2's mid-band)
             knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
         specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j], seed,
@@ -186,11 +188,12 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
         results = [run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
                                mode=mode, speed_rps=e.speed_rps, seed=e.seed,
                                accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
-                               settle_s=e.settle_s) for e in specs]
+                               settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit())
+                   for e in specs]
     else:
         results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
                                mode=mode, accel_rps2=protocol.accel_rps2,
-                               window_s=protocol.window_s)
+                               window_s=protocol.window_s, lag_limit_steps=protocol.lag_limit())
     records = []
     for (i, seed, j), spec, result in zip(batch.runs, specs, results):
         motor = motors[i]
@@ -265,7 +268,8 @@ def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
         Kd4=m.Kd4 * 1.5 + 1e-6, phi1=-m.phi1 if m.phi1 else 0.5))
 
 
-def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, Any]:
+def _policy_meta(source: PolicySource, knowledge: MotorKnowledge, protocol: Protocol
+                 ) -> dict[str, Any]:
     """Oracle flag and the env options of a policy, JSON-ready."""
     policy = source.make()
     options = policy_env_options(policy, knowledge)
@@ -286,6 +290,8 @@ def _policy_meta(source: PolicySource, knowledge: MotorKnowledge) -> dict[str, A
     if card is not None:
         out["knowledge"] = card.knowledge()
         out["learned"] = card.learned
+        if protocol.records_training_coverage:
+            out["trained_on"] = [list(t) for t in card.trained_on]
     return out
 
 
@@ -339,7 +345,7 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     # Options and oracle flag per policy, for the record; the last motor is a drawn
     # one in the full protocol, where nominal, identified and exact all differ.
     last = list(knowledge)[-1]
-    meta = {spec: _policy_meta(src, knowledge[last]) for spec, src in sources.items()}
+    meta = {spec: _policy_meta(src, knowledge[last], protocol) for spec, src in sources.items()}
     suites = {spec: _suites(src, protocol) for spec, src in sources.items()}
     batches = _batches(protocol, motors, sources, suites)
     records = _run_batches(protocol, motors, knowledge, sources, batches, run_map, workers,
@@ -393,6 +399,13 @@ def _batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
              suites: dict[str, tuple[tuple[str, ...], str]]) -> list[LeaderboardBatch]:
     """Every run, in batches of up to ``BATCH_RUNS`` of one entry, model and suite."""
     batches = []
+    for suite in protocol.suites:           # the reference rows (v3), before the entries
+        if protocol.reference_motor(motors[0], suite) is None:
+            continue
+        runs = [(i, seed, j) for i, m in enumerate(motors) for seed in protocol.eval_seeds
+                for j in range(len(m.speeds(suite).speeds_rps))]
+        batches += [LeaderboardBatch(REFERENCE_ROW, suite, None, tuple(runs[k:k + BATCH_RUNS]))
+                    for k in range(0, len(runs), BATCH_RUNS)]
     for spec, source in sources.items():
         for ts in source.factories(pooled=protocol.pools_training_seeds):
             for suite in suites[spec][0]:
@@ -493,7 +506,7 @@ def run_cells(protocol: Protocol, jobs: Sequence[LeaderboardJob],
     is stepped in). ``identified``: the drive's model per (motor index, seed)
     of the jobs; ``stepdamp report --check`` re-runs a board's cells with it."""
     motors = protocol_motors(protocol)
-    specs = sorted({job.spec for job in jobs})
+    specs = sorted({REFERENCE_POLICY if job.spec == REFERENCE_ROW else job.spec for job in jobs})
     sources = {spec: resolve_policy(spec) for spec in specs}
     knowledge = {pair: protocol_knowledge(motors[pair[0]], pair[1], model, protocol)
                  for pair, model in identified.items()}

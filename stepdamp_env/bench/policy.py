@@ -78,6 +78,9 @@ class PolicyCard:
         suites: the suites it runs in; ``not_in_suites`` says why not in the
             others.
         learned: its settings come from training (an agent).
+        trained_on: a learned entry's training coverage, (suite, lowest rev/s,
+            highest rev/s) ranges; from v3 on it is ranked only where these
+            cover a suite's headline speeds.
     """
 
     sensors: str
@@ -87,6 +90,7 @@ class PolicyCard:
     suites: tuple[str, ...] = ALL_SUITES
     not_in_suites: str = ""
     learned: bool = False
+    trained_on: tuple[tuple[str, float, float], ...] = ()
 
     def knowledge(self) -> str:
         """One line for the knowledge column."""

@@ -36,6 +36,7 @@ __all__ = [
     "SUITE_DRIVE_MODE",
     "FAILURE_RATIO",
     "REFERENCE_POLICY",
+    "REFERENCE_ROW",
     "PHASE_FIELDS",
     "Protocol",
     "rank",
@@ -68,6 +69,10 @@ POLICY_OPTIONS_V1 = ("base_controller", "estimate", "action_mode", "agent_hz",
 # The reference of every ratio: the base controller alone, without feedforward
 # (a zero action with ``base_controller="none"``); its entry has this name.
 REFERENCE_POLICY = "none"
+
+# The unranked row of a suite's "no phenomenon" runs (v3): policy ``none`` on
+# :meth:`Protocol.reference_motor`, the same motor without what the suite scores.
+REFERENCE_ROW = "reference"
 
 # Drawn as absolute values (rad), not as factors.
 PHASE_FIELDS = ("phi1", "phi2")
@@ -111,6 +116,8 @@ class Protocol(abc.ABC):
     nominal_on_failed_identification: ClassVar[bool] = False
     #: Fewer training seeds than this: the report makes no claim for the entry.
     min_training_seeds: ClassVar[int] = 1
+    #: Entries' records carry their card's ``trained_on`` (v3's eligibility rule).
+    records_training_coverage: ClassVar[bool] = False
 
     @abc.abstractmethod
     def motors(self) -> tuple["ProtocolMotor", ...]:
@@ -133,10 +140,27 @@ class Protocol(abc.ABC):
     def with_suites(self, suites: Sequence[str]) -> "Protocol":
         """The same protocol on a subset of its suites."""
 
+    def with_splits(self, splits: Sequence[str]) -> "Protocol":
+        """The same protocol on other splits (``--split``)."""
+        raise ParameterError(f"--split: {self.name} {self.version} has no choice of splits "
+                             "(--protocol v3 or later)")
+
     def with_custom_motors(self, systems: Sequence["SystemParams"]) -> "Protocol":
         """The protocol on the user's motors (``--motors FILE``)."""
         raise ParameterError(f"--motors: {self.name} {self.version}'s motors are frozen; "
                              "use a protocol with a custom split (--protocol v1 or later)")
+
+    def lag_limit(self) -> float | None:
+        """The env's lag limit in full steps for this version's runs, which are then
+        judged by their final slip (:func:`.runner.lost_steps`); None (the
+        default): a lag past one full step ends the run as a step loss."""
+        return None
+
+    def reference_motor(self, motor: "ProtocolMotor", suite: str) -> "ProtocolMotor | None":
+        """The motor a suite's ``reference`` row runs policy ``none`` on: the same
+        motor, speeds, drive and sensors without the phenomenon the suite scores;
+        None (the default): the version has no reference rows."""
+        return None
 
     def checked_suites(self, suites: Sequence[str]) -> tuple[str, ...]:
         """``suites`` as a tuple, or a one-line error naming what this version has."""

@@ -54,6 +54,45 @@ def format_summary(s: Mapping[str, Any]) -> str:
     return f"{s['iqm']:#.4g} [{lo:#.4g}, {hi:#.4g}]"
 
 
+def format_db(s: Mapping[str, Any]) -> str:
+    """``IQM [low, high]`` of a v3 score (``attenuation_db``, ``gap_closed``, ``ratio``)."""
+    lo, hi = s["ci"]
+    if not lo < hi:
+        return f"{s['iqm']:.3g} (no interval)"
+    return f"{s['iqm']:.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+def scored_in_db(board: Mapping[str, Any]) -> bool:
+    """Whether the board's rows are v3's (attenuation in dB, reference rows)."""
+    return any("attenuation_db" in e for e in board["entries"])
+
+
+def row_rank(e: Mapping[str, Any]) -> str:
+    """A row's rank column: its rank, or why it has none (v3)."""
+    if e.get("rank") is not None:
+        return str(e["rank"])
+    if e.get("reference"):
+        return "ref"
+    return "zero-shot" if e.get("zero_shot") else "bound" if e.get("privileged") else "-"
+
+
+def score_label(e: Mapping[str, Any]) -> str:
+    """A row's headline for a figure's legend: v3's attenuation, else the ratio."""
+    if "attenuation_db" in e:
+        return f"{e['attenuation_db']['iqm']:.1f} dB"
+    return f"headline {e['headline']['iqm']:.3g}"
+
+
+def entry_line(e: Mapping[str, Any]) -> str:
+    """One console line of a row."""
+    sl = e["step_losses"]
+    if "attenuation_db" in e:
+        return (f"{row_rank(e):>9s}. {e['name']:28s} {format_db(e['attenuation_db']):26s} dB, "
+                f"gap closed {format_db(e['gap_closed']):24s} success {e['success_rate']:.2f}")
+    return (f"{e['rank']:2d}. {e['name']:28s} headline IQM {format_summary(e['headline']):32s} "
+            f"step losses {sl['runs_lost']}/{sl['runs']}")
+
+
 def has_splits(board: Mapping[str, Any]) -> bool:
     """Whether the board's entries are per split of its motors (v1 and later)."""
     return "splits" in board["protocol"]
@@ -67,6 +106,8 @@ def splits(board: Mapping[str, Any]) -> list[str | None]:
 def render_markdown(board: Mapping[str, Any]) -> str:
     """``LEADERBOARD.md``: one ranked table per suite (v1: per split and suite,
     with the probability of improvement of every pair)."""
+    if scored_in_db(board):
+        return _render_markdown_db(board)
     if has_splits(board):
         return _render_markdown_by_split(board)
     p = board["protocol"]
@@ -174,15 +215,75 @@ def _render_markdown_by_split(board: Mapping[str, Any]) -> str:
     return _with_versions(board, lines)
 
 
+def _render_markdown_db(board: Mapping[str, Any]) -> str:
+    p = board["protocol"]
+    counts = {sp: sum(m.get("split") == sp for m in p["motors"]) for sp in p["splits"]}
+    lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
+             "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
+             + f"; evaluation seeds {', '.join(str(k) for k in p['eval_seeds'])}. Wall time "
+             f"{board.get('wall_seconds', math.nan):.0f} s, simulated "
+             f"{board.get('simulated_seconds', math.nan):.0f} s.",
+             "Attenuation: 20 log10(ripple of `none` / ripple of the entry) at the suite's "
+             "headline speeds, per motor (mean over speeds, seeds, training seeds), IQM over "
+             "motors [95 % interval] (higher is better; 0 dB = no damping; a lost run "
+             f"{p.get('failure_db', -20):g} dB). Gap closed: attenuation / the `reference` "
+             "row's (the same motors without the phenomenon: 1 = as good as removing it). "
+             "Ratio: ripple over `none`'s. Full sweep: mean / worst ratio over every speed. "
+             "Rank: entries whose intervals overlap share a rank; `ref`, `bound` "
+             "(privileged: true state or exact model) and `zero-shot` (a learned entry "
+             "outside its training coverage) rows are unranked. Effect: median over motors "
+             "of the difference in dB against the best ranked entry, with its interval.", ""]
+    for suite in p["suites"]:
+        for split in p["splits"]:
+            rows = entry_rows(board, suite, split)
+            if not rows:
+                continue
+            best = next((e for e in rows if e.get("rank") == 1), None)
+            lines += [f"## {suite}, {split}", "",
+                      "| rank | entry | attenuation (dB) | gap closed | ratio | success | "
+                      "full sweep mean / worst | effect vs "
+                      f"{best['name'] if best else '-'} (dB) | P(better than it) | "
+                      "training seeds | knowledge |",
+                      "|---|---|---|---|---|---|---|---|---|---|---|"]
+            for e in rows:
+                fs = e["full_sweep"]
+                eff = e.get("effect_db", {}).get(best["name"]) if best and e is not best \
+                    else None
+                poi = e.get("probability_of_improvement", {}).get(best["name"]) \
+                    if best and e is not best else None
+                seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
+                effect = (f"{eff['median']:+.2f} [{eff['ci'][0]:+.2f}, {eff['ci'][1]:+.2f}]"
+                          if eff else "-")
+                know = ("policy none on the motor without the phenomenon"
+                        if e.get("reference") else entry_knowledge(e))
+                lines.append(
+                    f"| {row_rank(e)} | {e['name']} | {format_db(e['attenuation_db'])} | "
+                    f"{format_db(e['gap_closed'])} | {format_db(e['ratio'])} | "
+                    f"{e['success_rate']:.2f} | {fs['mean']:.3g} / {fs['worst']:.3g} | "
+                    f"{effect} | {'-' if poi is None else f'{poi:.2f}'} | {seeds} | {know} |")
+            lines.append("")
+        lines += _not_run(board, suite)
+    return _with_versions(board, lines)
+
+
 def render_per_motor(board: Mapping[str, Any], suite: str, split: str) -> str:
     """Per motor, the entries ranked by their mean headline on it (the custom
-    split's answer to "which damping is best on my motor?")."""
+    split's answer to "which damping is best on my motor?"; v3: by attenuation)."""
     rows = entry_rows(board, suite, split)
     motors = [m["name"] for m in board["protocol"]["motors"] if m.get("split") == split]
-    lines = [f"Per motor, {suite}, {split} (mean headline over its cells; lower is better):",
+    in_db = scored_in_db(board)
+    what = ("attenuation in dB, mean over its speeds; higher is better" if in_db else
+            "mean headline over its cells; lower is better")
+    lines = [f"Per motor, {suite}, {split} ({what}):",
              "", "| motor | " + " | ".join(f"#{k}" for k in range(1, len(rows) + 1)) + " |",
              "|---|" + "---|" * len(rows)]
     for motor in motors:
+        if in_db:
+            ranked = sorted((-e["per_motor_db"][motor], e["name"]) for e in rows
+                            if motor in e["per_motor_db"])
+            lines.append(f"| {motor} | " + " | ".join(f"{n} {-v:.3g}" for v, n in ranked)
+                         + " |")
+            continue
         ranked = sorted((e["per_motor_headline_mean"][motor], e["name"]) for e in rows
                         if motor in e["per_motor_headline_mean"])
         lines.append(f"| {motor} | " + " | ".join(f"{n} {v:.4g}" for v, n in ranked) + " |")
@@ -193,7 +294,15 @@ def entry_rows(board: Mapping[str, Any], suite: str, split: str | None = None
                ) -> list[Mapping[str, Any]]:
     """One table's entries by rank: a suite (and, on a v1 board, a split)."""
     return sorted((e for e in board["entries"] if e["suite"] == suite
-                   and e.get("split") == split), key=lambda e: e["rank"])
+                   and e.get("split") == split), key=_row_order)
+
+
+def _row_order(e: Mapping[str, Any]) -> tuple:
+    if "attenuation_db" not in e:
+        return (e["rank"],)
+    db = e["attenuation_db"]["iqm"]
+    return (not e.get("reference"), e.get("rank") is None, e.get("rank") or 0,
+            -db if math.isfinite(db) else math.inf, e["name"])
 
 
 def entry_knowledge(e: Mapping[str, Any]) -> str:
@@ -217,6 +326,8 @@ def render_ladder(board: Mapping[str, Any]) -> str:
     p = board["protocol"]
     columns = [(suite, split) for suite in p["suites"] for split in splits(board)]
     by = {(e["name"], e["suite"], e.get("split")): e for e in board["entries"]}
+    if scored_in_db(board):
+        return _ladder_db(board, columns, by)
     names = [e["name"] for e in entry_rows(board, *columns[0])]
     names += sorted({e["name"] for e in board["entries"]} - set(names))
     if has_splits(board):
@@ -239,6 +350,33 @@ def render_ladder(board: Mapping[str, Any]) -> str:
         oracle = any(by[(name, *k)].get("oracle") for k in columns if (name, *k) in by)
         lines.append(f"| {name}{' (oracle)' if oracle else ''} | " + " | ".join(cells)
                      + f" | {know} |")
+    return "\n".join(lines) + "\n"
+
+
+def _ladder_db(board: Mapping[str, Any], columns: list[tuple[str, Any]],
+               by: Mapping[tuple, Mapping[str, Any]]) -> str:
+    """v3's ladder: attenuation (dB) per suite and split, the reference row first."""
+    p = board["protocol"]
+    names = [e["name"] for e in entry_rows(board, *columns[0])]
+    names += sorted({e["name"] for e in board["entries"]} - set(names))
+    title = (f"{p['name']} {p['version']} ({p['variant']}): attenuation of the velocity ripple "
+             "at the headline speeds against no damping, dB (higher is better), IQM over "
+             "motors [95 % interval]; rank in parentheses (shared where intervals overlap), "
+             "`ref`: the same motors without the phenomenon, `bound`: privileged, "
+             "`zero-shot`: a learned entry outside its training coverage (unranked)")
+    heads = [f"{suite}, {split}" for suite, split in columns]
+    lines = [title, "", "| entry | " + " | ".join(heads) + " | knowledge |",
+             "|---|" + "---|" * len(heads) + "---|"]
+    for name in names:
+        cells, know = [], ""
+        for key in columns:
+            e = by.get((name, *key))
+            cells.append(f"{format_db(e['attenuation_db'])} ({row_rank(e)})" if e
+                         else "not run")
+            if e and not know:
+                know = ("policy none on the motor without the phenomenon" if e.get("reference")
+                        else entry_knowledge(e))
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {know} |")
     return "\n".join(lines) + "\n"
 
 
@@ -303,7 +441,8 @@ def policy_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
 
 def _suite_rows(board: Mapping[str, Any], suite: str) -> list[Mapping[str, Any]]:
     """The suite's entries by rank, of the representative motor's split (v1)."""
-    return entry_rows(board, suite, board["protocol"]["motors"][0].get("split"))
+    return [e for e in entry_rows(board, suite, board["protocol"]["motors"][0].get("split"))
+            if not e.get("reference")]
 
 
 def _first_model(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -336,7 +475,15 @@ def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
         ax.semilogy([r["speed_rps"] for r in rs],
                     [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], color=colour,
                     marker=marker, ms=4 + 1.2 * k, mfc="none", lw=1.0,
-                    zorder=3 + n - k, label=f"{e['rank']}. {e['name']}")
+                    zorder=3 + n - k, label=f"{row_rank(e)}. {e['name']}")
+    split = board["protocol"]["motors"][0].get("split")
+    for e in entry_rows(board, suite, split):      # v3: the motor without the phenomenon
+        if e.get("reference"):
+            rs = sorted((r for r in e["runs"] if r["motor"] == motor and r["seed"] == seed
+                         and r["metrics"] is not None), key=lambda r: r["speed_rps"])
+            ax.semilogy([r["speed_rps"] for r in rs],
+                        [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], "k--", lw=1.2,
+                        zorder=2, label="reference (no phenomenon)")
     if suite == "open-loop":
         mark_resonances(ax, info["predicted_resonances_rps"])
     finish_ripple_axes(ax, f"{suite}: {motor}, seed {seed}")
@@ -391,12 +538,13 @@ def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
             r = run_episode(resolve_policy(e["spec"]).make(), knowledge, motor.system,
                             mode=suite, speed_rps=float(v), seed=seed,
                             accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
-                            settle_s=motor.settle_s(suite))
+                            settle_s=motor.settle_s(suite),
+                            lag_limit_steps=protocol.lag_limit())
             ripple.append(r.metrics["rms_velocity_error_rad_s"] if r.metrics and not r.failed
                           else math.nan)
         colour, marker = styles[e["name"]]
         ax.semilogy(speeds, ripple, color=colour, marker=marker, ms=4, mfc="none", lw=1.2,
-                    label=f"{e['name']}\n(headline {e['headline']['iqm']:.3g})")
+                    label=f"{e['name']}\n({score_label(e)})")
     mark_resonances(ax, res)
     finish_ripple_axes(ax, f"Velocity ripple, {suite}: {motor.name}, seed {seed}")
     save_figure(fig, path)
@@ -420,6 +568,7 @@ def trace_run(spec: str, motor: ProtocolMotor, knowledge: MotorKnowledge, suite:
                          speed_rps=speed_rps, seed=seed, accel_rps2=protocol.accel_rps2,
                          window_s=protocol.window_s, settle_s=motor.settle_s(suite),
                          until_s=None if span_s is None else start + span_s,
+                         lag_limit_steps=protocol.lag_limit(),
                          on_step=sample, pwm_trace=True)
     rows = np.concatenate(result.trace) if result.trace else np.zeros((0, len(K.TRACE)))
     end = start + (length if span_s is None else span_s)
@@ -498,7 +647,7 @@ def plot_performance_profile(board: Mapping[str, Any], path: str) -> None:
             frac = np.searchsorted(v, taus, side="right") / max(v.size, 1)
             ax.semilogx(taus, frac, color=colour, lw=1.3, ls="--" if e.get("oracle") else "-",
                         marker=marker, ms=3, markevery=(names.index(e["name"]) * 7 % 30, 30),
-                        label=f"{e['name']} ({e['headline']['iqm']:.3g})")
+                        label=f"{e['name']} ({score_label(e)})")
         ax.set_title(f"{suite}, {split}", fontsize=9, loc="left")
         ax.set_xlabel("headline tau (ripple over undamped)")
         ax.set_ylabel("fraction of cells <= tau")

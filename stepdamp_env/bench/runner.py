@@ -29,7 +29,8 @@ from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measurin
 from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
                      policy_env_options)
 
-__all__ = ["EpisodeResult", "EpisodeSpec", "run_episode", "run_episodes", "episode_window"]
+__all__ = ["EpisodeResult", "EpisodeSpec", "run_episode", "run_episodes", "episode_window",
+           "lost_steps"]
 
 
 @dataclass
@@ -48,6 +49,9 @@ class EpisodeResult:
         calibration_s: simulated seconds the policy spent calibrating on its
             rig before the run (its ``calibration_s`` after reset; not scored).
         simulated_s: simulated seconds the episode ran (ramp, settling, window).
+        slip_cycles: with a lag limit (stepdamp-bench v3), how far the rotor
+            trails its command at the end, in electrical cycles (2*pi/Nr rad);
+            None otherwise (and left out of the record).
     """
 
     terminated: bool
@@ -60,6 +64,7 @@ class EpisodeResult:
     trace: list[Any] = field(default_factory=list)
     calibration_s: float = 0.0
     simulated_s: float = 0.0
+    slip_cycles: float | None = None
 
     def record(self, motor: str, seed: int, speed_rps: float, speed_label: str,
                training_seed: int | None = None) -> dict[str, Any]:
@@ -73,11 +78,25 @@ class EpisodeResult:
 
     def to_dict(self) -> dict[str, Any]:
         """What the run gave (without the trace)."""
-        return {"terminated": self.terminated, "termination": self.termination,
-                "failed": self.failed, "steps": self.steps,
-                "window_start_s": self.window_start_s, "window_s": self.window_s,
-                "metrics": self.metrics, "calibration_s": self.calibration_s,
-                "simulated_s": self.simulated_s}
+        out = {"terminated": self.terminated, "termination": self.termination,
+               "failed": self.failed, "steps": self.steps,
+               "window_start_s": self.window_start_s, "window_s": self.window_s,
+               "metrics": self.metrics, "calibration_s": self.calibration_s,
+               "simulated_s": self.simulated_s}
+        if self.slip_cycles is not None:
+            out["slip_cycles"] = self.slip_cycles
+        return out
+
+
+def lost_steps(terminated: bool, metrics: dict[str, Any] | None, slip: float | None) -> bool:
+    """Whether a run failed: it terminated, or (no lag limit) the core saw a lag past
+    one full step, or (a lag limit: v3) the rotor ends a whole electrical cycle or
+    more behind or ahead of its command (a recoverable lag is no loss)."""
+    if terminated:
+        return True
+    if slip is None:
+        return metrics is not None and bool(metrics["step_loss"])
+    return abs(slip) >= 0.5
 
 
 def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
@@ -104,13 +123,15 @@ class EpisodeSpec:
 
 
 def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
-              render: str | None) -> tuple[Any, float, float, float, dict[str, Any]]:
+              render: str | None, lag_limit_steps: float | None = None
+              ) -> tuple[Any, float, float, float, dict[str, Any]]:
     """The episode's env (not reset), window (start, length), end time and options."""
     system = spec.system
     start, length = episode_window(system, spec.speed_rps, accel_rps2, window_s, spec.settle_s)
     if spec.measure_from_s is not None:
         start, length = float(spec.measure_from_s), float(window_s)
     options = policy_env_options(policy, spec.knowledge)
+    protocol_options = {} if lag_limit_steps is None else {"lag_limit_steps": lag_limit_steps}
     # Half a PWM period of slack: time_s is a float multiple of the period.
     end = start + length - 0.5 / system.drive.pwm_hz if spec.until_s is None else spec.until_s
     env: Any
@@ -118,11 +139,11 @@ def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, wind
         env = StepperDampV1Env(motor=system, nominal=spec.knowledge.nominal, mode=mode,
                                speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
                                measure_from_s=start, episode_s=end + 1.0, render_mode=render,
-                               **options)
+                               **options, **protocol_options)
     else:
         env = StepperDampEnv(motor=system, mode=mode, speed_rps=spec.speed_rps,
                              accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
-                             **options)
+                             **options, **protocol_options)
     return env, start, length, end, options
 
 
@@ -132,7 +153,7 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 settle_s: float | None = None, measure_from_s: float | None = None,
                 until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
-                pwm_trace: bool = False) -> EpisodeResult:
+                pwm_trace: bool = False, lag_limit_steps: float | None = None) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` (or in ``StepperDamp-v1`` if its
     ``env_id`` says so: the drive's ``nominal`` model is then the knowledge's) on
     the true plant ``system``.
@@ -148,10 +169,13 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     step; what it returns (if not None) is kept in ``trace``. With
     ``pwm_trace`` the env records every PWM period of a step
     (``env.step_trace``) for ``on_step`` to read; the run is otherwise the same.
+    ``lag_limit_steps`` (stepdamp-bench v3): the env's lag limit, and the run
+    is judged by its final slip (:func:`lost_steps`).
     """
     spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s)
     env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
-                                                 "rgb_array" if pwm_trace else None)
+                                                 "rgb_array" if pwm_trace else None,
+                                                 lag_limit_steps)
     obs, _ = env.reset(seed=seed)
     policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
     steps, terminated, reason = 0, False, ""
@@ -172,17 +196,18 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
         metrics: dict[str, Any] | None = env.run_metrics().to_dict()
     except ValueError:                  # terminated before the window opened
         metrics = None
+    slip = env.slip_cycles if lag_limit_steps is not None else None
     env.close()
-    failed = terminated or (metrics is not None and bool(metrics["step_loss"]))
-    return EpisodeResult(terminated=bool(terminated), termination=reason, failed=bool(failed),
+    return EpisodeResult(terminated=bool(terminated), termination=reason,
+                         failed=lost_steps(bool(terminated), metrics, slip),
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
                          trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
-                         simulated_s=float(time_s))
+                         simulated_s=float(time_s), slip_cycles=slip)
 
 
 def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *, mode: str,
-                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3
-                 ) -> list[EpisodeResult]:
+                 accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
+                 lag_limit_steps: float | None = None) -> list[EpisodeResult]:
     """One episode per spec, all of one policy and suite, stepped together.
 
     ``make_policy()`` gives a fresh policy: a :class:`.policy.BatchPolicy`
@@ -197,7 +222,7 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
     envs, ends, windows, contexts = [], np.zeros(n), [], []
     for i, spec in enumerate(specs):
         env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
-                                                     None)
+                                                     None, lag_limit_steps)
         env.reset(seed=spec.seed)
         envs.append(env)
         ends[i] = end
@@ -231,13 +256,15 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
                     metrics: dict[str, Any] | None = batch.run_metrics(j).to_dict()
                 except ValueError:          # terminated before the window opened
                     metrics = None
-                failed = term or (metrics is not None and bool(metrics["step_loss"]))
+                slip = batch.slip_cycles(j) if lag_limit_steps is not None else None
                 cal = float(calibration(row)) if calibration is not None else \
                     float(getattr(policy, "calibration_s", 0.0))
                 results[i] = EpisodeResult(
-                    terminated=term, termination=reason, failed=bool(failed),
+                    terminated=term, termination=reason,
+                    failed=lost_steps(term, metrics, slip),
                     steps=int(steps[row]), window_start_s=windows[i][0], window_s=windows[i][1],
-                    metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]))
+                    metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]),
+                    slip_cycles=slip)
             if done.any():
                 keep = np.flatnonzero(~done)
                 batch.keep(keep)

@@ -65,6 +65,7 @@ PARAM = layout("EpisodeRow", """
     ACT_SCALE_4
     ACT_SCALE_5
     ACT_SCALE_6
+    LAG_LIMIT    lag past which the episode ends with a step loss (rad)
 """)
 
 # Per-step physical outputs (float64 row).
@@ -186,7 +187,7 @@ def observe(s, acc, a, par, ix, privileged, obs, out):
         i2 = acc[i, ix[KERNEL_FIELDS.SUM_IFF2_ALL]] / n
         lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
         peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
-        step_loss = lag > full_step
+        step_loss = lag > par[i, PARAM.LAG_LIMIT]
         overcurrent = peak > par[i, PARAM.I_LIMIT]
         # A non-finite plant ends the episode; the reward stays finite.
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)

@@ -16,6 +16,7 @@ the same bits in any batch.
 from __future__ import annotations
 
 import abc
+import math
 from types import SimpleNamespace
 from typing import Any, Sequence
 
@@ -28,7 +29,7 @@ from ..simulation import RunMetrics, merge_accumulator_rows, metrics_from_accumu
 from .actions import action_error, as_action
 from .arguments import check_batch_envs
 
-__all__ = ["EnvTask", "DriveBatch", "OneDriveEnv", "StepperDampBatch"]
+__all__ = ["EnvTask", "DriveBatch", "OneDriveEnv", "StepperDampBatch", "slip_cycles"]
 
 
 class EnvTask(abc.ABC):
@@ -212,6 +213,14 @@ class DriveBatch:
         return self.task.step_info(self, i)
 
 
+def slip_cycles(state: np.ndarray, system: SystemParams | None) -> float:
+    """(theta_cmd - theta) of a drive's state in electrical cycles (2*pi/Nr rad)."""
+    if system is None:
+        return 0.0
+    lag = state[K.STATE.THETA_CMD] - state[K.STATE.THETA]
+    return float(lag * system.motor.Nr / (2.0 * math.pi))
+
+
 class OneDriveEnv:
     """What a scalar env of any version reads off its drive, a :class:`DriveBatch`
     of one (``_drives``), with its ``task``, its trace rows (``_trace``), its
@@ -227,6 +236,12 @@ class OneDriveEnv:
     def drive_state(self) -> np.ndarray:
         """Copy of the kernel's state vector (``kernel.STATE``; SI units)."""
         return self._drives.s[0].copy()
+
+    @property
+    def slip_cycles(self) -> float:
+        """How far the rotor trails its command, in electrical cycles (2*pi/Nr rad, four
+        full steps): a whole number of them is steps lost for good."""
+        return slip_cycles(self._drives.s[0], self._drives.systems[0])
 
     @property
     def speed_rps(self) -> float:
@@ -324,6 +339,10 @@ class StepperDampBatch:
         merge_accumulator_rows(self._run, d.acc)
         out = d.task.out_layout
         return (terminated, d.out[:, out.STEP_LOSS] != 0.0, d.out[:, out.OVERCURRENT] != 0.0)
+
+    def slip_cycles(self, i: int) -> float:
+        """Row i's slip in electrical cycles, as the env's ``slip_cycles``."""
+        return slip_cycles(self._d.s[i], self._d.systems[i])
 
     def run_metrics(self, i: int) -> RunMetrics:
         """Row i's metrics, as the env's ``run_metrics()``."""

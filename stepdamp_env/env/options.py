@@ -114,6 +114,7 @@ class EnvOptions:
     current_penalty: float = 0.1
     termination_penalty: float = 100.0
     current_limit_factor: float = 3.0
+    lag_limit_steps: float = 1.0
     privileged: bool = False
     substeps: int = 1
     velocity_estimator: str = "lowpass"
@@ -153,6 +154,7 @@ class EnvOptions:
         check_number("termination_penalty", self.termination_penalty, 0.0, 1e9)
         check_number("current_limit_factor", self.current_limit_factor, 1.0, 100.0,
                      low_open=True)
+        check_number("lag_limit_steps", self.lag_limit_steps, 1.0, 1e9)
         if not isinstance(self.privileged, (bool, np.bool_)):
             raise ParameterError(f"privileged must be True or False, got {self.privileged!r}")
         check_choice("velocity_estimator", self.velocity_estimator, tuple(VELOCITY_ESTIMATORS))
@@ -228,6 +230,9 @@ OPTIONS_DOC = """
       of the nominal motor, 0.475 A for "patent"): physical size of action 1.0.
     * ``current_penalty`` (0.1), ``termination_penalty`` (100.0),
       ``current_limit_factor`` (3.0): see Rewards and Episode End.
+    * ``lag_limit_steps`` (1.0): the lag |theta_cmd - theta|, in full steps, past
+      which the episode ends with a step loss (up to 1e9: in effect never, for a
+      protocol that judges the final slip instead, stepdamp-bench v3).
     * ``privileged`` (False): append the true states to the observation.
     * ``substeps`` (1): RK4 plant steps per PWM period.
     * ``velocity_estimator`` ("lowpass"): the drive's velocity estimate,

@@ -194,6 +194,7 @@ class EpisodeSampler(EnvTask):
         c[:] = build_config(system, profile, settings, window_start_s=window)
         s[:] = initial_state(c)
         par[C.PARAM.FULL_STEP] = system.motor.full_step_rad
+        par[C.PARAM.LAG_LIMIT] = o.lag_limit_steps * system.motor.full_step_rad
         par[C.PARAM.W_REF] = TWO_PI * speed
         par[C.PARAM.HOLD] = system.drive.holding_current
         par[C.PARAM.SPEED_SCALE] = self._speed_scale

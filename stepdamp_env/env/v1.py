@@ -159,6 +159,7 @@ class TaskV1(EnvTask):
         par[V.PARAM.SPEED_UNIT] = u.speed_unit_rad_s
         par[V.PARAM.ID_CMD] = hold if o.mode == "open-loop" else 0.0
         par[V.PARAM.FULL_STEP] = system.motor.full_step_rad
+        par[V.PARAM.LAG_LIMIT] = o.lag_limit_steps * system.motor.full_step_rad
         par[V.PARAM.HOLD] = hold
         par[V.PARAM.I_LIMIT] = o.current_limit_factor * hold
         par[V.PARAM.CUR_PEN] = o.current_penalty

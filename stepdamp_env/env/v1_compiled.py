@@ -51,7 +51,7 @@ PARAM = layout("EpisodeRowV1", """
     CUR_UNIT     ripple current unit (A)
     SPEED_UNIT   normaliser of the speed command (rad/s)
     ID_CMD       the drive's d current command (A)
-    FULL_STEP    one full step (rad): step loss
+    FULL_STEP    one full step (rad)
     HOLD         holding current (A)
     I_LIMIT      unsafe phase current (A)
     CUR_PEN      weight of the current penalty
@@ -63,6 +63,7 @@ PARAM = layout("EpisodeRowV1", """
     ACT_SCALE_5
     ACT_SCALE_6
     ACT_SCALE_7
+    LAG_LIMIT    lag past which the episode ends with a step loss (rad)
 """)
 
 # Per-step physical outputs (float64 row): v0's, then the damping law's current.
@@ -184,7 +185,7 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
         l2 = law[i, lx[LAW_FIELDS.SUM_I2]] / n
         lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
         peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
-        step_loss = lag > par[i, PARAM.FULL_STEP]
+        step_loss = lag > par[i, PARAM.LAG_LIMIT]
         overcurrent = peak > par[i, PARAM.I_LIMIT]
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)
                 and math.isfinite(peak) and math.isfinite(l2)):

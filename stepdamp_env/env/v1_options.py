@@ -120,6 +120,7 @@ class EnvOptionsV1:
     law_limit_factor: float = 0.5
     current_penalty: float = 0.0
     current_limit_factor: float = 3.0
+    lag_limit_steps: float = 1.0
     privileged: bool = False
     substeps: int = 1
     velocity_estimator: str = "lowpass"
@@ -174,7 +175,8 @@ class EnvOptionsV1:
             resonance_spread=self.resonance_spread, accel_rps2=self.accel_rps2,
             action_mode="harmonic+current", agent_hz=self.agent_hz,
             harmonic_scale_nm=self.harmonic_scale_nm, current_scale_a=self.current_scale_a,
-            current_limit_factor=self.current_limit_factor, privileged=self.privileged,
+            current_limit_factor=self.current_limit_factor,
+            lag_limit_steps=self.lag_limit_steps, privileged=self.privileged,
             substeps=self.substeps, velocity_estimator=self.velocity_estimator,
             measure_from_s=self.measure_from_s)
 
@@ -193,7 +195,7 @@ OPTIONS_DOC_V1 = """
     ``overrides``, ``randomize``, ``mode``, ``estimate``, ``speed_rps``,
     ``speed_range_rps``, ``resonance_prob``, ``resonance_spread``,
     ``accel_rps2``, ``agent_hz``, ``harmonic_scale_nm``, ``current_scale_a``,
-    ``current_limit_factor``, ``privileged``, ``substeps``,
+    ``current_limit_factor``, ``lag_limit_steps``, ``privileged``, ``substeps``,
     ``velocity_estimator``, ``measure_from_s`` (see ``StepperDamp-v0``). New or
     changed in v1:
 

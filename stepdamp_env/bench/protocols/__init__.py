@@ -1,6 +1,6 @@
 """The registered ``stepdamp-bench`` versions, by name.
 
-Each version is one module here (v0, v1, v2) whose docstring is its
+Each version is one module here (v0, v1, v2, v3) whose docstring is its
 specification and whose ``PROTOCOL`` dict registers it: ``{"version": ...,
 "full": factory, "quick": factory}``. ``--protocol`` offers what is registered;
 :func:`protocol_for` builds one. Adding a version: docs/architecture.md,
@@ -13,13 +13,13 @@ from typing import Any, Callable, Mapping
 
 from ...params import ParameterError
 from ..protocol import Protocol
-from . import v0, v1, v2
+from . import v0, v1, v2, v3
 
 __all__ = ["register_protocol", "protocol_versions", "protocol_for", "protocol_class",
            "DEFAULT_VERSION"]
 
 # What `stepdamp leaderboard` runs without --protocol.
-DEFAULT_VERSION = "v1"
+DEFAULT_VERSION = "v3"
 
 _REGISTRY: dict[str, dict[str, Callable[[], Protocol]]] = {}
 
@@ -32,7 +32,7 @@ def register_protocol(entry: Mapping[str, Any]) -> None:
     _REGISTRY[version] = {"full": entry["full"], "quick": entry["quick"]}
 
 
-for _module in (v0, v1, v2):
+for _module in (v0, v1, v2, v3):
     register_protocol(_module.PROTOCOL)
 
 

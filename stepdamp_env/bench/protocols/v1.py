@@ -242,9 +242,10 @@ class ProtocolV1(Protocol):
 
     def __post_init__(self) -> None:
         self.check_suites_and_seeds()
-        bad = [s for s in self.splits if s not in SPLITS]
+        bad = [s for s in self.splits if s not in self.known_splits]
         if bad or not self.splits:
-            raise ParameterError(f"splits={self.splits!r}: each must be one of {list(SPLITS)}")
+            raise ParameterError(f"splits={self.splits!r}: each must be one of "
+                                 f"{list(self.known_splits)}")
         if ("custom" in self.splits) != bool(self.custom_motors):
             raise ParameterError("custom_motors: give motors exactly when the 'custom' "
                                  "split is run (--motors FILE)")
@@ -308,6 +309,8 @@ class ProtocolV1(Protocol):
 
     # -- what the runner and the report ask ------------------------------------------
     known_suites: ClassVar[tuple[str, ...]] = SUITES
+    #: The splits this version may run.
+    known_splits: ClassVar[tuple[str, ...]] = SPLITS
     pools_training_seeds: ClassVar[bool] = True
     nominal_on_failed_identification: ClassVar[bool] = True
     min_training_seeds: ClassVar[int] = 5
@@ -315,6 +318,23 @@ class ProtocolV1(Protocol):
     def motors(self) -> tuple[ProtocolMotor, ...]:
         """Interpolation, then extrapolation, or the custom motors."""
         return _motors(self)
+
+    def build_motor(self, name: str, system: SystemParams, nominal: SystemParams, split: str,
+                    family: str, attempts: int) -> ProtocolMotor:
+        """One drawn (or custom) motor with its sensors (:meth:`motor_sensors`), its
+        per-suite grids (:meth:`suite_grids`) and settling (:meth:`settle_times`)."""
+        system, nominal = self.motor_sensors(name, system, nominal, split)
+        grids = self.suite_grids(system)
+        settle = self.settle_times(system)
+        return ProtocolMotor(name, system, nominal, grids[0][1], grids[0][2], attempts,
+                             split=split, family=family, grids=grids,
+                             settle=tuple((s, settle[s]) for s in settle))
+
+    def motor_sensors(self, name: str, system: SystemParams, nominal: SystemParams,
+                      split: str) -> tuple[SystemParams, SystemParams]:
+        """(plant, nominal model) with the motor's sensors: v1 gives every drawn
+        motor the protocol's; a later version may draw them per motor."""
+        return system, nominal
 
     def suite_grids(self, system: SystemParams
                     ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
@@ -384,13 +404,6 @@ def quick_protocol_v1() -> ProtocolV1:
     return ProtocolV1(**QUICK_SETTINGS)
 
 
-# The reduced CI variant's settings (v1's; v2 adds its mid-band speeds).
-_QUICK: dict[str, Any] = dict(
-    variant="quick", interpolation_per_preset=1,
-    extrapolation_pairs=((0, "inertia"), (1, "0.9-degree"), (2, "load-torque"), (3, "low-bus")),
-    off_resonance=(), servo_factors=(0.1, 0.3), window_s=0.1, bootstrap_resamples=500)
-
-
 PROTOCOL = {"version": "v1", "full": full_protocol_v1, "quick": quick_protocol_v1}
 
 
@@ -439,15 +452,6 @@ def _apply_shift(nom: SystemParams, changes: dict[str, Any], shift: Shift,
     return out, declared
 
 
-def _v1_motor(name: str, system: SystemParams, nominal: SystemParams, protocol: ProtocolV1,
-              split: str, family: str, attempts: int) -> ProtocolMotor:
-    grids = protocol.suite_grids(system)
-    settle = protocol.settle_times(system)
-    return ProtocolMotor(name, system, nominal, grids[0][1], grids[0][2], attempts, split=split,
-                         family=family, grids=grids,
-                         settle=tuple((s, settle[s]) for s in settle))
-
-
 def _motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
     motors: list[ProtocolMotor] = []
     nominals = {name: with_sensors(get_preset(name), protocol) for name in protocol.presets}
@@ -484,10 +488,10 @@ def _motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
         label = f"{preset}~x-{shift_name}"
         extrap.append((label, *draw(label, nominals[preset], shifts[shift_name]), shift_name))
     if "interpolation" in protocol.splits:
-        motors += [_v1_motor(n, s, nom, protocol, "interpolation", fam, a)
+        motors += [protocol.build_motor(n, s, nom, "interpolation", fam, a)
                    for n, s, nom, a, fam in interp]
     if "extrapolation" in protocol.splits:
-        motors += [_v1_motor(n, s, nom, protocol, "extrapolation", fam, a)
+        motors += [protocol.build_motor(n, s, nom, "extrapolation", fam, a)
                    for n, s, nom, a, fam in extrap]
     if "custom" in protocol.splits:
         for system in protocol.custom_motors:
@@ -499,7 +503,7 @@ def _motors(protocol: ProtocolV1) -> tuple[ProtocolMotor, ...]:
                     f"{m.Km * system.drive.holding_current:.4g} N*m must be >= "
                     f"{protocol.holding_margin:g} x (Kd1 + Kd2 + Kd4 + Fs + |load_torque|) = "
                     f"{protocol.holding_margin * need:.4g} N*m")
-            motors.append(_v1_motor(system.name, system, system, protocol, "custom", "custom",
+            motors.append(protocol.build_motor(system.name, system, system, "custom", "custom",
                                     0))
     return tuple(motors)
 

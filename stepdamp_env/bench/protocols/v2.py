@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from ... import fixedmath as fm
-from ...analysis import midband
+from ...analysis import MIDBAND_SCAN_RPS, midband
 from ...params import ParameterError, SystemParams
 from ..protocol import ALL_SUITES
 from .v1 import QUICK_SETTINGS, ProtocolV1
@@ -75,11 +75,14 @@ def quick_protocol_v2() -> ProtocolV2:
 PROTOCOL = {"version": "v2", "full": full_protocol_v2, "quick": quick_protocol_v2}
 
 
-def midband_grid(system: SystemParams, protocol: ProtocolV2
+def midband_grid(system: SystemParams, protocol: ProtocolV2,
+                 scan: tuple[float, float, float] = MIDBAND_SCAN_RPS,
+                 first_band_only: bool = False
                  ) -> tuple[tuple[float, ...], tuple[str, ...]]:
     """v2's mid-band speeds (rev/s), labelled ``m<factor>``: log-spaced through the
-    predicted unstable band of ``system`` in voltage mode (see :class:`ProtocolV2`)."""
-    band = midband(system.replace(drive_mode="voltage"))
+    predicted unstable band of ``system`` in voltage mode (see :class:`ProtocolV2`),
+    found on the speed grid ``scan`` (:func:`stepdamp_env.analysis.midband`)."""
+    band = midband(system.replace(drive_mode="voltage"), scan, first_band_only)
     if band.unstable_rps is not None:
         lo, hi = band.unstable_rps
     else:

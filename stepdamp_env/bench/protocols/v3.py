@@ -1,0 +1,517 @@
+"""``stepdamp-bench v3``: suites that measure damping, scored in decibels from "no
+damping" (0 dB) to "no torque ripple" (gap closed = 1). The default protocol.
+
+v1 and v2 stay frozen. v3 keeps v2's motors (the same draws, seed 7_733_052),
+suites (open-loop, servo, mid-band), ramp, window, settling and identification,
+and changes what a row means. The full specification, with the measurements
+behind each choice, is ``docs/protocol_v3.md``; in short:
+
+Reference rows
+    Every suite has an unranked row ``reference``: policy ``none`` on the same
+    motor, speeds, drive and sensors without the phenomenon the suite scores
+    (:meth:`ProtocolV3.reference_motor`). Open loop and servo: the motor with
+    Kd1 = Kd2 = Kd4 = 0 (no torque harmonics). Mid-band: the same motor (detent
+    included) on the current-mode drive with ``reference_bus_factor`` = 4 times
+    its bus voltage, so that its current loops never saturate: a stiff current
+    source, the drive in which the voltage-fed instability (the current lagging
+    the back-EMF-modulated winding) cannot arise.
+
+Sensors
+    Each drawn motor's encoder is drawn from ``encoder_choices`` (1000-line =
+    4000 counts/rev to 17 bit = 131072), by a hash of the motor seed and its
+    name; current noise 0.01 A as v1. A custom motor keeps its file's encoder
+    (else 4000).
+
+Speeds (per motor, from the motor's own plant; "headline" speeds are scored)
+    A speed is a headline speed only where the phenomenon dominates: the
+    reference ripples at most ``dominance`` = 0.5 times ``none`` there
+    (policy ``none`` and the reference simulated once on the motor, noise seed
+    the first evaluation seed: the "nominal sweep"); other speeds are labelled
+    ``off-...`` and count only in ``full_sweep``. Open loop: v1's grid (the
+    resonances f4, f2, f1 headline, the off-resonance speeds). Servo: the
+    candidates ``servo_factors`` x f4 (0.2 to 1.6); the servo-controlled
+    motor's resonance is where ``none`` ripples most (the velocity loop's
+    disturbance response peaks there: measured on the presets, it peaks at
+    0.4-1.1 x f4), so the ``servo_headline`` = 3 candidates with the largest
+    ``none`` ripple that pass the dominance rule are its headline speeds.
+    Mid-band: v2's rule, five speeds log-spaced through the predicted unstable
+    band (its analysis on a 0.25 rev/s grid up to where the first band closes,
+    edges bisected to 1e-4 rev/s).
+
+Splits
+    ``dev``: ``dev_per_preset`` = 4 fresh draws per preset from the training
+    distribution (``numpy.random.default_rng(dev_motor_seed)``, named
+    ``<preset>~d<k>``), for all tuning, ablations and model selection
+    (``stepdamp leaderboard --split dev``); never in a scored board.
+    ``interpolation``, ``extrapolation``, ``custom``: v1's.
+
+Step loss
+    A run is lost when the rotor ends a whole electrical cycle (2*pi/Nr rad,
+    four full steps) or more away from its command (its final slip, rounded),
+    or when the env ends it (over-current, a non-finite state). A lag past a
+    full step that the rotor recovers from is no loss: the env's lag limit is
+    ``lag_limit_steps`` = 1e9 full steps (in effect none), and the run goes on
+    to the end of its window.
+
+Scores (per motor; every motor weighs the same)
+    Per run: attenuation = 20 log10(ripple of ``none`` / ripple of the entry)
+    (dB; 0 dB = no damping), bounded below at ``failure_db`` = -20 dB. A lost
+    run (a step loss or termination) scores -20 dB, or 0 dB where ``none``
+    lost the same run too (as bad as no damping, no worse). Where ``none``
+    ended before its window, the mean of its measured headline ripples on that
+    motor stands in (v1's rule). Per motor and training seed: the mean over the
+    headline speeds and evaluation seeds; per motor: the mean over training
+    seeds; the headline is the IQM over motors of ``attenuation_db``.
+    ``gap_closed`` = attenuation(entry) / attenuation(reference) per motor (1:
+    as good as removing the phenomenon). ``ratio``: the ripple over ``none``'s
+    (10^(-dB/20) per run, so bounded as the dB are). ``success_rate``: runs
+    not lost. ``full_sweep``: the mean and the worst ratio over every speed of
+    the suite (headline and off).
+
+Statistics (per split and suite)
+    Intervals: a two-level bootstrap (motors, then each motor's training seeds,
+    with replacement; one stratum per split), 2000 resamples, seed 2000, the
+    95 % percentile interval widened about the estimate by
+    sqrt(n/(n-1)) t(n-1)/z for n motors (:func:`..stats.widening_factor`; a
+    simulation in the tests shows at least 93 % coverage). Ranks: among the
+    ranked rows, an entry's rank is 1 + the number of entries whose interval
+    lies wholly above its own (overlapping intervals share a rank). For every
+    pair: P(improvement) (per motor, Mann-Whitney over their training seeds'
+    dB; the mean over motors) and ``effect_db``, the median over motors of the
+    difference in dB, with its interval.
+
+Eligibility (one rule for every entry)
+    An entry runs in the suites its card lists. The ``reference`` row and
+    privileged entries (``oracle`` cards: the true state or exact model) are
+    shown unranked. A learned entry is ranked in a suite only if its card's
+    ``trained_on`` covers the suite and every headline speed of the split's
+    motors in it; otherwise its row is ``zero_shot`` and unranked.
+
+``--quick`` (CI): v2's quick motors, one dev motor per preset, three servo
+candidates (0.28, 0.56, 1.1 x f4, two headline), the resonances, two mid-band
+speeds, a 0.1 s window, 500 resamples.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import multiprocessing
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+
+from ... import fixedmath as fm
+from ...parallel import default_workers, pool_map
+from ...params import ParameterError, SystemParams
+from ...presets import get_preset
+from ...simulation import RunSettings, SpeedProfile, simulate
+from ..motors import ProtocolMotor, draw_around, holds_its_load, with_sensors
+from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE
+from ..stats import median_difference, motor_mean_bootstrap, probability_of_improvement, \
+    rank_groups
+from .v1 import QUICK_SETTINGS, ProtocolV1
+from .v2 import ProtocolV2, midband_grid
+
+__all__ = ["ProtocolV3", "SPLITS", "ENCODER_CPRS", "FAILURE_DB", "full_protocol_v3",
+           "quick_protocol_v3", "attenuation_db", "ratio_of_db", "eligible"]
+
+SPLITS = ("dev", "interpolation", "extrapolation", "custom")
+#: Encoders a drawn motor may have (counts/rev after quadrature): 1000, 2000 and
+#: 2500 lines, 14, 15, 16 and 17 bit.
+ENCODER_CPRS = (4000, 8000, 10000, 16384, 32768, 65536, 131072)
+#: What a lost run scores, and the lower bound of every run's attenuation (dB).
+FAILURE_DB = -20.0
+
+
+_LN10 = 2.302585092994046
+
+
+def ratio_of_db(db: float) -> float:
+    """The ripple ratio 10^(-db/20) of an attenuation (fixed-order exp)."""
+    return fm.exp(-db * _LN10 / 20.0) if math.isfinite(db) else math.nan
+
+
+def attenuation_db(none_rms: float, entry_rms: float, floor_db: float = FAILURE_DB) -> float:
+    """20 log10(none_rms / entry_rms), bounded below at ``floor_db`` (fixed-order log)."""
+    if not (math.isfinite(none_rms) and math.isfinite(entry_rms)) or none_rms <= 0.0:
+        return math.nan
+    if entry_rms <= 0.0:
+        return math.inf
+    return max(floor_db, 20.0 * fm.log(none_rms / entry_rms) / _LN10)
+
+
+@dataclass(frozen=True)
+class ProtocolV3(ProtocolV2):
+    """Every setting of ``stepdamp-bench v3`` (see the module docstring and
+    docs/protocol_v3.md)."""
+
+    version: str = "v3"
+    servo_factors: tuple[float, ...] = (0.2, 0.28, 0.4, 0.56, 0.8, 1.1, 1.6)
+    servo_headline: int = 3
+    dominance: float = 0.5
+    encoder_choices: tuple[int, ...] = ENCODER_CPRS
+    dev_per_preset: int = 4
+    dev_motor_seed: int = 7_733_053
+    reference_bus_factor: float = 4.0
+    failure_db: float = FAILURE_DB
+    lag_limit_steps: float = 1e9
+    # The mid-band analysis's speed grid (rev/s): v2's step of 0.05 five times
+    # coarser; the edges are bisected to 1e-4 rev/s either way.
+    midband_scan_rps: tuple[float, float, float] = (0.25, 30.0, 0.25)
+
+    known_splits: ClassVar[tuple[str, ...]] = SPLITS
+    known_suites: ClassVar[tuple[str, ...]] = ALL_SUITES
+    records_training_coverage: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (isinstance(self.servo_headline, int) and 1 <= self.servo_headline
+                <= len(self.servo_factors)):
+            raise ParameterError(f"servo_headline={self.servo_headline!r} is outside [1, "
+                                 f"{len(self.servo_factors)}] (integer)")
+        if not 0.0 < self.dominance < 1.0:
+            raise ParameterError(f"dominance={self.dominance!r} is outside (0, 1)")
+        if not self.encoder_choices or not all(isinstance(c, int) and c >= 1
+                                               for c in self.encoder_choices):
+            raise ParameterError(f"encoder_choices={self.encoder_choices!r}: each must be an "
+                                 "integer >= 1")
+        if not (isinstance(self.dev_per_preset, int) and self.dev_per_preset >= 1):
+            raise ParameterError(f"dev_per_preset={self.dev_per_preset!r} is outside [1, inf) "
+                                 "(integer)")
+        if not (math.isfinite(self.reference_bus_factor) and self.reference_bus_factor >= 1.0):
+            raise ParameterError(f"reference_bus_factor={self.reference_bus_factor!r} is "
+                                 "outside [1, inf)")
+        if not (math.isfinite(self.lag_limit_steps) and 1.0 <= self.lag_limit_steps <= 1e9):
+            raise ParameterError(f"lag_limit_steps={self.lag_limit_steps!r} is outside [1, 1e9]")
+        if not (math.isfinite(self.failure_db) and self.failure_db < 0.0):
+            raise ParameterError(f"failure_db={self.failure_db!r} is outside (-inf, 0) dB")
+
+    # -- the record --------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        out = super().to_dict()
+        out["encoder_choices"] = list(self.encoder_choices)
+        out["headline"] = (
+            "attenuation_db: 20 log10(ripple of 'none' / ripple of the entry) per run at "
+            "the suite's headline speeds (where the reference ripples at most "
+            f"{self.dominance:g} x 'none'), lost runs {self.failure_db:g} dB (0 dB where "
+            "'none' lost too); mean per motor over speeds, seeds and training seeds; IQM "
+            "over motors; two-level bootstrap interval widened for the number of motors. "
+            "gap_closed = attenuation / the reference row's, per motor")
+        out["reference"] = {
+            "open-loop": "policy none on the motor with Kd1 = Kd2 = Kd4 = 0",
+            "servo": "policy none on the motor with Kd1 = Kd2 = Kd4 = 0",
+            "mid-band": (f"policy none on the current-mode drive with {self.reference_bus_factor:g}"
+                         " x the bus voltage (a stiff current source: no voltage-fed "
+                         "instability), detent kept")}
+        return out
+
+    def lag_limit(self) -> float:
+        return self.lag_limit_steps
+
+    def with_splits(self, splits: Sequence[str]) -> "ProtocolV3":
+        """The same protocol on other splits (``--split``)."""
+        bad = [s for s in splits if s not in self.known_splits or s == "custom"]
+        if bad or not splits:
+            raise ParameterError(f"--split {', '.join(bad) or '(none)'}: choose from "
+                                 f"{[s for s in self.known_splits if s != 'custom']} "
+                                 "(custom: --motors FILE)")
+        return dataclasses.replace(self, splits=tuple(splits))
+
+    # -- motors ------------------------------------------------------------------------
+    def motors(self) -> tuple[ProtocolMotor, ...]:
+        """dev (if run), then v1's interpolation, extrapolation or custom motors. The
+        draws come first (:meth:`build_motor` leaves the grids out); then every
+        motor's grids, whose nominal sweeps and mid-band analysis take about two
+        seconds a motor, are computed on every core at once (the same values on
+        any number of workers)."""
+        drafts = self._dev_motors() + super().motors()
+        workers = 1 if multiprocessing.current_process().daemon else default_workers()
+        if drafts and workers > 1:      # the compiled kernel loaded once, inherited by the fork
+            simulate(drafts[0].system, speed_rps=0.5,
+                     settings=RunSettings(settle_s=0.0, window_s=0.001))
+        grids = pool_map(_motor_grids, [(self, m.system) for m in drafts], workers,
+                         max_chunk=1)
+        return tuple(dataclasses.replace(m, speeds_rps=g[0][1], speed_labels=g[0][2], grids=g)
+                     for m, g in zip(drafts, grids))
+
+    def build_motor(self, name: str, system: SystemParams, nominal: SystemParams, split: str,
+                    family: str, attempts: int) -> ProtocolMotor:
+        """A drawn (or custom) motor with its sensors and settling; its grids are
+        filled in by :meth:`motors`, for all motors at once."""
+        system, nominal = self.motor_sensors(name, system, nominal, split)
+        settle = self.settle_times(system)
+        return ProtocolMotor(name, system, nominal, (), (), attempts, split=split,
+                             family=family, settle=tuple((s, settle[s]) for s in settle))
+
+    def _dev_motors(self) -> tuple[ProtocolMotor, ...]:
+        if "dev" not in self.splits:
+            return ()
+        rng = np.random.default_rng(self.dev_motor_seed)
+        out = []
+        for preset in self.presets:
+            nom = with_sensors(get_preset(preset), self)
+            for k in range(self.dev_per_preset):
+                label = f"{preset}~d{k}"
+                for attempt in range(1, self.max_draw_attempts + 1):
+                    try:
+                        system = nom.replace(name=label, **draw_around(
+                            nom, rng, self.training_randomization))
+                    except ParameterError:
+                        continue
+                    if holds_its_load(system, self.holding_margin):
+                        break
+                else:
+                    raise RuntimeError(f"no draw for {label!r} passes the physics rule in "
+                                       f"{self.max_draw_attempts} attempts")
+                out.append(self.build_motor(label, system, nom, "dev", preset, attempt))
+        return tuple(out)
+
+    def motor_sensors(self, name: str, system: SystemParams, nominal: SystemParams,
+                      split: str) -> tuple[SystemParams, SystemParams]:
+        """A drawn motor's encoder from ``encoder_choices`` (by a hash of the motor
+        seed and its name); a custom motor keeps its own."""
+        if split == "custom":
+            return system, nominal
+        key = hashlib.sha256(f"{self.motor_seed}:{name}".encode()).digest()
+        cpr = self.encoder_choices[int.from_bytes(key[:8], "big") % len(self.encoder_choices)]
+        return system.replace(encoder_cpr=cpr), nominal.replace(encoder_cpr=cpr)
+
+    def reference_motor(self, motor: ProtocolMotor, suite: str) -> ProtocolMotor:
+        """The motor without the suite's phenomenon (see the module docstring)."""
+        if suite == "mid-band":
+            m = motor.for_suite("open-loop")      # the current-mode drive
+            return dataclasses.replace(m, system=m.system.replace(
+                Vdc=m.system.drive.Vdc * self.reference_bus_factor))
+        m = motor.for_suite(suite)
+        return dataclasses.replace(m, system=m.system.replace(Kd1=0.0, Kd2=0.0, Kd4=0.0))
+
+    def suite_grids(self, system: SystemParams
+                    ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
+        """v2's open-loop and mid-band grids, the servo candidates; each speed
+        labelled headline or ``off-`` by the dominance rule on the nominal sweep."""
+        f4 = system.predicted_resonances_rps()[4]
+        out = []
+        # v1's grids, and v2's mid-band rule (where that suite is run).
+        grids = ProtocolV1.suite_grids(self, system)
+        if "mid-band" in self.suites:
+            grids += (("mid-band", *midband_grid(system, self, self.midband_scan_rps,
+                                                 first_band_only=True)),)
+        for suite, speeds, labels in grids:
+            if suite == "servo":
+                speeds = tuple(float(f * f4) for f in self.servo_factors)
+                labels = tuple(f"s{f:g}" for f in self.servo_factors)
+            out.append((suite, speeds, self._headline_labels(system, suite, speeds, labels)))
+        return tuple(out)
+
+    def _headline_labels(self, system: SystemParams, suite: str, speeds: tuple[float, ...],
+                         labels: tuple[str, ...]) -> tuple[str, ...]:
+        settle = self.settle_times(system)[suite]
+        probe = ProtocolMotor(system.name, system, system, speeds, labels)
+        plant = probe.for_suite(suite).system
+        reference = self.reference_motor(probe, suite).system
+        candidates = [k for k, lbl in enumerate(labels) if not lbl.startswith("off")]
+        none_rms, passes = {}, set()
+        for k in candidates:
+            a = self._sweep_rms(plant, suite, speeds[k], settle)
+            b = self._sweep_rms(reference, suite, speeds[k], settle)
+            none_rms[k] = a
+            if math.isfinite(a) and math.isfinite(b) and b <= self.dominance * a:
+                passes.add(k)
+        if suite == "servo":                      # the servo's resonance: where none peaks
+            best = sorted(passes, key=lambda k: (-none_rms[k], k))[:self.servo_headline]
+            passes = set(best)
+        return tuple(lbl if k in passes else
+                     (lbl if lbl.startswith("off") else f"off-{lbl}")
+                     for k, lbl in enumerate(labels))
+
+    def _sweep_rms(self, system: SystemParams, suite: str, speed_rps: float,
+                   settle_s: float) -> float:
+        result = simulate(system, profile=SpeedProfile(speed_rps=speed_rps,
+                                                       accel_rps2=self.accel_rps2),
+                          settings=RunSettings(mode=SUITE_MODE[suite], settle_s=settle_s,
+                                               window_s=self.window_s,
+                                               noise_seed=self.eval_seeds[0]))
+        return float(result.metrics.rms_velocity_error_rad_s)
+
+    # -- scoring -----------------------------------------------------------------------
+    def entries(self, names: Mapping[str, tuple[str, str]],
+                by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
+                motors: Sequence[ProtocolMotor],
+                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+        """Rows per (suite, split): the reference, then every entry; ranked rows,
+        P(improvement) and effect sizes (see the module docstring)."""
+        split_of = {m.name: m.split for m in motors}
+        grid_of = {(m.name, s): m.speeds(s) for m in motors for s in self.suites}
+        out = []
+        for suite in self.suites:
+            if (REFERENCE_POLICY, suite) not in by_entry:
+                continue
+            none = {(r["motor"], r["seed"], r["speed_rps"]): r
+                    for r in by_entry[(REFERENCE_POLICY, suite)]}
+            for split in self.splits:
+                def runs_of(key: tuple[str, str]) -> list[dict[str, Any]]:
+                    return [r for r in by_entry.get(key, []) if split_of[r["motor"]] == split]
+
+                headline = sorted({v for m in motors if m.split == split
+                                   for v, lbl in zip(*grid_of[(m.name, suite)])
+                                   if not lbl.startswith("off")})
+                rows = []
+                ref_runs = runs_of((REFERENCE_ROW, suite))
+                ref_motor_db: dict[str, float] = {}
+                if ref_runs:
+                    ref = self._row(REFERENCE_ROW, REFERENCE_ROW, suite, split, ref_runs, none,
+                                    None, {"reference": True, "learned": False,
+                                           "privileged": False})
+                    ref_motor_db = ref.pop("_motor_db")
+                    rows.append(ref)
+                for spec, (name, spec_text) in names.items():
+                    if (spec, suite) not in by_entry:
+                        continue
+                    info = meta[spec]
+                    learned = bool(info.get("learned"))
+                    row_meta = {"reference": False, "learned": learned,
+                                "privileged": bool(info.get("oracle")), **info}
+                    row_meta["zero_shot"] = learned and not eligible(
+                        info.get("trained_on", ()), suite, headline)
+                    rows.append(self._row(name, spec_text, suite, split, runs_of((spec, suite)),
+                                          none, ref_motor_db, row_meta))
+                self._compare(rows)
+                for r in rows:
+                    r.pop("_motor_db", None)
+                out += rows
+        return out
+
+    def _row(self, name: str, spec: str, suite: str, split: str, runs: list[dict[str, Any]],
+             none: Mapping[tuple, Mapping[str, Any]], ref_motor_db: Mapping[str, float] | None,
+             info: Mapping[str, Any]) -> dict[str, Any]:
+        """One row's scores (``_motor_db``: per-motor attenuation, taken off later)."""
+        stand_in = self._stand_ins(none)
+        cells: dict[tuple[str, Any], list[float]] = {}
+        ratios: list[float] = []
+        lost = 0
+        for r in runs:
+            n = none.get((r["motor"], r["seed"], r["speed_rps"]))
+            db = self._run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
+            ratios.append(ratio_of_db(db))
+            lost += bool(r["failed"])
+            if not r["speed_label"].startswith("off"):
+                cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
+        keys = sorted(cells, key=str)
+        cell_db = [float(np.mean(cells[k])) for k in keys]
+        cell_motor = [k[0] for k in keys]
+        motor_db: dict[str, float] = {}
+        for m in sorted(set(cell_motor)):
+            motor_db[m] = float(np.mean([v for v, k in zip(cell_db, cell_motor) if k == m]))
+        stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                     confidence=self.confidence)
+        att = motor_mean_bootstrap(cell_db, cell_motor, **stats)
+        ratio = motor_mean_bootstrap([ratio_of_db(v) for v in cell_db], cell_motor,
+                                     positive=True, **stats)
+        row: dict[str, Any] = {"name": name, "spec": spec, "suite": suite, "split": split,
+                               **{k: v for k, v in info.items()}}
+        row["training_seeds"] = sorted({r["training_seed"] for r in runs
+                                        if r.get("training_seed") is not None})
+        row["attenuation_db"] = att
+        row["ratio"] = ratio
+        if ref_motor_db is not None:
+            gap = [v / ref_motor_db[m] if ref_motor_db.get(m, 0.0) > 0.0 else math.nan
+                   for v, m in zip(cell_db, cell_motor)]
+            row["gap_closed"] = motor_mean_bootstrap(gap, cell_motor, **stats)
+        else:
+            row["gap_closed"] = {"iqm": 1.0, "ci": [1.0, 1.0], "motors": len(motor_db)}
+        row["success_rate"] = 1.0 - lost / len(runs) if runs else math.nan
+        fin = [v for v in ratios if math.isfinite(v)]
+        row["full_sweep"] = {"mean": float(np.mean(fin)) if fin else math.nan,
+                             "worst": float(np.max(fin)) if fin else math.nan}
+        row["per_motor_db"] = motor_db
+        # What the plots and v1-style readers use: the ratio, lower better.
+        row["headline"] = {"iqm": ratio["iqm"], "ci95": ratio["ci"], "n": len(cell_db)}
+        row["step_losses"] = {"runs_lost": lost, "runs": len(runs)}
+        row["scores"] = [{"motor": k[0], **({"training_seed": k[1]} if k[1] is not None else {}),
+                          "attenuation_db": v, "headline": ratio_of_db(v)}
+                         for k, v in zip(keys, cell_db)]
+        row["runs"] = runs
+        row["_motor_db"] = motor_db
+        row["_cells"] = (cell_db, cell_motor)
+        return row
+
+    def _run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
+                stand_in: float) -> float:
+        none_lost = none is not None and bool(none["failed"])
+        if run["failed"]:
+            return 0.0 if none_lost else self.failure_db
+        none_rms = none["metrics"]["rms_velocity_error_rad_s"] \
+            if none is not None and none["metrics"] is not None else stand_in
+        own = run["metrics"]["rms_velocity_error_rad_s"] if run["metrics"] else math.nan
+        return attenuation_db(none_rms, own, self.failure_db)
+
+    @staticmethod
+    def _stand_ins(none: Mapping[tuple, Mapping[str, Any]]) -> dict[tuple[str, int], float]:
+        """Per (motor, seed): the mean of ``none``'s measured headline ripples."""
+        got: dict[tuple[str, int], list[float]] = {}
+        for (motor, seed, _), r in none.items():
+            if r["metrics"] is not None and not r["speed_label"].startswith("off"):
+                got.setdefault((motor, seed), []).append(r["metrics"]["rms_velocity_error_rad_s"])
+        return {k: float(np.mean(v)) for k, v in got.items()}
+
+    def _compare(self, rows: list[dict[str, Any]]) -> None:
+        """Ranks (ranked rows only), P(improvement) and effect sizes between rows."""
+        ranked = [r for r in rows if not (r["reference"] or r["privileged"] or r.get("zero_shot"))]
+        ranks = rank_groups([r["attenuation_db"]["iqm"] for r in ranked],
+                            [r["attenuation_db"]["ci"] for r in ranked])
+        for r in rows:
+            r["rank"] = None
+        for r, k in zip(ranked, ranks):
+            r["rank"] = k
+        stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                     confidence=self.confidence)
+        compared = [r for r in rows if not r["reference"]]
+        for r in compared:
+            r["probability_of_improvement"], r["effect_db"] = {}, {}
+        for i, a in enumerate(compared):
+            for b in compared[i + 1:]:
+                (xa, ma), (xb, mb) = a["_cells"], b["_cells"]
+                keep_a = [k for k, v in enumerate(xa) if math.isfinite(v)]
+                keep_b = [k for k, v in enumerate(xb) if math.isfinite(v)]
+                p = probability_of_improvement(     # lower is better there: minus dB
+                    [-xa[k] for k in keep_a], [ma[k] for k in keep_a],
+                    [-xb[k] for k in keep_b], [mb[k] for k in keep_b], **stats)["p"]
+                a["probability_of_improvement"][b["name"]] = p
+                b["probability_of_improvement"][a["name"]] = 1.0 - p
+                eff = median_difference(a["_motor_db"], b["_motor_db"], **stats)
+                a["effect_db"][b["name"]] = {"median": eff["median"], "ci": eff["ci"]}
+                b["effect_db"][a["name"]] = {"median": -eff["median"],
+                                             "ci": [-eff["ci"][1], -eff["ci"][0]]}
+        for r in rows:
+            r.pop("_cells", None)
+
+
+def _motor_grids(job: tuple[ProtocolV3, SystemParams]
+                 ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
+    protocol, system = job
+    return protocol.suite_grids(system)
+
+
+def eligible(trained_on: Sequence[Sequence[Any]], suite: str, speeds_rps: Sequence[float]
+             ) -> bool:
+    """Whether a learned entry's training covered a suite's headline speeds:
+    ``trained_on`` holds (suite, lowest rev/s, highest rev/s) ranges."""
+    ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
+    return bool(ranges) and all(any(lo <= v <= hi for lo, hi in ranges) for v in speeds_rps)
+
+
+def full_protocol_v3() -> ProtocolV3:
+    """``stepdamp-bench v3``, the full protocol."""
+    return ProtocolV3()
+
+
+def quick_protocol_v3() -> ProtocolV3:
+    """v3's CI variant (see the module docstring)."""
+    return ProtocolV3(**{**QUICK_SETTINGS, "servo_factors": (0.28, 0.56, 1.1)},
+                      servo_headline=2, midband_factors=(0.3, 0.7), dev_per_preset=1)
+
+
+PROTOCOL = {"version": "v3", "full": full_protocol_v3, "quick": quick_protocol_v3}
