@@ -72,8 +72,8 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
         spread = float(kwargs.get("resonance_spread", EnvOptions.resonance_spread))
         for name in training.get("motors", []):
             for f in get_preset(name).predicted_resonances_rps().values():
-                ranges.append((f * (km_lo / j_hi) ** 0.5 * (1.0 - spread),
-                               f * (km_hi / j_lo) ** 0.5 * (1.0 + spread)))
+                ranges.append((f * math.sqrt(km_lo / j_hi) * (1.0 - spread),
+                               f * math.sqrt(km_hi / j_lo) * (1.0 + spread)))
     merged: list[list[float]] = []
     for lo, hi in sorted(ranges):
         if merged and lo <= merged[-1][1]:

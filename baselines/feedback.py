@@ -386,7 +386,8 @@ class PrivilegedBound(OracleFloor):
     added damping ratio, decision rate and feedforward chosen per suite on v3's
     dev split, never on a scored motor (``scripts/bound_tuning.py``; the
     setting whose interval of IQM attenuation over the 16 dev motors has the
-    highest lower end, so that a knife-edge gain is not chosen). The
+    highest lower end, so that a knife-edge gain is not chosen; its output:
+    docs/results/v3/bound_tuning.txt). The
     feedforward is the exact model sent through the true plant's current path
     (``delay-comp``, oracle-floor's), the exact model uncompensated
     (``patent``), or none. The suite is read from the run: servo from the

@@ -345,7 +345,8 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
             raise ParameterError("--split: give --split or --motors (the custom split), not both")
         protocol = protocol.with_splits((args.split,))
     named = default_policy_names()
-    chosen = list(named) if args.entries is None else [b for g in args.entries for b in g]
+    chosen = protocol.default_entries(named) if args.entries is None else \
+        [b for g in args.entries for b in g]
     unknown = sorted(set(chosen) - set(named))
     if unknown:
         raise ParameterError(f"--entries: unknown {unknown}; choose from {list(named)}")

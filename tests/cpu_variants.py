@@ -1,9 +1,8 @@
 """The quick boards under emulated CPUs: the same numbers on every x86-64 CPU.
 
-Each variant runs the quick boards of v0, v1, v2 and v3 (the identification,
-estimators, adaptive laws, learned networks and statistics all run; v3 with
-every default entry, v0-v2 with the 16 entries their fingerprints were stored
-with: an entry's probabilities depend on the others) in a fresh process whose environment makes the libraries take the
+Each variant runs the quick boards of v0, v1, v2 and v3 (every default entry of
+each version, ``Protocol.default_entries``: the identification, estimators,
+adaptive laws, learned networks and statistics all run) in a fresh process whose environment makes the libraries take the
 code paths of another CPU:
 
 * ``OPENBLAS_CORETYPE``: OpenBLAS's kernels for an older or newer core;
@@ -37,12 +36,7 @@ from typing import Any, Sequence
 HERE = os.path.dirname(os.path.abspath(__file__))
 STORED = os.path.join(HERE, "data", "quick_boards.json")
 PROTOCOLS = ("v0", "v1", "v2", "v3")
-#: The entries of the v0-v2 quick boards (the defaults of 0.11.0): a new default
-#: entry changes no frozen board.
-FROZEN_ENTRIES = ("none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp",
-                  "adaptive-ff", "velocity-feedback", "sensorless-damping", "calibrated-table",
-                  "repetitive-control", "tuned-constant-gain", "oracle-floor", "ars-per-step",
-                  "ars-per-step-25hz", "ppo-gain-selector", "ppo-per-step", "td3-per-step")
+
 _ABOVE_V2 = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 _ABOVE_V3 = "X86_V4 AVX512_ICL AVX512_SPR"
 _NO_FMA_LIBC = "glibc.cpu.hwcaps=-AVX2,-FMA"
@@ -80,8 +74,7 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
             "v2": (quick_protocol_v2, full_protocol_v2), "v3": (quick_protocol_v3, full_protocol_v3)}
     out = {}
     for name in protocols:
-        entries = None if name == "v3" else list(FROZEN_ENTRIES)
-        board = run_leaderboard(make[name][full](), entries, workers=workers, progress=False)
+        board = run_leaderboard(make[name][full](), workers=workers, progress=False)
         out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
     return out
 

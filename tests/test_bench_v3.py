@@ -151,8 +151,14 @@ def test_failures_are_bounded():
     p = ProtocolV3(splits=("interpolation",), suites=("open-loop",))
     assert p._run_db(_run("a", 1.0, None, failed=True), _run("a", 1.0, 5.0, failed=True),
                      math.nan) == 0.0
-    assert p._run_db(_run("a", 1.0, 0.5), _run("a", 1.0, 5.0, failed=True), math.nan) == \
+    # Where none lost a run the entry held, none's runs that held stand in (a
+    # stalled rotor's ripple is its command speed, no measure of the resonance).
+    assert p._run_db(_run("a", 1.0, 0.5), _run("a", 1.0, 500.0, failed=True), 5.0) == \
         pytest.approx(20.0)
+    assert math.isnan(p._run_db(_run("a", 1.0, 0.5), _run("a", 1.0, 500.0, failed=True),
+                                math.nan))
+    assert p._stand_ins({("a", 1, 1.0): _run("a", 1.0, 4.0), ("a", 1, 2.0): _run("a", 2.0, 6.0),
+                         ("a", 1, 3.0): _run("a", 3.0, 500.0, failed=True)}) == {("a", 1): 5.0}
     assert attenuation_db(1.0, 1e9) == -20.0
 
 
@@ -192,6 +198,16 @@ def test_widened_interval_covers_at_least_93_percent():
     assert hits / reps >= 0.93
     assert widening_factor(16, 0.95) == pytest.approx(
         math.sqrt(16 / 15) * 2.131449546 / 1.959963985, rel=1e-3)
+
+
+def test_ranks_leave_out_non_finite_scores_and_t_quantiles():
+    from stepdamp_env.bench.stats import student_t_quantile
+
+    assert rank_groups([5.0, math.nan], [[4.0, 6.0], [math.nan, math.nan]]) == [1, None]
+    assert student_t_quantile(0.975, 2) == 4.3027 and student_t_quantile(0.975, 15) == \
+        pytest.approx(2.13145, abs=1e-3)
+    assert widening_factor(3, 0.95) == pytest.approx(math.sqrt(1.5) * 4.3027 / 1.959964,
+                                                     rel=1e-6)
 
 
 def test_effect_sizes_and_shared_ranks():
@@ -286,6 +302,8 @@ def test_step_loss_is_the_final_slip_in_whole_electrical_cycles():
     # a lag past a full step that the rotor recovers from is no loss under v3
     assert not lost_steps(False, {"step_loss": True}, 0.3)
     assert lost_steps(False, {"step_loss": False}, -0.6)
+    # servo commutates on the encoder: its following error is no step loss
+    assert not lost_steps(False, {"step_loss": True}, 0.9, mode="servo")
     assert lost_steps(True, {"step_loss": False}, 0.0)
     assert lost_steps(False, {"step_loss": True}, None)       # v0-v2: the lag rule
     # the patent motor stalls on the voltage-mode drive at 8.45 rev/s: v1's rule ends

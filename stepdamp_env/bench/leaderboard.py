@@ -334,7 +334,8 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
         raise ParameterError(f"runner={runner!r} is not one of ['batched', 'scalar']")
     wall_start = time.perf_counter()
     sources = _sources([REFERENCE_POLICY, *(policies if policies is not None
-                                            else default_policy_names())])
+                                            else protocol.default_entries(
+                                                default_policy_names()))])
     workers = default_workers() if workers is None else max(1, int(workers))
     run_map = pool_map if backend is None else backend
     motors = protocol_motors(protocol)

@@ -118,6 +118,13 @@ class Protocol(abc.ABC):
     min_training_seeds: ClassVar[int] = 1
     #: Entries' records carry their card's ``trained_on`` (v3's eligibility rule).
     records_training_coverage: ClassVar[bool] = False
+    #: Registered default entries left out of this version's default board: entries
+    #: added after it was frozen (a new row changes every other row's comparisons).
+    later_entries: ClassVar[tuple[str, ...]] = ("privileged-bound",)
+
+    def default_entries(self, names: Sequence[str]) -> list[str]:
+        """The registered default entries ``names`` that this version runs by default."""
+        return [n for n in names if n not in self.later_entries]
 
     @abc.abstractmethod
     def motors(self) -> tuple["ProtocolMotor", ...]:

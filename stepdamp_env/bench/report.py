@@ -73,7 +73,7 @@ def row_rank(e: Mapping[str, Any]) -> str:
         return str(e["rank"])
     if e.get("reference"):
         return "ref"
-    return "zero-shot" if e.get("zero_shot") else "bound" if e.get("privileged") else "-"
+    return "zero-shot" if e.get("zero_shot") else "privileged" if e.get("privileged") else "-"
 
 
 def score_label(e: Mapping[str, Any]) -> str:
@@ -229,9 +229,9 @@ def _render_markdown_db(board: Mapping[str, Any]) -> str:
              f"{p.get('failure_db', -20):g} dB). Gap closed: attenuation / the `reference` "
              "row's (the same motors without the phenomenon: 1 = as good as removing it). "
              "Ratio: ripple over `none`'s. Full sweep: mean / worst ratio over every speed. "
-             "Rank: entries whose intervals overlap share a rank; `ref`, `bound` "
-             "(privileged: true state or exact model) and `zero-shot` (a learned entry "
-             "outside its training coverage) rows are unranked. Effect: median over motors "
+             "Rank: entries whose intervals overlap share a rank; `ref`, `privileged` "
+             "(true state or exact model; `privileged-bound` is the bound) and `zero-shot` "
+             "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
              "of the difference in dB against the best ranked entry, with its interval.", ""]
     for suite in p["suites"]:
         for split in p["splits"]:
@@ -362,7 +362,8 @@ def _ladder_db(board: Mapping[str, Any], columns: list[tuple[str, Any]],
     title = (f"{p['name']} {p['version']} ({p['variant']}): attenuation of the velocity ripple "
              "at the headline speeds against no damping, dB (higher is better), IQM over "
              "motors [95 % interval]; rank in parentheses (shared where intervals overlap), "
-             "`ref`: the same motors without the phenomenon, `bound`: privileged, "
+             "`ref`: the same motors without the phenomenon, `privileged`: true state or "
+             "exact model, "
              "`zero-shot`: a learned entry outside its training coverage (unranked)")
     heads = [f"{suite}, {split}" for suite, split in columns]
     lines = [title, "", "| entry | " + " | ".join(heads) + " | knowledge |",

@@ -88,15 +88,19 @@ class EpisodeResult:
         return out
 
 
-def lost_steps(terminated: bool, metrics: dict[str, Any] | None, slip: float | None) -> bool:
+def lost_steps(terminated: bool, metrics: dict[str, Any] | None, slip: float | None,
+               mode: str = "open-loop") -> bool:
     """Whether a run failed: it terminated, or (no lag limit) the core saw a lag past
-    one full step, or (a lag limit: v3) the rotor ends a whole electrical cycle or
-    more behind or ahead of its command (a recoverable lag is no loss)."""
+    one full step, or (a lag limit: v3) in open loop the rotor ends a whole
+    electrical cycle away from its command (|slip| rounds to 1 or more: the
+    steps it lost; a recoverable lag is no loss). In servo the drive commutates
+    on the encoder angle, so the rotor cannot slip whole cycles: with a lag
+    limit only a termination (over-current, a non-finite state) is a loss."""
     if terminated:
         return True
     if slip is None:
         return metrics is not None and bool(metrics["step_loss"])
-    return abs(slip) >= 0.5
+    return mode == "open-loop" and abs(slip) >= 0.5
 
 
 def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
@@ -199,7 +203,7 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     slip = env.slip_cycles if lag_limit_steps is not None else None
     env.close()
     return EpisodeResult(terminated=bool(terminated), termination=reason,
-                         failed=lost_steps(bool(terminated), metrics, slip),
+                         failed=lost_steps(bool(terminated), metrics, slip, mode),
                          steps=steps, window_start_s=start, window_s=length, metrics=metrics,
                          trace=trace, calibration_s=float(getattr(policy, "calibration_s", 0.0)),
                          simulated_s=float(time_s), slip_cycles=slip)
@@ -261,7 +265,7 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
                     float(getattr(policy, "calibration_s", 0.0))
                 results[i] = EpisodeResult(
                     terminated=term, termination=reason,
-                    failed=lost_steps(term, metrics, slip),
+                    failed=lost_steps(term, metrics, slip, mode),
                     steps=int(steps[row]), window_start_s=windows[i][0], window_s=windows[i][1],
                     metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]),
                     slip_cycles=slip)

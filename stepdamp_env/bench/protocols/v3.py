@@ -46,10 +46,12 @@ Splits
     ``interpolation``, ``extrapolation``, ``custom``: v1's.
 
 Step loss
-    A run is lost when the rotor ends a whole electrical cycle (2*pi/Nr rad,
-    four full steps) or more away from its command (its final slip, rounded),
-    or when the env ends it (over-current, a non-finite state). A lag past a
-    full step that the rotor recovers from is no loss: the env's lag limit is
+    In open loop a run is lost when the rotor ends a whole electrical cycle
+    (2*pi/Nr rad, four full steps) away from its command: its final slip
+    rounds to 1 or more (|slip| >= 0.5 cycles). In servo the drive commutates
+    on the encoder angle and cannot slip whole cycles. In either mode a run
+    the env ends (over-current, a non-finite state) is lost. A lag past a full
+    step that the rotor recovers from is no loss: the env's lag limit is
     ``lag_limit_steps`` = 1e9 full steps (in effect none), and the run goes on
     to the end of its window.
 
@@ -57,14 +59,18 @@ Scores (per motor; every motor weighs the same)
     Per run: attenuation = 20 log10(ripple of ``none`` / ripple of the entry)
     (dB; 0 dB = no damping), bounded below at ``failure_db`` = -20 dB. A lost
     run (a step loss or termination) scores -20 dB, or 0 dB where ``none``
-    lost the same run too (as bad as no damping, no worse). Where ``none``
-    ended before its window, the mean of its measured headline ripples on that
-    motor stands in (v1's rule). Per motor and training seed: the mean over the
+    lost the same run too (as bad as no damping, no worse). Where ``none`` lost
+    a run the entry held, or ended before its window, ``none``'s ripple there
+    is no measure of the resonance (a stalled rotor's error is its command
+    speed). The mean headline ripple of ``none``'s runs on that motor that held
+    stands in; a motor on which every ``none`` run was lost has no such cell.
+    Per motor and training seed: the mean over the
     headline speeds and evaluation seeds; per motor: the mean over training
     seeds; the headline is the IQM over motors of ``attenuation_db``.
     ``gap_closed`` = attenuation(entry) / attenuation(reference) per motor (1:
-    as good as removing the phenomenon). ``ratio``: the ripple over ``none``'s
-    (10^(-dB/20) per run, so bounded as the dB are). ``success_rate``: runs
+    as good as removing the phenomenon). ``ratio``: 10^(-dB/20) of the
+    motor's mean attenuation, the geometric mean of its runs' ripple over
+    ``none``'s, bounded as the dB are. ``success_rate``: runs
     not lost. ``full_sweep``: the mean and the worst ratio over every speed of
     the suite (headline and off).
 
@@ -165,6 +171,7 @@ class ProtocolV3(ProtocolV2):
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     known_suites: ClassVar[tuple[str, ...]] = ALL_SUITES
     records_training_coverage: ClassVar[bool] = True
+    later_entries: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -364,8 +371,8 @@ class ProtocolV3(ProtocolV2):
                 if ref_runs:
                     ref = self._row(REFERENCE_ROW, REFERENCE_ROW, suite, split, ref_runs, none,
                                     None, {"reference": True, "learned": False,
-                                           "privileged": False})
-                    ref_motor_db = ref.pop("_motor_db")
+                                           "privileged": False, "zero_shot": False})
+                    ref_motor_db = dict(ref["_motor_db"])
                     rows.append(ref)
                 for spec, (name, spec_text) in names.items():
                     if (spec, suite) not in by_entry:
@@ -397,7 +404,7 @@ class ProtocolV3(ProtocolV2):
             db = self._run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
             ratios.append(ratio_of_db(db))
             lost += bool(r["failed"])
-            if not r["speed_label"].startswith("off"):
+            if not r["speed_label"].startswith("off") and math.isfinite(db):
                 cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
         keys = sorted(cells, key=str)
         cell_db = [float(np.mean(cells[k])) for k in keys]
@@ -443,32 +450,37 @@ class ProtocolV3(ProtocolV2):
         none_lost = none is not None and bool(none["failed"])
         if run["failed"]:
             return 0.0 if none_lost else self.failure_db
+        # A lost `none` run (a stalled rotor: its error is the command speed) is no
+        # measure of the resonance: the motor's runs of `none` that held stand in.
         none_rms = none["metrics"]["rms_velocity_error_rad_s"] \
-            if none is not None and none["metrics"] is not None else stand_in
+            if none is not None and none["metrics"] is not None and not none_lost \
+            else stand_in
         own = run["metrics"]["rms_velocity_error_rad_s"] if run["metrics"] else math.nan
         return attenuation_db(none_rms, own, self.failure_db)
 
     @staticmethod
     def _stand_ins(none: Mapping[tuple, Mapping[str, Any]]) -> dict[tuple[str, int], float]:
-        """Per (motor, seed): the mean of ``none``'s measured headline ripples."""
+        """Per (motor, seed): the mean of the headline ripples of ``none``'s runs that
+        held (none there where every one was lost: those cells are left out)."""
         got: dict[tuple[str, int], list[float]] = {}
         for (motor, seed, _), r in none.items():
-            if r["metrics"] is not None and not r["speed_label"].startswith("off"):
+            if r["metrics"] is not None and not r["speed_label"].startswith("off") \
+                    and not r["failed"]:
                 got.setdefault((motor, seed), []).append(r["metrics"]["rms_velocity_error_rad_s"])
         return {k: float(np.mean(v)) for k, v in got.items()}
 
     def _compare(self, rows: list[dict[str, Any]]) -> None:
         """Ranks (ranked rows only), P(improvement) and effect sizes between rows."""
-        ranked = [r for r in rows if not (r["reference"] or r["privileged"] or r.get("zero_shot"))]
+        ranked = [r for r in rows if not (r["reference"] or r["privileged"] or r["zero_shot"])]
         ranks = rank_groups([r["attenuation_db"]["iqm"] for r in ranked],
                             [r["attenuation_db"]["ci"] for r in ranked])
         for r in rows:
             r["rank"] = None
         for r, k in zip(ranked, ranks):
-            r["rank"] = k
+            r["rank"] = k           # None: no finite score (no headline cell)
         stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
                      confidence=self.confidence)
-        compared = [r for r in rows if not r["reference"]]
+        compared = rows             # the reference too: how often an entry beats it
         for r in compared:
             r["probability_of_improvement"], r["effect_db"] = {}, {}
         for i, a in enumerate(compared):
@@ -498,9 +510,10 @@ def _motor_grids(job: tuple[ProtocolV3, SystemParams]
 def eligible(trained_on: Sequence[Sequence[Any]], suite: str, speeds_rps: Sequence[float]
              ) -> bool:
     """Whether a learned entry's training covered a suite's headline speeds:
-    ``trained_on`` holds (suite, lowest rev/s, highest rev/s) ranges."""
+    ``trained_on`` holds (suite, lowest rev/s, highest rev/s) ranges (no
+    headline speed: nothing to be ranked on)."""
     ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
-    return bool(ranges) and all(any(lo <= v <= hi for lo, hi in ranges) for v in speeds_rps)
+    return bool(ranges) and bool(speeds_rps) and all(any(lo <= v <= hi for lo, hi in ranges) for v in speeds_rps)
 
 
 def full_protocol_v3() -> ProtocolV3:
