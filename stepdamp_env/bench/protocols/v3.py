@@ -231,9 +231,9 @@ class ProtocolV3(ProtocolV2):
     def motors(self) -> tuple[ProtocolMotor, ...]:
         """dev (if run), then v1's interpolation, extrapolation or custom motors. The
         draws come first (:meth:`build_motor` leaves the grids out); then every
-        motor's grids, whose nominal sweeps and mid-band analysis take about two
-        seconds a motor, are computed on every core at once (the same values on
-        any number of workers)."""
+        motor's grids (its nominal sweeps and mid-band analysis, about a quarter
+        of a second a motor) are computed on every core at once, the same values
+        on any number of workers."""
         drafts = self._dev_motors() + super().motors()
         workers = 1 if multiprocessing.current_process().daemon else default_workers()
         if drafts and workers > 1:      # the compiled kernel loaded once, inherited by the fork
