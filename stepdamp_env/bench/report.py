@@ -605,7 +605,8 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
                   for h, v in motor.system.predicted_resonances_rps().items()]
     else:                                   # v1: the suite's headline speeds
         speeds, labels = motor.speeds(suite)
-        points = [(_speed_title(lb), v) for v, lb in zip(speeds, labels) if lb != "off"]
+        points = [(_speed_title(lb), v) for v, lb in zip(speeds, labels)
+                  if not lb.startswith("off")]        # v3: "off-..." too
     plt = pyplot()
     fig, axes = plt.subplots(len(points), 1, squeeze=False, sharex=motor.split is None,
                              figsize=(9, 7 if motor.split is None else 2.3 * len(points) + 0.4))

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -225,6 +226,7 @@ def _normal_cdf(x: float) -> float:
     return 0.5 + area if x >= 0 else 0.5 - area
 
 
+@functools.lru_cache(maxsize=64)       # a few (p) per board, each 80 bisection steps
 def normal_quantile(p: float) -> float:
     """The standard normal quantile of ``p`` in (0, 1), by bisection on :func:`_normal_cdf`."""
     if not 0.0 < p < 1.0:
@@ -259,6 +261,7 @@ def student_t_quantile(p: float, dof: int) -> float:
             + (3.0 * z7 + 19.0 * z5 + 17.0 * z3 - 15.0 * z) / (384.0 * v * v * v))
 
 
+@functools.lru_cache(maxsize=256)      # called for every row and pair of a board
 def widening_factor(n: int, confidence: float) -> float:
     """How much a percentile interval of ``n`` units is widened about its estimate:
     sqrt(n/(n-1)) * t(n-1)/z, the small-sample correction of Hesterberg's expanded

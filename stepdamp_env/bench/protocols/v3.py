@@ -358,6 +358,7 @@ class ProtocolV3(ProtocolV2):
                 continue
             none = {(r["motor"], r["seed"], r["speed_rps"]): r
                     for r in by_entry[(REFERENCE_POLICY, suite)]}
+            stand_in = self._stand_ins(none)
             for split in self.splits:
                 def runs_of(key: tuple[str, str]) -> list[dict[str, Any]]:
                     return [r for r in by_entry.get(key, []) if split_of[r["motor"]] == split]
@@ -370,7 +371,7 @@ class ProtocolV3(ProtocolV2):
                 ref_motor_db: dict[str, float] = {}
                 if ref_runs:
                     ref = self._row(REFERENCE_ROW, REFERENCE_ROW, suite, split, ref_runs, none,
-                                    None, {"reference": True, "learned": False,
+                                    stand_in, None, {"reference": True, "learned": False,
                                            "privileged": False, "zero_shot": False})
                     ref_motor_db = dict(ref["_motor_db"])
                     rows.append(ref)
@@ -384,7 +385,7 @@ class ProtocolV3(ProtocolV2):
                     row_meta["zero_shot"] = learned and not eligible(
                         info.get("trained_on", ()), suite, headline)
                     rows.append(self._row(name, spec_text, suite, split, runs_of((spec, suite)),
-                                          none, ref_motor_db, row_meta))
+                                          none, stand_in, ref_motor_db, row_meta))
                 self._compare(rows)
                 for r in rows:
                     r.pop("_motor_db", None)
@@ -392,10 +393,12 @@ class ProtocolV3(ProtocolV2):
         return out
 
     def _row(self, name: str, spec: str, suite: str, split: str, runs: list[dict[str, Any]],
-             none: Mapping[tuple, Mapping[str, Any]], ref_motor_db: Mapping[str, float] | None,
+             none: Mapping[tuple, Mapping[str, Any]],
+             stand_in: Mapping[tuple[str, int], float],
+             ref_motor_db: Mapping[str, float] | None,
              info: Mapping[str, Any]) -> dict[str, Any]:
-        """One row's scores (``_motor_db``: per-motor attenuation, taken off later)."""
-        stand_in = self._stand_ins(none)
+        """One row's scores (``_motor_db``: per-motor attenuation, taken off later);
+        ``stand_in``: :meth:`_stand_ins` of ``none``."""
         cells: dict[tuple[str, Any], list[float]] = {}
         ratios: list[float] = []
         lost = 0
