@@ -45,7 +45,10 @@ def main() -> None:
     args = parser.parse_args()
     import stepdamp_env.bench as bench
 
-    print(f"policies: {', '.join(bench.default_policy_names())}; workers: {args.workers}")
+    from stepdamp_env.bench.protocols import protocol_for
+
+    names = protocol_for(args.protocol).default_entries(bench.default_policy_names())
+    print(f"policies: {', '.join(names)}; workers: {args.workers}")
     with tempfile.TemporaryDirectory() as tmp:
         variants = [("quick", True, 60.0)] + ([] if args.skip_full else [("full", False, 300.0)])
         for label, quick, target in variants:
