@@ -21,7 +21,11 @@ model-based baselines.
   ``.agent.json`` configs and training logs: ``ars-per-step``,
   ``ars-per-step-25hz``, ``ppo-per-step``, ``td3-per-step`` and
   ``ppo-gain-selector`` (v0's agent, named ``ppo-residual``
-  up to 0.5.0: one PPO decision, a damping gain, every 0.1 s).
+  up to 0.5.0: one PPO decision, a damping gain, every 0.1 s); and, one per
+  stepdamp-bench v3 suite, selected on its dev split (training seeds 11-15),
+  ``ars-open-loop``, ``ars-servo`` and ``ars-mid-band``;
+* :mod:`stepdamp_agents.selection`: model selection on v3's dev split, and the
+  splits a training config records.
 
 :func:`register_policies` (the ``stepdamp.policies`` entry point
 ``reference-agents``) registers every committed entry by its name, with all its

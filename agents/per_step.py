@@ -194,7 +194,7 @@ class StepAgent:
     env_id = ENV_ID_V1
 
     def __init__(self, path: str, name: str | None = None) -> None:
-        from .policy import load_agent_config, load_model, training_coverage
+        from .policy import load_agent_config, load_model, trained_suites, training_coverage
 
         self.path = path
         self.config = load_agent_config(path)
@@ -203,9 +203,12 @@ class StepAgent:
         self.options = {k: v for k, v in self.config.get("env_options", {}).items()
                         if k in INTERFACE_OPTIONS}
         self.estimate = self.config.get("estimate", "identified")
+        suites = trained_suites(self.config)
+        extra = {} if suites is None else {
+            "suites": suites, "not_in_suites": f"trained for {suites[0]} only"}
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=self.estimate,
                                learned=True, oracle=self.estimate == "exact",
-                               trained_on=training_coverage(self.config))
+                               trained_on=training_coverage(self.config), **extra)
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         return {"base_controller": "ff-delay-comp", **self.options,

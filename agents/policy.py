@@ -28,8 +28,8 @@ import numpy as np
 from stepdamp_env.bench.network import predict_rows
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
-__all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "load_model", "clear_model_cache",
-           "agent_config_path"]
+__all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "trained_suites",
+           "load_model", "clear_model_cache", "agent_config_path"]
 
 # Loaded models by the sha256 of their file's bytes (never by path: a file
 # rewritten in place is loaded again), the most recent last.
@@ -49,8 +49,8 @@ def load_agent_config(path: str) -> dict[str, Any]:
 
 def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float], ...]:
     """What an agent's training covered, as ``PolicyCard.trained_on``: its env's
-    suite (open-loop or servo, on the current-mode drive, the only one agents
-    train on so far) and the speeds it drew (rev/s). Those are the uniform range
+    suite (open-loop or servo on the current-mode drive, mid-band: open loop on
+    the voltage-mode drive) and the speeds it drew (rev/s). Those are the uniform range
     ``speed_range_rps`` and, with ``resonance_prob`` > 0, each training motor's
     resonances f_h (1 +- ``resonance_spread``), where f_h scales with
     sqrt(Km/J) over the randomisation box. The ranges are merged where they
@@ -60,7 +60,8 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
 
     training = config.get("training", {})
     kwargs = training.get("env_kwargs", {})
-    if kwargs.get("drive_mode", "current") != "current":
+    drive = (kwargs.get("overrides") or {}).get("drive_mode", kwargs.get("drive_mode", "current"))
+    if drive not in ("current", "voltage"):
         return ()
     ranges = [tuple(float(v) for v in kwargs.get("speed_range_rps",
                                                    EnvOptions.speed_range_rps))]
@@ -81,7 +82,17 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
         else:
             merged.append([lo, hi])
     suite = str(kwargs.get("mode", "open-loop"))
-    return tuple((suite, lo, hi) for lo, hi in merged)
+    if drive == "voltage":              # the voltage-mode drive in open loop: v3's mid-band
+        suite = "mid-band" if suite == "open-loop" else ""
+    return tuple((suite, lo, hi) for lo, hi in merged) if suite else ()
+
+
+def trained_suites(config: dict[str, Any]) -> tuple[str, ...] | None:
+    """The one suite a ``stepdamp train --suite`` model runs in (its config's
+    ``training.suite``); None for models trained before the option (they run in
+    every suite, ranked only where their coverage reaches)."""
+    suite = (config.get("training") or {}).get("suite")
+    return (str(suite),) if suite else None
 
 
 def load_model(path: str) -> Any:

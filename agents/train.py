@@ -61,7 +61,8 @@ from stepdamp_env.presets import preset_names
 from . import arguments
 from .arguments import check_ranges, option
 from .family import TrainingFamily
-from .task import ENV_ID_V1, RESIDUAL_ENV_ID
+from .selection import SELECTION_SPLITS, DevValidator
+from .task import ENV_ID_V1, RESIDUAL_ENV_ID, SUITE_TASKS, suite_task
 from .train_gain_selector import FAMILY as GAIN_SELECTOR
 from .train_per_step import FAMILY as PER_STEP
 
@@ -123,6 +124,14 @@ class Args:
                                     metavar="K-L", parse=parse_seeds, low=0, high=999)
     env: str = option(ENV_ID_V1, "StepperDamp-v1: per-step agents (default); "
                       "StepperDampResidual-v0: the v0 gain selector", choices=ENV_IDS)
+    suite: str | None = option(None, "the stepdamp-bench v3 suite trained for (StepperDamp-v1): "
+                               "its mode, drive and speeds (agents/task.py SUITE_TASKS); the "
+                               "model runs in that suite only. Default: the task as the YAML "
+                               "and --set give it, run in every suite", choices=tuple(SUITE_TASKS))
+    select_on: str = option("validation", "where best.zip is chosen: 'dev', v3's dev split of "
+                            "the suite (attenuation dB, higher is better); 'validation', "
+                            "motors drawn from the training distribution (v1's headline "
+                            "ratio; the committed v1-era agents)", choices=SELECTION_SPLITS)
     out: str = option("runs/residual", "output directory (models, logs)", metavar="DIR")
     total_timesteps: int | None = option(None, "agent steps to train (default: n_timesteps of "
                                          "the YAML)", metavar="STEPS", low=1, high=1e12)
@@ -190,6 +199,15 @@ def check_args(args: Args) -> None:
     if args.algo not in algos:
         raise ParameterError(f"--algo {args.algo!r} is not one of {list(algos)} "
                              f"(for --env {args.env})")
+    if args.env != ENV_ID_V1 and (args.suite is not None or args.select_on != "validation"):
+        raise ParameterError(f"--suite and --select-on dev need --env {ENV_ID_V1}")
+    given = args.extra.get("env_kwargs") or {}
+    if args.suite is not None and isinstance(given, dict):
+        clash = sorted(k for k in given if k in SUITE_TASKS[args.suite] and
+                       (k != "overrides" or set(given[k] or {}) & {"drive_mode"}))
+        if clash:
+            raise ParameterError(f"--set env_kwargs {clash}: --suite {args.suite} sets them "
+                                 "(agents/task.py SUITE_TASKS); leave them out or drop --suite")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--motors {list(args.motors)}: choose presets from {list(PRESETS)}")
@@ -312,6 +330,7 @@ class Validator:
         if not 0 <= args.val_seed < TRAINING_SEED_LIMIT - 1000:
             raise ParameterError(f"val_seed must stay below {TRAINING_SEED_LIMIT - 1000}")
         overrides = env_kwargs.get("overrides") or {}
+        self.env_id = args.env
         self.protocol = dataclasses.replace(full_protocol(), off_resonance=())
         motors, k = [], 0
         for preset in args.motors:
@@ -348,13 +367,21 @@ class Validator:
                 runs.append(result.record(m.name, self.seed, speed, label))
         return runs
 
-    def score(self, make_policy) -> dict[str, Any]:
+    @staticmethod
+    def better(new: dict[str, Any], best: dict[str, Any] | None) -> bool:
+        """Lower headline ratio is better; a non-finite one is never kept."""
+        value = new["headline_iqm"]
+        return math.isfinite(value) and (best is None or value < best["headline_iqm"])
+
+    def score(self, path: str) -> dict[str, Any]:
+        """The model saved in ``path`` on the validation motors."""
         from stepdamp_env.bench import iqm, reference_index, score_runs
         from stepdamp_env.bench.policy import reference_policy
 
         if self._reference is None:
             self._reference = reference_index(self._runs(reference_policy))
-        runs = self._runs(make_policy)
+        agent = FAMILIES[self.env_id].load_agent(path)
+        runs = self._runs(lambda: agent)
         scores = score_runs(runs, self._reference, self.protocol.failure_ratio)
         heads = [s["headline"] for s in scores]
         return {"headline_iqm": iqm(heads), "headline_mean": float(np.mean(heads)),
@@ -366,6 +393,11 @@ def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
     family = FAMILIES[args.env]
     training = {"seed": args.seed, "env_seed": 1000 * args.seed, "motors": list(args.motors),
                 "env_kwargs": sp["env_kwargs"],
+                # What the run saw: motors drawn below TRAINING_SEED_LIMIT, and where
+                # best.zip was chosen (stepdamp_agents.selection); never a scored split.
+                **({"suite": args.suite} if args.suite is not None else {}),
+                "splits": {"motors": "train",
+                           "selection": args.select_on if args.eval_freq > 0 else "none"},
                 "hyperparams": args.hyperparams or f"agents/hyperparams/{args.algo}.yml"}
     return family.agent_config(args.name or f"{args.algo}-{family.kind}", args.algo,
                                sp["env_kwargs"], sp["wrapper_kwargs"], training)
@@ -416,6 +448,8 @@ def train(args: Args) -> dict[str, Any]:
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
     total = int(args.total_timesteps or sp["n_timesteps"])
     wk = sp["wrapper_kwargs"]
+    if args.suite is not None:
+        sp["env_kwargs"] = suite_task(sp["env_kwargs"], args.suite)
     env_kwargs = dict(sp["env_kwargs"])
     env_kwargs.pop("motor", None)
     algo_kwargs = dict(sp["algo_kwargs"])
@@ -450,26 +484,34 @@ def train(args: Args) -> dict[str, Any]:
         except ImportError:
             print("tensorboard is not installed: CSV logs only (pip install tensorboard)")
     model.set_logger(configure(os.path.join(args.out, "logs"), formats))
-    validator = Validator(args, env_kwargs) if args.eval_freq > 0 else None
+    validator: Any = None
+    if args.eval_freq > 0:
+        validator = DevValidator(args.suite or "open-loop") if args.select_on == "dev" else \
+            Validator(args, env_kwargs)
     log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,
                            "n_envs": env.num_envs, "total_timesteps": total, "evaluations": []}
-    best = {"headline_iqm": math.inf}
+    best: dict[str, Any] = {}
     t0 = time.time()
 
     def evaluate(tag: str) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
-        agent = family.load_agent(path)
-        res = validator.score(lambda: agent)
+        res = validator.score(path)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
         log["evaluations"].append(res)
-        model.logger.record("eval/headline_iqm", res["headline_iqm"])
-        model.logger.record("eval/headline_mean", res["headline_mean"])
-        msg = (f"[{res['wall_s']:7.1f} s] step {res['step']:>8d}  validation headline IQM "
-               f"{res['headline_iqm']:.4f}  mean {res['headline_mean']:.4f}  "
-               f"step losses {res['step_losses']}")
+        head = f"[{res['wall_s']:7.1f} s] step {res['step']:>8d}  "
+        if args.select_on == "dev":
+            model.logger.record("eval/attenuation_db", res["attenuation_db"])
+            msg = (f"{head}dev attenuation IQM {res['attenuation_db']:.2f} dB  gap closed "
+                   f"{res['gap_closed']:.3f}  step losses {res['step_losses']}")
+        else:
+            model.logger.record("eval/headline_iqm", res["headline_iqm"])
+            model.logger.record("eval/headline_mean", res["headline_mean"])
+            msg = (f"{head}validation headline IQM {res['headline_iqm']:.4f}  mean "
+                   f"{res['headline_mean']:.4f}  step losses {res['step_losses']}")
         print(msg, flush=True)
-        if res["headline_iqm"] < best["headline_iqm"]:
+        if validator.better(res, best or None):
+            best.clear()
             best.update(res)
             save_agent(model, os.path.join(args.out, "best.zip"), config)
         return res
@@ -511,7 +553,8 @@ def train(args: Args) -> dict[str, Any]:
         evaluate("final")
     log["train_wall_s"] = round(train_s, 1)
     log["wall_s"] = round(time.time() - t0, 1)
-    log["best"] = {k: v for k, v in best.items() if k != "per_motor"} if validator else None
+    log["best"] = {k: v for k, v in best.items() if k not in ("per_motor", "per_motor_db")} \
+        if validator else None
     with open(os.path.join(args.out, "train_log.json"), "w", encoding="utf-8") as fh:
         json.dump(log, fh, indent=2, default=str)
         fh.write("\n")
@@ -542,9 +585,11 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
         # A local Ray gets this machine's cores; each seed is a task of one CPU.
         logs = backend_map(args.backend, args.ray_address)(train, runs, default_workers(),
                                                            max_chunk=1)
-    print(f"{'seed':>4} {'train s':>8} {'best validation IQM':>20}")
+    key, label = (("attenuation_db", "best dev dB") if args.select_on == "dev" else
+                  ("headline_iqm", "best validation IQM"))
+    print(f"{'seed':>4} {'train s':>8} {label:>20}")
     for k, log in zip(args.seeds, logs):
-        best = (log.get("best") or {}).get("headline_iqm", math.nan)
+        best = (log.get("best") or {}).get(key, math.nan)
         print(f"{k:>4} {log['train_wall_s']:8.1f} {best:20.4f}")
     return logs
 

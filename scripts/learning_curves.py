@@ -1,9 +1,16 @@
 """Learning curves of the committed reference agents, from their training logs.
 
-Run: ``python scripts/learning_curves.py [--out docs/figures/learning_curves.png]``.
-Plots the validation headline IQM (motors drawn around the presets with the
-training-side validation seed, never the protocol's) against agent steps for
-every seed of every entry in ``agents/reference/``, and prints a table.
+Run: ``python scripts/learning_curves.py [--out docs/figures/learning_curves.png]
+[--out-dev docs/figures/learning_curves_dev.png]``.
+
+Two figures, one panel per entry and one line per seed, and a table printed:
+
+* ``--out``: agents selected on validation motors (drawn around the presets
+  with the training-side validation seed, never the protocol's): the
+  validation headline IQM (ripple over undamped) against agent steps;
+* ``--out-dev``: agents selected on stepdamp-bench v3's dev split
+  (``stepdamp train --select-on dev``): the dev attenuation (dB, IQM over the
+  suite's dev motors) against env steps.
 """
 
 from __future__ import annotations
@@ -20,27 +27,32 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "agents", "reference")
 LOG = re.compile(r"^(?P<name>[a-z0-9-]+)\.seed(?P<seed>\d+)\.train_log\.json$")
+Curves = dict[str, dict[int, list[tuple[int, float]]]]
 
 
-def curves() -> dict[str, dict[int, list[tuple[int, float]]]]:
-    out: dict[str, dict[int, list[tuple[int, float]]]] = {}
+def curves() -> tuple[Curves, Curves]:
+    """(validation headline IQM, dev attenuation dB) curves per entry and seed."""
+    validation: Curves = {}
+    dev: Curves = {}
     for fname in sorted(os.listdir(REFERENCE)):
         m = LOG.match(fname)
         if not m:
             continue
         with open(os.path.join(REFERENCE, fname), encoding="utf-8") as fh:
             log = json.load(fh)
-        points = [(int(e["step"]), float(e["headline_iqm"])) for e in log["evaluations"]]
-        out.setdefault(m["name"], {})[int(m["seed"])] = sorted(points)
-    return out
+        evals = log["evaluations"]
+        on_dev = bool(evals) and "attenuation_db" in evals[0]
+        key = "attenuation_db" if on_dev else "headline_iqm"
+        points = sorted((int(e["step"]), float(e[key])) for e in evals)
+        (dev if on_dev else validation).setdefault(m["name"], {})[int(m["seed"])] = points
+    return validation, dev
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="docs/figures/learning_curves.png")
-    a = ap.parse_args()
-    data = curves()
-    # Log axis: a run that blows up (TD3: 200x its start) and one that halves share a panel row.
+def plot(data: Curves, out: str, on_dev: bool) -> None:
+    if not data:
+        return
+    # Validation: log axis (a run that blows up, TD3 at 200x its start, and one that
+    # halves share a panel row); dev: dB, already logarithmic.
     cols = min(3, len(data))
     rows = -(-len(data) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
@@ -48,22 +60,36 @@ def main() -> None:
         ax.set_visible(False)
     for ax, (name, seeds) in zip(axes.ravel(), sorted(data.items())):
         for seed, pts in sorted(seeds.items()):
-            ax.semilogy([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
-                        label=f"seed {seed}")
-            best = min(p[1] for p in pts)
-            print(f"{name:20s} seed {seed}: " + " ".join(f"{p[1]:.4f}" for p in pts)
-                  + f"  (best {best:.4f})")
+            draw = ax.plot if on_dev else ax.semilogy
+            draw([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
+                 label=f"seed {seed}")
+            best = (max if on_dev else min)(p[1] for p in pts)
+            fmt = ".2f" if on_dev else ".4f"
+            print(f"{name:20s} seed {seed}: " + " ".join(f"{p[1]:{fmt}}" for p in pts)
+                  + f"  (best {best:{fmt}})")
         base = next(iter(seeds.values()))[0][1]
         ax.axhline(base, color="k", ls="--", lw=1, label="step 0 (base)")
         ax.set_title(name)
-        ax.set_xlabel("agent steps")
-        ax.set_ylabel("validation headline IQM (ripple / undamped)")
+        ax.set_xlabel("env steps (decisions)" if on_dev else "agent steps")
+        ax.set_ylabel("dev attenuation IQM (dB)" if on_dev else
+                      "validation headline IQM (ripple / undamped)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
-    fig.savefig(a.out, dpi=90)
-    print(f"wrote {a.out}")
+    os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    print(f"wrote {out}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="docs/figures/learning_curves.png")
+    ap.add_argument("--out-dev", default="docs/figures/learning_curves_dev.png")
+    a = ap.parse_args()
+    validation, dev = curves()
+    plot(validation, a.out, on_dev=False)
+    plot(dev, a.out_dev, on_dev=True)
 
 
 if __name__ == "__main__":

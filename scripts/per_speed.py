@@ -12,11 +12,12 @@ loses steps counts as a loss).
 from __future__ import annotations
 
 import argparse
-import gzip
 import json
 import os
 
 import numpy as np
+
+from stepdamp_env.bench.report import GZIP_RUNS_FILE, open_runs_file
 
 BASE = "ff-delay-comp"
 DEFAULT = ("ars-per-step-25hz", "ars-per-step", "ppo-per-step", "td3-per-step",
@@ -28,7 +29,9 @@ def main() -> None:
     p.add_argument("board", nargs="?", default="docs/results")
     p.add_argument("--entries", nargs="+", default=list(DEFAULT))
     a = p.parse_args()
-    with gzip.open(os.path.join(a.board, "leaderboard_runs.json.gz"), "rt") as fh:
+    with open(os.path.join(a.board, "leaderboard.json"), encoding="utf-8") as fh:
+        runs_file = json.load(fh).get("runs_file", GZIP_RUNS_FILE)
+    with open_runs_file(os.path.join(a.board, runs_file)) as fh:
         raw = json.load(fh)
     for split in ("interpolation", "extrapolation"):
         rms: dict[str, dict[tuple, list[float]]] = {}

@@ -35,6 +35,7 @@ count on average).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import numbers
@@ -464,6 +465,22 @@ MIN_KP_CURRENT = 1e-6
 RK4_STABLE_RADIUS = 2.5
 
 
+@functools.lru_cache(maxsize=4096)
+def _plant_rate(k_max: float, J: float, D: float, Km: float, L: float, R: float) -> float:
+    """The fastest |lambda| (rad/s) of :func:`fastest_plant_mode`'s Jacobians; kept
+    per value set, as a board builds the same motor's run many times."""
+    jac = np.zeros((3, 3, 3))
+    jac[:, 0, 1] = 1.0
+    jac[:, 1, 0] = np.array([-k_max, 0.0, k_max]) / J
+    jac[:, 1, 1] = -D / J
+    jac[:, 1, 2] = Km / J
+    jac[:, 2, 1] = -Km / L
+    jac[:, 2, 2] = -R / L
+    with np.errstate(all="ignore"):
+        return max(R / L, float(np.max(np.abs(np.linalg.eigvals(jac))))) \
+            if np.all(np.isfinite(jac)) else math.inf
+
+
 def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[float, str]:
     """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode,
     or of the windings' back-EMF rotation Nr*omega at ``speed_rps`` if faster
@@ -478,16 +495,7 @@ def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[fl
     """
     m = system.motor
     k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
-    jac = np.zeros((3, 3, 3))
-    jac[:, 0, 1] = 1.0
-    jac[:, 1, 0] = np.array([-k_max, 0.0, k_max]) / m.J
-    jac[:, 1, 1] = -m.D / m.J
-    jac[:, 1, 2] = m.Km / m.J
-    jac[:, 2, 1] = -m.Km / m.L
-    jac[:, 2, 2] = -m.R / m.L
-    with np.errstate(all="ignore"):
-        rate = max(m.R / m.L, float(np.max(np.abs(np.linalg.eigvals(jac))))) \
-            if np.all(np.isfinite(jac)) else math.inf
+    rate = _plant_rate(k_max, m.J, m.D, m.Km, m.L, m.R)
     parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
              "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
              "Km, L, J": m.Km / math.sqrt(m.L * m.J)}

@@ -4,7 +4,6 @@ JSON fields and ``--motors``."""
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import json
 import math
 import os
@@ -19,6 +18,7 @@ from stepdamp_env.bench.motors import holds_its_load, protocol_motors
 from stepdamp_env.bench.protocols import protocol_for
 from stepdamp_env.bench.protocols.v1 import (SHIFTS, full_protocol_v1, in_training_distribution,
                                              load_motors_file, quick_protocol_v1)
+from stepdamp_env.bench.report import open_runs_file
 from stepdamp_env.bench.stats import (iqm, probability_of_improvement,
                                       stratified_bootstrap_ci, two_level_bootstrap)
 from stepdamp_env.params import ParameterError
@@ -148,6 +148,9 @@ def test_statistics_golden_values():
     poi = probability_of_improvement(x.ravel(), motors, y.ravel(), motors, strata=strata)
     assert poi["p"] == pytest.approx(0.6)
     assert poi["ci95"] == pytest.approx([0.43333333333333335, 0.76], rel=1e-12)
+    alone = probability_of_improvement(x.ravel(), motors, y.ravel(), motors, strata=strata,
+                                       interval=False)
+    assert alone["p"] == poi["p"] and all(math.isnan(v) for v in alone["ci95"])
 
 
 def test_an_entry_against_itself_is_a_coin_toss():
@@ -288,7 +291,7 @@ def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
     a, b = (entries["ppo-gain-selector"]["probability_of_improvement"]["ff-delay-comp"],
             entries["ff-delay-comp"]["probability_of_improvement"]["ppo-gain-selector"])
     assert a + b == pytest.approx(1.0)
-    with gzip.open(out / board["runs_file"], "rt", encoding="utf-8") as fh:
+    with open_runs_file(out / board["runs_file"]) as fh:
         raw = json.load(fh)
     ppo_runs = next(x for x in raw["entries"] if x["name"] == "ppo-gain-selector")["runs"]
     assert len(ppo_runs) == 2 * 3 * 5                       # motors x resonances x seeds

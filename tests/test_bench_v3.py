@@ -59,6 +59,29 @@ def test_splits_are_disjoint_deterministic_and_dev_is_a_training_draw():
     assert p.dev_motor_seed >= TRAINING_SEED_LIMIT and p.motor_seed >= TRAINING_SEED_LIMIT
 
 
+def test_grids_are_kept_per_motor_settings_and_code(tmp_path, monkeypatch):
+    """A kept grid is exactly the computed one; other settings are not served it."""
+    import os
+
+    from stepdamp_env.bench.protocols.v3 import grids_cached
+
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", "off")
+    p = ProtocolV3(splits=("dev",), **SMALL)
+    systems = [m.system for m in p.motors()][:2]
+    computed = [p.suite_grids(s) for s in systems]
+    assert grids_cached(p, systems) == computed
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", str(tmp_path))
+    assert grids_cached(p, systems) == computed
+    assert len(os.listdir(tmp_path / "grids")) == 2
+    assert grids_cached(p, systems) == computed                  # read back, exactly
+    other = dataclasses.replace(p, dominance=0.4)
+    assert grids_cached(other, systems[:1]) == [other.suite_grids(systems[0])]
+    assert len(os.listdir(tmp_path / "grids")) == 3
+    for name in os.listdir(tmp_path / "grids"):                 # unreadable: computed again
+        (tmp_path / "grids" / name).write_text('[["servo", [0.5], []]]')
+    assert grids_cached(p, systems) == computed
+
+
 def test_headline_speeds_are_where_the_phenomenon_dominates():
     p = ProtocolV3(splits=("interpolation",), **SMALL)
     system = get_preset("patent").replace(encoder_cpr=4000)

@@ -183,7 +183,7 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
                     "rms_injected_current_a"):
             assert key in e
         assert "runs" not in e and "scores" not in e        # in the compressed runs file
-    assert board["runs_file"] == "leaderboard_runs.json.gz"
+    assert board["runs_file"] == "leaderboard_runs.json.xz"
     full = load_leaderboard(out)
     for e in full["entries"]:
         assert len(e["runs"]) == 4 * 3                      # presets x resonant speeds
@@ -206,7 +206,7 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
                "--out", str(out), "--no-progress", "--no-plots"])
     assert rc == 0
     assert sorted(os.listdir(out)) == ["LEADERBOARD.md", "leaderboard.json",
-                                       "leaderboard_runs.json.gz", "notes.txt"]
+                                       "leaderboard_runs.json.xz", "notes.txt"]
     assert (out / "notes.txt").read_text() == "mine"
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
 

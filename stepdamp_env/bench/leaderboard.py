@@ -29,7 +29,7 @@ from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
 from ..env.v1 import StepperDampV1Env
 from ..identify import identify
-from ..io import cache_dir, read_json_or_none, tree_digest, write_json
+from ..io import cache_dir, read_json_or_none, write_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
@@ -37,7 +37,7 @@ from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
-from .provenance import board_fingerprint, environment, package_versions
+from .provenance import board_fingerprint, code_fingerprint, environment, package_versions
 from .registry import PolicySource, default_policy_names, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
 
@@ -90,6 +90,7 @@ def _init_worker(motors: tuple[ProtocolMotor, ...], knowledge: dict, protocol: P
     _WORKER["knowledge"] = knowledge
     _WORKER["protocol"] = protocol
     _WORKER["sources"] = dict(sources or {})
+    _WORKER["suite_motors"] = {}
     if "torch" in sys.modules:     # one thread per process: both cores, no oversubscription
         sys.modules["torch"].set_num_threads(1)
 
@@ -175,13 +176,21 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     motors: Sequence[ProtocolMotor] = _WORKER["motors"]
     specs = []
     mode = SUITE_MODE[batch.suite]
+    # A motor and its knowledge as the suite (or its reference row) runs them, made
+    # once per worker and board: every speed and entry shares them.
+    kept = _WORKER["suite_motors"]
+    reference = batch.spec == REFERENCE_ROW
     for i, seed, j in batch.runs:
-        motor = motors[i].for_suite(batch.suite)
-        knowledge = _WORKER["knowledge"][(i, seed)]
-        if batch.spec == REFERENCE_ROW:     # policy none on the motor without the phenomenon
-            motor = protocol.reference_motor(motors[i], batch.suite)
-        if motor is not motors[i]:          # the suite's drive mode (v2's mid-band)
-            knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
+        key = (i, seed, batch.suite, reference)
+        if key not in kept:
+            motor = motors[i].for_suite(batch.suite)
+            knowledge = _WORKER["knowledge"][(i, seed)]
+            if reference:               # policy none on the motor without the phenomenon
+                motor = protocol.reference_motor(motors[i], batch.suite)
+            if motor is not motors[i]:  # the suite's drive mode (v2's mid-band)
+                knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
+            kept[key] = (motor, knowledge)
+        motor, knowledge = kept[key]
         specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j], seed,
                                  motor.settle_s(batch.suite)))
     if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
@@ -200,14 +209,6 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
         records.append(result.record(motor.name, seed, spec.speed_rps,
                                      motor.speeds(batch.suite).labels[j], batch.training_seed))
     return records
-
-
-def code_fingerprint() -> str:
-    """This package's Python sources (read now) and the versions of its numerical
-    dependencies: a result kept on disk is reused only by the same code."""
-    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return hashlib.sha256(json.dumps([tree_digest(here, (".py",)), package_versions()],
-                                     sort_keys=True).encode()).hexdigest()
 
 
 def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]

@@ -88,6 +88,15 @@ def rank(group: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return group
 
 
+#: The default entries of the published v0, v1 and v2 boards: every registered
+#: default entry of 0.11.0 (v0 runs those its env can; the others are "not run").
+PUBLISHED_ENTRIES_V0_V2 = (
+    "none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
+    "velocity-feedback", "sensorless-damping", "calibrated-table", "repetitive-control",
+    "tuned-constant-gain", "oracle-floor", "ars-per-step", "ars-per-step-25hz",
+    "ppo-gain-selector", "ppo-per-step", "td3-per-step")
+
+
 class Protocol(abc.ABC):
     """A ``stepdamp-bench`` version: the interface the runner, the statistics, the
     report and the CLI use. Implementations are frozen dataclasses whose fields
@@ -118,13 +127,15 @@ class Protocol(abc.ABC):
     min_training_seeds: ClassVar[int] = 1
     #: Entries' records carry their card's ``trained_on`` (v3's eligibility rule).
     records_training_coverage: ClassVar[bool] = False
-    #: Registered default entries left out of this version's default board: entries
-    #: added after it was frozen (a new row changes every other row's comparisons).
-    later_entries: ClassVar[tuple[str, ...]] = ("privileged-bound",)
+    #: A frozen version's default board: the entries it was published with (an
+    #: entry registered later would change every other row's comparisons). None:
+    #: every registered default entry (the current version, which new entries join).
+    published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V0_V2
 
     def default_entries(self, names: Sequence[str]) -> list[str]:
         """The registered default entries ``names`` that this version runs by default."""
-        return [n for n in names if n not in self.later_entries]
+        keep = self.published_entries
+        return [n for n in names if keep is None or n in keep]
 
     @abc.abstractmethod
     def motors(self) -> tuple["ProtocolMotor", ...]:

@@ -19,8 +19,10 @@ import platform
 import sys
 from typing import Any, Mapping
 
-__all__ = ["environment", "package_versions", "board_fingerprint", "entry_fingerprints",
-           "DISPATCH_VARIABLES"]
+from ..io import tree_digest
+
+__all__ = ["environment", "package_versions", "code_fingerprint", "board_fingerprint",
+           "entry_fingerprints", "DISPATCH_VARIABLES"]
 
 #: Environment variables that choose a library's CPU code path or thread count.
 DISPATCH_VARIABLES = ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
@@ -125,6 +127,14 @@ def package_versions() -> dict[str, str]:
         except importlib.metadata.PackageNotFoundError:
             out[key] = "not installed"
     return out
+
+
+def code_fingerprint() -> str:
+    """This package's Python sources (read now) and the versions of its numerical
+    dependencies: a result kept on disk is reused only by the same code."""
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    return hashlib.sha256(json.dumps([tree_digest(here, (".py",)), package_versions()],
+                                     sort_keys=True).encode()).hexdigest()
 
 
 def _numpy_simd() -> dict[str, Any]:

@@ -244,12 +244,15 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         policy.reset_batch([contexts[i] for i in members])
         batch = StepperDampBatch([envs[i] for i in members])
         rows = np.arange(len(members))
-        steps = np.zeros(len(members), dtype=np.int64)
+        ends_rows = ends[index]
+        no = np.zeros(len(members), dtype=bool)
+        # Every row steps until it leaves: a row's step count is the batch's at its end.
+        n_steps = 0
 
         def finish(done: np.ndarray, terminated: np.ndarray, step_loss: np.ndarray,
                    overcurrent: np.ndarray) -> None:
             """Record the runs ``done`` (a mask over the batch's current rows) and drop them."""
-            nonlocal rows
+            nonlocal rows, ends_rows, no
             time_s = batch.time_s
             for j in np.flatnonzero(done).tolist():
                 row, i = int(rows[j]), int(index[rows[j]])
@@ -266,26 +269,26 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
                 results[i] = EpisodeResult(
                     terminated=term, termination=reason,
                     failed=lost_steps(term, metrics, slip, mode),
-                    steps=int(steps[row]), window_start_s=windows[i][0], window_s=windows[i][1],
+                    steps=n_steps, window_start_s=windows[i][0], window_s=windows[i][1],
                     metrics=metrics, calibration_s=cal, simulated_s=float(time_s[j]),
                     slip_cycles=slip)
-            if done.any():
-                keep = np.flatnonzero(~done)
-                batch.keep(keep)
-                rows = rows[keep]
+            keep = np.flatnonzero(~done)
+            batch.keep(keep)
+            rows, ends_rows, no = rows[keep], ends_rows[keep], no[keep]
 
         while len(rows):
             # As run_episode: a run steps while its time is before its end, and ends
             # at once when it terminates.
-            over = batch.time_s >= ends[index[rows]]
-            no = np.zeros(len(rows), dtype=bool)
-            finish(over, no, no, no)
-            if not len(rows):
-                break
+            over = batch.time_s >= ends_rows
+            if over.any():
+                finish(over, no, no, no)
+                if not len(rows):
+                    break
             actions = policy.act_batch(batch.obs.copy(), rows)
             terminated, step_loss, overcurrent = batch.step(actions)
-            steps[rows] += 1
-            finish(terminated, terminated, step_loss, overcurrent)
+            n_steps += 1
+            if terminated.any():
+                finish(terminated, terminated, step_loss, overcurrent)
     for env in envs:
         env.close()
     return [r for r in results if r is not None]

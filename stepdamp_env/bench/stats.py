@@ -167,7 +167,8 @@ def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
                                strata: Mapping[Any, Any] | None = None,
                                resamples: int = 2000, seed: int = 2000,
                                confidence: float = 0.95,
-                               resample_motors: bool = True) -> dict[str, Any]:
+                               resample_motors: bool = True,
+                               interval: bool = True) -> dict[str, Any]:
     """P(X improves on Y) with lower scores better, and its two-level interval.
 
     Per motor, the probability that a cell of X scores lower than a cell of Y
@@ -177,6 +178,7 @@ def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
     interval draws the same motors for X and Y and their cells independently
     (``resample_motors=False``: cells only, motors fixed, as rliable's
     stratified bootstrap does). An entry against itself gives exactly 0.5.
+    ``interval=False`` leaves the interval out (NaN): P alone, the same value.
     """
     ox, tx, cx = _cell_table(x, x_motors)
     oy, ty, cy = _cell_table(y, y_motors)
@@ -187,6 +189,8 @@ def probability_of_improvement(x: Sequence[float], x_motors: Sequence[Any],
     iy = np.array([oy.index(k) for k in common])
     tx, cx, ty, cy = tx[ix], cx[ix], ty[iy], cy[iy]
     p = float(_mann_whitney(tx, ty, cx, cy).mean())
+    if not interval:
+        return {"p": p, "ci95": [math.nan, math.nan], "motors": len(common)}
     rng = np.random.default_rng(seed)
     m_idx = _motor_draws(common, strata, rng, resamples) if resample_motors else \
         np.tile(np.arange(len(common)), (resamples, 1))

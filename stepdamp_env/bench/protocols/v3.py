@@ -102,20 +102,24 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import math
 import multiprocessing
+import os
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from ... import fixedmath as fm
+from ...io import cache_dir, read_json_or_none, write_json
 from ...parallel import default_workers, pool_map
 from ...params import ParameterError, SystemParams
 from ...presets import get_preset
 from ...simulation import RunSettings, SpeedProfile, simulate
 from ..motors import ProtocolMotor, draw_around, holds_its_load, with_sensors
 from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE
+from ..provenance import code_fingerprint
 from ..stats import median_difference, motor_mean_bootstrap, probability_of_improvement, \
     rank_groups
 from .v1 import QUICK_SETTINGS, ProtocolV1
@@ -171,7 +175,7 @@ class ProtocolV3(ProtocolV2):
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     known_suites: ClassVar[tuple[str, ...]] = ALL_SUITES
     records_training_coverage: ClassVar[bool] = True
-    later_entries: ClassVar[tuple[str, ...]] = ()
+    published_entries: ClassVar[tuple[str, ...] | None] = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -233,14 +237,9 @@ class ProtocolV3(ProtocolV2):
         draws come first (:meth:`build_motor` leaves the grids out); then every
         motor's grids (its nominal sweeps and mid-band analysis, about a quarter
         of a second a motor) are computed on every core at once, the same values
-        on any number of workers."""
+        on any number of workers, and kept on disk (:func:`grids_cached`)."""
         drafts = self._dev_motors() + super().motors()
-        workers = 1 if multiprocessing.current_process().daemon else default_workers()
-        if drafts and workers > 1:      # the compiled kernel loaded once, inherited by the fork
-            simulate(drafts[0].system, speed_rps=0.5,
-                     settings=RunSettings(settle_s=0.0, window_s=0.001))
-        grids = pool_map(_motor_grids, [(self, m.system) for m in drafts], workers,
-                         max_chunk=1)
+        grids = grids_cached(self, [m.system for m in drafts])
         return tuple(dataclasses.replace(m, speeds_rps=g[0][1], speed_labels=g[0][2], grids=g)
                      for m, g in zip(drafts, grids))
 
@@ -493,7 +492,8 @@ class ProtocolV3(ProtocolV2):
                 keep_b = [k for k, v in enumerate(xb) if math.isfinite(v)]
                 p = probability_of_improvement(     # lower is better there: minus dB
                     [-xa[k] for k in keep_a], [ma[k] for k in keep_a],
-                    [-xb[k] for k in keep_b], [mb[k] for k in keep_b], **stats)["p"]
+                    [-xb[k] for k in keep_b], [mb[k] for k in keep_b], interval=False,
+                    **stats)["p"]
                 a["probability_of_improvement"][b["name"]] = p
                 b["probability_of_improvement"][a["name"]] = 1.0 - p
                 eff = median_difference(a["_motor_db"], b["_motor_db"], **stats)
@@ -504,10 +504,63 @@ class ProtocolV3(ProtocolV2):
             r.pop("_cells", None)
 
 
-def _motor_grids(job: tuple[ProtocolV3, SystemParams]
-                 ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
+Grids = tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]
+
+
+def _motor_grids(job: tuple[ProtocolV3, SystemParams]) -> Grids:
     protocol, system = job
     return protocol.suite_grids(system)
+
+
+def _grids_from_json(kept: Any) -> Grids | None:
+    """A kept entry as grids, or None if it is not one (then computed again)."""
+    try:
+        out = tuple((str(suite), tuple(float(v) for v in speeds), tuple(str(x) for x in labels))
+                    for suite, speeds, labels in kept)
+    except (TypeError, ValueError):
+        return None
+    if not out or any(len(speeds) != len(labels) for _, speeds, labels in out):
+        return None
+    return out
+
+
+def grids_cached(protocol: ProtocolV3, systems: Sequence[SystemParams]) -> list[Grids]:
+    """``protocol.suite_grids(system)`` of each system, those not kept on disk
+    computed on every core (the same values on any number of workers) and kept
+    (:func:`...io.cache_dir` "grids"), per system, protocol settings and code
+    (:func:`..provenance.code_fingerprint`), as identifications are: the grids
+    are deterministic, so a kept grid is the one it would compute."""
+    where = cache_dir("grids")
+    paths: list[str | None] = [None] * len(systems)
+    out: list[Grids | None] = [None] * len(systems)
+    if where is not None and systems:
+        settings = {k: v for k, v in protocol.to_dict().items() if k != "splits"}
+        code = code_fingerprint()
+        for i, system in enumerate(systems):
+            key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code},
+                             sort_keys=True, default=str)
+            paths[i] = os.path.join(where, hashlib.sha256(key.encode()).hexdigest()[:32] +
+                                    ".json")
+            out[i] = _grids_from_json(read_json_or_none(paths[i]))
+    todo = [i for i, g in enumerate(out) if g is None]
+    workers = 1 if multiprocessing.current_process().daemon else default_workers()
+    workers = min(workers, len(todo))
+    if workers > 1:                     # the compiled kernel loaded once, inherited by the fork
+        simulate(systems[todo[0]], speed_rps=0.5,
+                 settings=RunSettings(settle_s=0.0, window_s=0.001))
+    done = pool_map(_motor_grids, [(protocol, systems[i]) for i in todo], max(workers, 1),
+                    max_chunk=1)
+    for i, g in zip(todo, done):
+        out[i] = g
+        if paths[i] is not None:
+            try:
+                write_json(paths[i], [[suite, list(speeds), list(labels)]
+                                      for suite, speeds, labels in g])
+            except OSError:             # a full or read-only cache: computed anyway
+                pass
+    if any(g is None for g in out):
+        raise RuntimeError("grids_cached: a motor's grids were neither kept nor computed")
+    return [g for g in out if g is not None]
 
 
 def eligible(trained_on: Sequence[Sequence[Any]], suite: str, speeds_rps: Sequence[float]
