@@ -418,3 +418,21 @@ def test_custom_motors_under_v3_keep_their_encoder_and_rank_per_motor(tmp_path, 
     assert cprs == {"my-nema23": 131072, "my-nema17": 4000}
     ref = next(e for e in board["entries"] if e["reference"])
     assert ref["ratio"]["iqm"] <= 0.25
+
+
+def test_the_board_does_not_depend_on_the_order_of_its_entries():
+    """A pair's P and effect are computed one way round (the other side gets the
+    complement), so the entries run in one canonical order whatever was given."""
+    from stepdamp_env.bench.leaderboard import canonical_order
+    from stepdamp_env.bench.provenance import entry_fingerprints
+
+    names = ["tuned-constant-gain", "ff-delay-comp", "velocity-feedback", "my/policy.py:X",
+             "none", "a/policy.py:Y"]
+    assert canonical_order(names) == ["none", "ff-delay-comp", "velocity-feedback",
+                                      "tuned-constant-gain", "a/policy.py:Y", "my/policy.py:X"]
+    p = quick_protocol_v3().with_suites(["mid-band"]).with_splits(["interpolation"])
+    entries = ["tuned-constant-gain", "sensorless-damping", "velocity-feedback", "ff-delay-comp"]
+    one = run_leaderboard(p, entries, workers=1, progress=False)
+    other = run_leaderboard(p, entries[::-1], workers=1, progress=False)
+    assert entry_fingerprints(one) == entry_fingerprints(other)
+    assert one["fingerprint"] == other["fingerprint"]

@@ -38,7 +38,7 @@ from .policy import MotorKnowledge, policy_card, policy_env_options
 from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
 from .provenance import board_fingerprint, code_fingerprint, environment, package_versions
-from .registry import PolicySource, default_policy_names, resolve_policy
+from .registry import PolicySource, default_policy_names, registered_policies, resolve_policy
 from .runner import EpisodeSpec, run_episode, run_episodes
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
@@ -361,9 +361,19 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     return board
 
 
+def canonical_order(specs: Sequence[str]) -> list[str]:
+    """The specs once each, registered policies in registry order, then the others
+    sorted: a pair's probability and effect are computed one way round (the other
+    side is their complement), so the board must not depend on the order given."""
+    registry = {name: k for k, name in enumerate(registered_policies())}
+    unique = list(dict.fromkeys(specs))
+    return sorted((s for s in unique if s in registry), key=registry.__getitem__) + \
+        sorted(s for s in unique if s not in registry)
+
+
 def _sources(specs: Sequence[str]) -> dict[str, PolicySource]:
-    """Each policy spec (once, in order) resolved; names must be unique."""
-    sources = {spec: resolve_policy(spec) for spec in dict.fromkeys(specs)}
+    """Each policy spec (once, in :func:`canonical_order`) resolved; names must be unique."""
+    sources = {spec: resolve_policy(spec) for spec in canonical_order(specs)}
     names = [s.name for s in sources.values()]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
