@@ -23,7 +23,8 @@ model-based baselines.
   ``ppo-gain-selector`` (v0's agent, named ``ppo-residual``
   up to 0.5.0: one PPO decision, a damping gain, every 0.1 s); and, one per
   stepdamp-bench v3 suite, selected on its dev split (training seeds 11-15),
-  ``ars-open-loop``, ``ars-servo`` and ``ars-mid-band``;
+  ``ars-open-loop``, ``ars-servo`` and ``ars-mid-band``, and with PPO
+  ``ppo-open-loop`` and ``ppo-mid-band`` (0.14.0);
 * :mod:`stepdamp_agents.selection`: model selection on v3's dev split, and the
   splits a training config records.
 

@@ -21,11 +21,13 @@ from typing import Any, Sequence
 import numpy as np
 
 from stepdamp_env import fixedmath as fm
+from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        estimate_model)
+from stepdamp_env.env import EnvOptionsV1, TaskV1
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.env.registration import ENV_ID_V1
-from stepdamp_env.params import SystemParams
+from stepdamp_env.params import ParameterError, SystemParams
 from stepdamp_env.response import current_path, phasors, torque_paths, velocity_filter
 
 from .harmonic import DelayCompensatedFF, gather_rows, harmonic_actions
@@ -91,6 +93,14 @@ class _FeedbackOnFF(DelayCompensatedFF):
         if self.privileged:
             out["privileged"] = True
         return out
+
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """Not exportable (see :mod:`stepdamp_env.bench.firmware`): the feedback runs
+        through filters at the agent rate, state that a table and gains do not hold."""
+        raise ParameterError(f"entry {self.name!r} cannot be exported: its feedback current "
+                             "comes from filters run at the agent rate (state, not a table "
+                             "and gains); export tuned-constant-gain (the kernel's stateless "
+                             "velocity feedback) or ff-delay-comp (its feedforward)")
 
     def _feedforward(self, context: PolicyContext, system: SystemParams) -> np.ndarray:
         """ff-delay-comp's actions, with the current path of ``system``."""
@@ -335,6 +345,11 @@ class OracleFloor(_FeedbackOnFF):
         self.gains = design_gains(target, complex(1.0, 0.0), hp / complex(0.0, wn))
         self._lp = None
 
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """Not exportable: an oracle (see :mod:`stepdamp_env.bench.firmware`)."""
+        raise ParameterError(f"entry {self.name!r} cannot be exported: it is an oracle (it "
+                             "reads the true plant and the true state, which no drive has)")
+
     def _zeta(self, context: PolicyContext) -> float:
         """The added damping ratio of this run: ``zeta_add`` in open loop, 0 in servo."""
         return self.zeta_add if context.mode == "open-loop" else 0.0
@@ -472,6 +487,39 @@ class TunedConstantGain:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action
+
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """The law this entry runs in ``context`` (:mod:`stepdamp_env.bench.firmware`):
+        v1's ff-delay-comp base feedforward (unrounded) plus the kernel's velocity
+        feedback ``clip(kv*Kv*e_w, +-law limit)``, with v1's own scales (the env's
+        task computes them, so the export follows the env)."""
+        if np.any(self._action[1:] != 0.0):
+            raise ParameterError(f"entry {self.name!r} cannot be exported: only the velocity "
+                                 "gain kv of the damping law is supported (kp and the "
+                                 "resonant gains must be 0)")
+        knowledge = context.knowledge
+        options = self.env_options(knowledge)
+        model = options["estimate"]
+        if model is None:
+            raise ParameterError(f"entry {self.name!r} cannot be exported: it needs an "
+                                 "identified motor model (MotorKnowledge.identified is None)")
+        nominal = knowledge.nominal
+        task = TaskV1(EnvOptionsV1.from_kwargs({
+            **options, "motor": nominal, "nominal": nominal, "mode": context.mode,
+            "speed_rps": context.speed_rps}))
+        # The kernel's KV: the float32 action times its scale, 2*zeta_scale*J*wn/Km (A*s/rad).
+        kv = float(self._action[0]) * task.action_scales[0]
+        return harmonic_law(
+            context, self.name, task.base_coefficients(model, context.speed_rps), model,
+            velocity_gain_a_s_per_rad=kv, feedback_limit_a=task.law_limit_a,
+            velocity_estimator=(f"the drive's encoder difference through a first-order "
+                                f"low-pass at {nominal.servo.velocity_cutoff_hz!r} Hz, every "
+                                "PWM period"),
+            notes=(f"{self.name}: ff-delay-comp's table (the identified detent model through "
+                   "the inverse current path at the held speed) plus StepperDamp-v1's damping "
+                   f"law at the constant gain kv = {float(self._action[0])!r}: Kv = kv*2*"
+                   f"{task.options.damping_ratio_scale!r}*J*wn/Km of the nominal motor, "
+                   f"bounded by {task.options.law_limit_factor!r} times the holding current."))
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         pass

@@ -16,11 +16,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_model,
                                        resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.fixedmath import cmul, random_walk_kalman_update
-from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, SystemParams
+from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 __all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS", "phasors", "torque_paths",
@@ -104,6 +105,28 @@ class DelayCompensatedFF(_HarmonicResidual):
     def act(self, observation: np.ndarray) -> np.ndarray:
         return self._action
 
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """The harmonic table this entry applies in ``context``'s run
+        (:mod:`stepdamp_env.bench.firmware`): the patent feedforward's coefficients
+        plus its constant harmonic action as the env applies it (rounded to
+        float32, clipped to [-1, 1], times the action scale), over the model's Km."""
+        if type(self).act is not DelayCompensatedFF.act:
+            raise ParameterError(f"entry {self.name!r} cannot be exported: its harmonic "
+                                 "table changes while it runs (it learns on line); a firmware "
+                                 "table is fixed")
+        self.reset(context)
+        model = estimate_model(self.estimate, context.knowledge)
+        applied = _applied(self._action, phasors(model), context.action_scale)
+        coefficients = np.empty(6)
+        coefficients[0::2], coefficients[1::2] = applied.real, applied.imag
+        what = (f"the {self.estimate} detent model sent through the inverse of the drive's "
+                "current path at the held speed (phase lead and gain; in open loop also the "
+                "rotor's static lag)" if type(self) is DelayCompensatedFF else
+                "its fixed harmonic table at the held speed (see its docstring)")
+        return harmonic_law(context, self.name, coefficients, model, notes=(
+            f"{self.name}: {what}, as the benchmark applies it: its harmonic action on the "
+            "patent feedforward, rounded to float32 and clipped to [-1, 1]."))
+
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): each
     # row is reset as a scalar run is, and its (constant) action kept.
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
@@ -170,6 +193,12 @@ class AdaptiveFF(_HarmonicResidual):
         self.probe_s = probe_s
         self.guard_ratio = guard_ratio
         self._action = np.zeros(6, dtype=np.float32)
+
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """Not exportable: the table adapts on line (see :mod:`stepdamp_env.bench.firmware`)."""
+        raise ParameterError(f"entry {self.name!r} cannot be exported: it adapts its harmonic "
+                             "table on line (Kalman filter on the velocity error); export "
+                             "ff-delay-comp, the table it starts from")
 
     def reset(self, context: PolicyContext) -> None:
         system = context.knowledge.nominal

@@ -17,7 +17,8 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # file -> (marker name, board directory) pairs
 TARGETS = {
-    "README.md": (("results", "docs/results/v3"),),
+    "README.md": (("results", "docs/results/v3"), ("summary", "docs/results/v3"),
+                  ("caption", "docs/results/v3")),
     "docs/results.md": (("results-v3", "docs/results/v3"), ("results", "docs/results"),
                         ("results-v0", "docs/results/v0")),
 }
@@ -27,6 +28,84 @@ def rendered(board_dir: str) -> str:
     from stepdamp_env.bench.report import load_leaderboard, render_ladder
 
     return render_ladder(load_leaderboard(os.path.join(ROOT, board_dir))).strip()
+
+
+def _rows(board: dict, suite: str, split: str) -> list[dict]:
+    return [e for e in board["entries"] if e["suite"] == suite and e.get("split") == split]
+
+
+def _db(e: dict) -> str:
+    a = e["attenuation_db"]
+    return f"{a['iqm']:.1f} dB [{a['ci'][0]:.1f}, {a['ci'][1]:.1f}]"
+
+
+def _versus(a: dict, b: dict) -> str:
+    eff = a["effect_db"][b["name"]]
+    return (f"{eff['median']:+.1f} dB [{eff['ci'][0]:+.1f}, {eff['ci'][1]:+.1f}], "
+            f"P(better) {a['probability_of_improvement'][b['name']]:.2f}")
+
+
+def _best(rows: list[dict], learned: bool, ranked_only: bool = True) -> dict | None:
+    """The best row by attenuation among learned (or classical: not learned, not
+    privileged, not the reference, not `none`) entries; ranked rows only, unless
+    none of the kind is ranked."""
+    kind = [e for e in rows if bool(e.get("learned")) == learned and not e.get("reference")
+            and not e.get("privileged") and e["spec"] != "none"]
+    ranked = [e for e in kind if e.get("rank") is not None]
+    pool = ranked or ([] if ranked_only else kind)
+    return max(pool, key=lambda e: e["attenuation_db"]["iqm"]) if pool else None
+
+
+def summary(board_dir: str) -> str:
+    """The README's short reading of the board, per suite: the reference, the best
+    classical and the best learned entry (effect and P(better) between them, on
+    both splits), the patent's feedforward and the runs `none` loses."""
+    from stepdamp_env.bench.report import load_leaderboard
+
+    board = load_leaderboard(os.path.join(ROOT, board_dir))
+    out = []
+    for suite in board["protocol"]["suites"]:
+        parts = []
+        for split in ("interpolation", "extrapolation"):
+            rows = _rows(board, suite, split)
+            if not rows:
+                continue
+            ref = next(e for e in rows if e.get("reference"))
+            classical = _best(rows, learned=False)
+            learned = _best(rows, learned=True, ranked_only=False)
+            none = next(e for e in rows if e["spec"] == "none")
+            text = f"*{split}*: best classical `{classical['name']}` {_db(classical)}"
+            if learned is not None:
+                how = "" if learned.get("rank") is not None else " (zero-shot: outside its training)"
+                text += (f"; best learned `{learned['name']}`{how} {_db(learned)}, "
+                         f"{_versus(learned, classical)}")
+            if split == "interpolation":
+                patent = next((e for e in rows if e["spec"] == "patent-ff-identified"), None)
+                text += (f"; `reference` (no phenomenon) {ref['attenuation_db']['iqm']:.1f} dB"
+                         + (f"; the patent's feedforward {patent['attenuation_db']['iqm']:.1f} dB"
+                            if patent else ""))
+            lost = 1.0 - none["success_rate"]
+            if lost > 0:
+                text += f"; `none` loses {lost:.0%} of its runs"
+            parts.append(text)
+        out.append(f"* **{suite}.** " + ". ".join(parts) + ".")
+    return "\n".join(out)
+
+
+def caption(board_dir: str) -> str:
+    """The overview figure's numbers: the patent's feedforward and the best
+    entry in open loop on the interpolation motors."""
+    from stepdamp_env.bench.report import load_leaderboard
+
+    board = load_leaderboard(os.path.join(ROOT, board_dir))
+    rows = _rows(board, "open-loop", "interpolation")
+    patent = next(e for e in rows if e["spec"] == "patent-ff-identified")
+    best = max((e for e in rows if e.get("rank") is not None and e["spec"] != "none"),
+               key=lambda e: e["attenuation_db"]["iqm"])
+    p = patent["attenuation_db"]["iqm"]
+    return (f"The patent's feedforward with an identified model attenuates them by {p:.1f} dB "
+            f"over the interpolation motors (about {1 - 10 ** (-p / 20):.0%} less ripple), "
+            f"and the best entry, `{best['name']}`, by {best['attenuation_db']['iqm']:.1f} dB.")
 
 
 def updated(text: str, marker: str, table: str) -> str:
@@ -49,8 +128,9 @@ def main(argv: list[str] | None = None) -> int:
         with open(path, encoding="utf-8") as fh:
             text = fh.read()
         new = text
+        render = {"summary": summary, "caption": caption}
         for marker, board in pairs:
-            new = updated(new, marker, rendered(board))
+            new = updated(new, marker, render.get(marker, rendered)(board))
         if new != text:
             stale.append(name)
             if not args.check:

@@ -130,10 +130,13 @@ def _settings(args: argparse.Namespace, base: str | None = None) -> RunSettings:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from .io import write_json
     from .plots import plot_sweep, plot_velocity_error_traces, trace_speeds
-    from .sweep import parse_speed_range, run_sweep
+    from .sweep import parse_speed_range, prominent_peaks, run_sweep
 
     speeds = parse_speed_range(args.speeds)     # the arguments first, then the disk
     system = load_system(args.motor, parse_set_overrides(args.overrides))
+    entries = [e for g in args.damping for e in g] + [p for g in args.policy for p in g]
+    if entries:
+        return _sweep_entries(args, system, speeds, entries)
     bases = list(dict.fromkeys(args.base_controller))
     settings = [_settings(args, b) for b in bases]
     check_output_dir(args.out, "--out")
@@ -167,18 +170,91 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                       f"({peak['relative_offset']:+.1%}), RMS {peak['ripple_rad_s']:.4g} rad/s"
                       + coarse)
             else:
-                print(f"    {where}no peak (highest RMS nearby {peak['ripple_rad_s']:.4g} "
-                      f"rad/s at {peak['speed_rps']:.4f} rev/s)")
+                print(f"    {where}no resonance peak (highest RMS nearby "
+                      f"{peak['ripple_rad_s']:.4g} rad/s at {peak['speed_rps']:.4f} rev/s)")
+        humps = prominent_peaks(speeds, result.column("rms_velocity_error_rad_s"))
+        print("    peaks by prominence: " + (", ".join(
+            f"{p['speed_rps']:.4g} rev/s ({p['prominence']:.2f}x{', lone' if p['lone'] else ''})"
+            for p in humps) or "none"))
     print(f"wrote {', '.join(os.path.join(args.out, n) for n in names)}, "
           f"{os.path.join(args.out, 'sweep.png')}, "
           f"{os.path.join(args.out, 'velocity_error_traces.png')}")
     return 0
 
 
+def _sweep_entries(args: argparse.Namespace, system: Any, speeds: np.ndarray,
+                   entries: list[str]) -> int:
+    """``sweep --damping``: each entry as stepdamp-bench v3 runs it."""
+    from .bench.entry_sweep import plot_entry_sweeps, sweep_entry
+    from .bench.registry import default_policy_names
+    from .io import write_json
+
+    if args.base_controller != ["none"] or args.estimate is not None:
+        raise ParameterError("--damping/--policy: an entry brings its own base controller "
+                             "and model; leave out --base-controller and --estimate")
+    _register_policies()
+    named = default_policy_names()
+    unknown = [e for e in entries if e not in named and ":" not in e
+               and not e.endswith(".zip") and not os.path.isdir(e)]
+    if unknown:
+        raise ParameterError(f"--damping: unknown {unknown}; choose from {list(named)} "
+                             "(or give a policy file with --policy)")
+    check_output_dir(args.out, "--out")
+    results = [sweep_entry(e, system, speeds, mode=args.mode, seed=args.noise_seed,
+                           workers=args.workers, progress=not args.no_progress)
+               for e in dict.fromkeys(entries)]
+    names = [f"sweep_{_file_stem(r.entry)}.json" for r in results]
+    with staged_directory(args.out, SWEEP_FILES) as stage:
+        for name, result in zip(names, results):
+            write_json(os.path.join(stage, name), result.to_dict())
+        plot_entry_sweeps(results, os.path.join(stage, "sweep.png"))
+    predicted = system.predicted_resonances_rps()
+    print(f"motor {system.name}: {args.mode}, {len(speeds)} speeds "
+          f"{speeds[0]:g}..{speeds[-1]:g} rev/s; predicted resonances "
+          + ", ".join(f"h={h}: {v:.3f}" for h, v in predicted.items()) + " rev/s")
+    for r in results:
+        finite = r.ripple_rad_s[np.isfinite(r.ripple_rad_s)]
+        print(f"  {r.entry}: lost steps in {int(r.failed.sum())} of {len(speeds)} runs; "
+              f"RMS ripple mean {float(np.mean(finite)) if finite.size else math.nan:.4g} "
+              "rad/s over the runs that held")
+        for peak in r.peaks():
+            h = min(predicted, key=lambda k: abs(predicted[k] / peak["speed_rps"] - 1))
+            near = (f" (h={h} predicted {predicted[h]:.3f})"
+                    if abs(predicted[h] / peak["speed_rps"] - 1) <= 0.15 else "")
+            lone = " (one speed only: likely aliasing, not a resonance)" if peak["lone"] else ""
+            print(f"    peak at {peak['speed_rps']:.4g} rev/s{near}: RMS {peak['ripple']:.4g} "
+                  f"rad/s, {peak['prominence']:.2f}x above its surroundings{lone}")
+        if not r.peaks():
+            print("    no peak stands out (prominence below 1.5x)")
+    print(f"wrote {', '.join(os.path.join(args.out, n) for n in names + ['sweep.png'])}")
+    return 0
+
+
+def _file_stem(spec: str) -> str:
+    """A file-name part for an entry name or a policy path."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in spec).strip("_")[-60:]
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .bench.firmware import entry_law, export_law, firmware_knowledge
+
+    system = load_system(args.motor, parse_set_overrides(args.overrides))
+    _register_policies()
+    law = entry_law(args.entry, firmware_knowledge(system), mode=args.mode,
+                    speed_rps=args.speed)
+    check_writable(args.out, "--out", directory=True)
+    paths = export_law(law, args.format, args.out, args.prefix)
+    print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: "
+          f"{len(law.harmonics)} harmonics, velocity gain {law.velocity_gain_a_s_per_rad:.4g} "
+          f"A*s/rad; wrote {', '.join(paths)}")
+    return 0
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.trace is not None:
         if not args.trace.strip() or args.trace.endswith(os.sep):
-            raise ParameterError(f"--trace {args.trace!r}: give a file name (FILE.npz)")
+            raise ParameterError(f"--trace {args.trace!r}: give a file name (FILE.npz or "
+                                 "FILE.csv)")
         check_writable(args.trace, "--trace", directory=False)
     if not MIN_SPEED_RPS <= abs(args.speed):
         raise ParameterError(f"--speed {args.speed:g}: the ripple metrics are relative to a "
@@ -203,7 +279,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                                  f"({start:.6g}, inf) s")
     result = simulate(system, profile=profile, settings=settings,
                       duration_s=args.duration, trace=args.trace is not None)
-    if args.trace is not None:
+    if args.trace is not None and args.trace.endswith(".csv"):
+        from .drivelog import trace_table, write_trace
+
+        write_trace(args.trace, trace_table(result), comments=[
+            f"stepdamp simulate: motor {system.name}, mode {settings.mode}, speed "
+            f"{args.speed:g} rev/s; columns and units: docs/drivelogs.md"])
+    elif args.trace is not None:
         from .io import write_npz
         from .kernel import TRACE_UNITS
 
@@ -219,7 +301,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 continue
             print(f"{key:28s} {_fmt(value)}")
         if args.trace is not None:
-            print(f"wrote {args.trace} (one row per PWM period; units and settings inside)")
+            what = ("a drive log, docs/drivelogs.md" if args.trace.endswith(".csv")
+                    else "units and settings inside")
+            print(f"wrote {args.trace} (one row per PWM period; {what})")
     return 0
 
 
@@ -248,6 +332,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out, "--out")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
+    if args.log:
+        return _identify_logs(args, system)
     result = identify(system, method=args.method, noise_seed=args.seed)
     model = result.model
     identified = system.replace(Kd1=model.Kd1, Kd2=model.Kd2, Kd4=model.Kd4,
@@ -275,12 +361,86 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_presets(args: argparse.Namespace) -> int:
-    for name in preset_names():
-        system = load_system(name)
-        res = system.predicted_resonances_rps()
-        print(f"{name:24s} wn = {system.natural_frequency():7.1f} rad/s, resonances "
-              + ", ".join(f"h={h}: {v:.3f}" for h, v in res.items()) + " rev/s")
+def _identify_logs(args: argparse.Namespace, system: Any) -> int:
+    """``identify --log``: the detent model from drive logs, ``system`` the prior."""
+    from .drivelog import identify_from_logs
+    from .io import write_json
+
+    result = identify_from_logs(system, args.log, method=args.log_method,
+                                settle_s=args.settle)
+    identified = result.apply_to(system)
+    motor_file = {**identified.to_dict(), "name": f"{system.name}-identified",
+                  "source": f"stepdamp identify --log-method {args.log_method} on "
+                            + ", ".join(args.log)}
+    with staged_directory(args.out, IDENTIFY_FILES) as stage:
+        write_json(os.path.join(stage, "identified_motor.json"), motor_file)
+        write_json(os.path.join(stage, "identification.json"),
+                   {"motor": system.name, **result.to_dict()})
+    model, m = result.model, system.motor
+    print(f"motor {system.name} (prior): {args.log_method} on {len(args.log)} log(s)")
+    for fit in result.logs:
+        print(f"  {fit.label}: {fit.speed_rps:.4g} rev/s, {fit.electrical_periods:.1f} "
+              f"electrical periods, residual {fit.residual_rms_a:.3g} A "
+              f"({fit.residual_fraction:.1%})")
+    print(f"  {'':6s} {'identified':>12s} {'prior':>12s}")
+    for name in ("Kd1", "Kd2", "Kd4", "phi1", "phi2", "Fs"):
+        print(f"  {name:6s} {getattr(model, name):12.6g} {getattr(m, name):12.6g}")
+    print(f"  {'J':6s} {result.J:12.6g} {m.J:12.6g}" + ("" if "J" in result.fitted
+                                                         else " (prior)"))
+    print(f"  {'D':6s} {result.D:12.6g} {m.D:12.6g}" + ("" if "D" in result.fitted
+                                                         else " (prior)"))
+    print(f"  residual {result.residual_rms_a:.3g} A ({result.residual_fraction:.1%} of the "
+          "current's RMS)")
+    for w in result.warnings:
+        print(f"warning: {w}")
+    print(f"wrote {os.path.join(args.out, 'identified_motor.json')}, "
+          f"{os.path.join(args.out, 'identification.json')}")
+    return 0
+
+
+def motor_record(description: Any) -> dict[str, Any]:
+    """What ``stepdamp motors --json`` prints for one motor (SI units; speeds rev/s)."""
+    from .analysis import bridge_limit_rps, midband
+
+    system = description.system
+    parameters = system.to_dict()
+    parameters.setdefault("drive_mode", system.drive.drive_mode)
+    bands = {mode: midband(system.replace(drive_mode=mode)) for mode in ("current", "voltage")}
+    return {"name": system.name, "source": description.source, "parameters": parameters,
+            "derived": system.derived_dict(),
+            "resonances_rps": {str(h): v for h, v in
+                               sorted(system.predicted_resonances_rps().items())},
+            "midband_rps": {m: (list(b.unstable_rps) if b.unstable_rps else None)
+                            for m, b in bands.items()},
+            "max_speed_rps": bridge_limit_rps(system),
+            "assumed": description.assumed}
+
+
+def _cmd_motors(args: argparse.Namespace) -> int:
+    from .motorfile import describe_spec
+
+    specs = args.motors or list(preset_names())
+    records = [motor_record(d) for spec in specs for d in describe_spec(spec)]
+    if args.json:
+        print(json.dumps(records, indent=2))
+        return 0
+    for r in records:
+        p = r["parameters"]
+        res = r["resonances_rps"]
+        print(f"{r['name']} ({r['source']})")
+        print(f"  R {p['R']:.4g} Ohm, L {p['L']:.4g} H, Km {p['Km']:.4g} N*m/A, Nr {p['Nr']}, "
+              f"J {p['J']:.4g} kg*m^2, D {p['D']:.4g} N*m*s/rad, Kd1/Kd2/Kd4 "
+              f"{p['Kd1']:.3g}/{p['Kd2']:.3g}/{p['Kd4']:.3g} N*m, Fs {p['Fs']:.3g} N*m")
+        print(f"  holding current {p['holding_current']:.4g} A, Vdc {p['Vdc']:.4g} V, "
+              f"encoder {p['encoder_cpr']} counts/rev, drive mode {p['drive_mode']}")
+        print("  resonances " + ", ".join(f"h={h}: {res[h]:.3f}" for h in ("4", "2", "1"))
+              + f" rev/s; top speed the bus allows {r['max_speed_rps']:.2f} rev/s")
+        print("  mid-band " + "; ".join(
+            f"{m}: " + (f"{b[0]:.2f}-{b[1]:.2f} rev/s" if b else "none")
+            for m, b in r["midband_rps"].items()))
+        if r["assumed"]:
+            print("  assumed (not in the file): " + ", ".join(
+                f"{k}={_fmt(v)}" for k, v in r["assumed"].items()))
     return 0
 
 
@@ -373,7 +533,8 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from .bench.report import load_leaderboard, render_ladder, render_markdown, render_results
+    from .bench.report import (load_leaderboard, render_ladder, render_markdown, render_results,
+                               render_suite_page, scored_in_db)
 
     path = os.path.join(args.dir, "leaderboard.json")
     if not os.path.isfile(path):
@@ -386,11 +547,16 @@ def _cmd_report(args: argparse.Namespace) -> int:
                              f"{exc})") from None
     if args.check:
         return _check_report(board, args.dir, args.sample)
+    pages = [render_suite_page(board, suite) for suite in board["protocol"]["suites"]] \
+        if scored_in_db(board) else []
     if args.full:
-        print(render_markdown(board), end="")
+        print("\n".join([render_markdown(board)] + pages), end="")
         return 0
     if args.suite == "all":
         print(render_ladder(board), end="")
+        return 0
+    if pages:
+        print(render_suite_page(board, args.suite), end="")
         return 0
     print(render_results(board, args.suite), end="")
     return 0
@@ -451,8 +617,16 @@ def build_parser() -> argparse.ArgumentParser:
     def command(name: str, text: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=text, description=text, formatter_class=_Formatter)
 
-    p = command("presets", "list the built-in motors and their predicted resonances")
-    p.set_defaults(func=_cmd_presets)
+    p = command("motors", "describe motors (presets or motor files): model values, "
+                "resonances, mid-band, top speed and what a file left to defaults")
+    p.add_argument("motors", nargs="*", metavar="NAME|FILE",
+                   help="a preset or a motor .json file (a datasheet file, a model file or "
+                        "a --motors list); default: every preset")
+    p.add_argument("--json", action="store_true", help="print the records as JSON")
+    p.set_defaults(func=_cmd_motors)
+    p = sub.add_parser("presets", help="the same as `stepdamp motors` (older name)",
+                       formatter_class=_Formatter)
+    p.set_defaults(func=_cmd_motors, motors=[], json=False)
 
     p = command("analyse", "the predicted mid-band (unstable speed band) per motor and "
                 "drive mode, from the eigenvalues of the linearised drive")
@@ -472,8 +646,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "through its settling (default: constant speed)")
     p.add_argument("--duration", type=_number(float, 0, 1e4, low_open=True), default=None,
                    metavar="SECONDS", help="simulated time (default: ramp + settle + 0.5 s window)")
-    p.add_argument("--trace", default=None, metavar="FILE.npz",
-                   help="write one sample per PWM period (units and settings inside)")
+    p.add_argument("--trace", default=None, metavar="FILE.npz|FILE.csv",
+                   help="write one sample per PWM period: FILE.csv a drive log (columns in "
+                        "docs/drivelogs.md, what `identify --log` reads), FILE.npz every "
+                        "state of the simulation (units and settings inside)")
     p.add_argument("--json", action="store_true", help="print the settings and metrics as JSON")
     p.set_defaults(func=_cmd_simulate)
 
@@ -482,6 +658,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_system_args(p, base_many=True)
     p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
                    help="command speeds (rev/s)")
+    p.add_argument("--damping", action="append", nargs="+", default=[], metavar="ENTRY",
+                   help="sweep leaderboard entries (e.g. none tuned-constant-gain), each run "
+                        "as stepdamp-bench v3 runs it: the drive identifies the motor first; "
+                        "replaces --base-controller")
+    p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
+                   help="sweep a policy as `stepdamp leaderboard --policy` takes it (a model "
+                        "`stepdamp train` wrote, DIR/best.zip, or module:attr); trusted files only")
     _add_pool_run_args(p)
     p.set_defaults(func=_cmd_sweep)
 
@@ -494,8 +677,42 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the patent's iteration, or one least-squares fit")
     p.add_argument("--seed", type=_number(int, 0, 2 ** 53 - 1), default=0,
                    help="current-sensor noise seed")
+    p.add_argument("--log", action="append", default=None, metavar="FILE.csv",
+                   help="identify from drive logs instead of simulating: constant-speed "
+                        "logs (columns in docs/drivelogs.md); --motor is then the prior "
+                        "(R, L, Km, Nr, J, D); repeatable")
+    p.add_argument("--log-method", choices=("torque-balance", "effort"),
+                   default="torque-balance",
+                   help="with --log: the rotor's torque balance sample by sample (any "
+                        "mode), or the servo effort as patent claim 1 (servo logs)")
+    p.add_argument("--settle", type=_number(float, 0.0, 1e4), default=0.1, metavar="SECONDS",
+                   help="with --log: the start of each log left out of the fit (s)")
     p.add_argument("--out", required=True, metavar="DIR", help="result directory")
     p.set_defaults(func=_cmd_identify)
+
+    p = command("export", "write an entry's damping law for a drive's firmware: harmonic "
+                "table, per-microstep table and gains as JSON, or C99 source and header")
+    p.add_argument("entry", metavar="ENTRY",
+                   help="a leaderboard entry with a fixed law (patent-ff-identified, "
+                        "ff-delay-comp, calibrated-table, tuned-constant-gain)")
+    p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
+                   help="what the drive knows: a preset or a motor file (to use the model "
+                        "identified on your motor, export with `stepdamp identify`'s "
+                        "identified_motor.json)")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
+    p.add_argument("--format", choices=("c", "json"), default="c",
+                   help="c: PREFIX.h and PREFIX.c (C99, sin/cos from libm only); json: "
+                        "PREFIX.json")
+    p.add_argument("--mode", choices=("open-loop", "servo"), default="open-loop",
+                   help="the drive's mode the law is computed for")
+    p.add_argument("--speed", type=_number(float, 1e-3, 1e3), default=None, metavar="RPS",
+                   help="held command speed the delay-compensated table is computed for "
+                        "(rev/s; default: the motor's h=4 resonance)")
+    p.add_argument("--prefix", default=None,
+                   help="file and C symbol prefix (default: the entry's name, - as _)")
+    p.add_argument("--out", default=".", metavar="DIR", help="output directory")
+    p.set_defaults(func=_cmd_export)
 
     from .bench.protocols import DEFAULT_VERSION, protocol_versions
 
@@ -588,7 +805,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         resume = " (run the same command again to resume)" if args.command == "leaderboard" \
             else ""
-        print(f"stepdamp {args.command}: interrupted; earlier results are unchanged{resume}",
+        # On a line of its own: a progress bar may hold the cursor at the end of its line.
+        print(f"\nstepdamp {args.command}: interrupted; earlier results are unchanged{resume}",
               file=sys.stderr)
         return 130
     finally:

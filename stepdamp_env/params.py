@@ -375,12 +375,28 @@ class SystemParams:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any], base: "SystemParams | None" = None
                   ) -> "SystemParams":
-        """Build from a flat mapping; missing fields come from ``base``."""
-        unknown = sorted(set(values) - set(ALL_FIELDS) - set(META_KEYS))
+        """Build from a flat mapping; missing fields come from ``base``.
+
+        A mapping with datasheet keys (``holding_torque_Nm``, ...) is converted
+        by :mod:`stepdamp_env.motorfile` and starts from its documented
+        defaults instead of a preset."""
+        from .motorfile import DATASHEET_KEYS, datasheet_fields, is_datasheet  # lazy: imports us
+        unknown = sorted(set(values) - set(ALL_FIELDS) - set(META_KEYS) - set(DATASHEET_KEYS))
         if unknown:
             raise ParameterError(
-                f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)} "
-                f"and metadata keys {list(META_KEYS)}")
+                f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)}, datasheet keys "
+                f"{list(DATASHEET_KEYS)} and metadata keys {list(META_KEYS)}")
+        if is_datasheet(values):
+            if base is not None:
+                raise ParameterError("datasheet keys apply to a motor file, not to a change of "
+                                     f"an existing system; give model fields {list(ALL_FIELDS)}")
+            flat = datasheet_fields(values)
+            drive = {**dataclasses.asdict(DriveParams()),
+                     **{k: flat[k] for k in DRIVE_FIELDS if k in flat}}
+            servo = {**dataclasses.asdict(ServoParams()),
+                     **{k: flat[k] for k in SERVO_FIELDS if k in flat}}
+            return cls(MotorParams(**{k: flat[k] for k in MOTOR_FIELDS}), DriveParams(**drive),
+                       ServoParams(**servo), name=str(values.get("name", "custom")))
         if base is None:
             from .presets import get_preset   # lazy: presets.py imports this module
             base = get_preset(str(values.get("base", "patent")))

@@ -13,7 +13,7 @@ from .params import DETENT_HARMONICS, ParameterError, SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 
 __all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks",
-           "resolving_spacing"]
+           "resolving_spacing", "prominent_peaks", "PEAK_PROMINENCE", "PEAK_MIN_FRACTION"]
 
 
 #: Command speeds a sweep or a simulation accepts (rev/s, magnitude).
@@ -32,10 +32,16 @@ def parse_speed_range(text: str) -> np.ndarray:
         raise ParameterError(f"--speeds expects numbers, got {text!r}") from None
     if not all(math.isfinite(v) for v in (start, stop, step)):
         raise ParameterError(f"--speeds must be finite, got {text!r}")
-    if step <= 0 or stop < start or start < MIN_SPEED_RPS or stop > MAX_SPEED_RPS:
-        raise ParameterError(
-            f"--speeds {text!r}: need {MIN_SPEED_RPS:g} <= START <= STOP <= "
-            f"{MAX_SPEED_RPS:g} and STEP > 0 (rev/s)")
+    for name, value in (("START", start), ("STOP", stop)):
+        if not MIN_SPEED_RPS <= value <= MAX_SPEED_RPS:
+            sign = (" (a sweep runs forward; the direction does not change the ripple)"
+                    if value < 0 else "")
+            raise ParameterError(f"--speeds {name}={value:g} is outside its allowed range "
+                                 f"[{MIN_SPEED_RPS:g}, {MAX_SPEED_RPS:g}] rev/s{sign}")
+    if stop < start:
+        raise ParameterError(f"--speeds STOP={stop:g} must be >= START={start:g} rev/s")
+    if step <= 0:
+        raise ParameterError(f"--speeds STEP={step:g} must be > 0 rev/s")
     count = (stop - start) / step
     if count > 100_000:
         raise ParameterError(f"--speeds {text!r} gives over 100000 points; allowed at most "
@@ -169,6 +175,56 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
                   "is_local_max": bool(interior), "is_resonance": resonance,
                   "resolved": resolved}
     return out
+
+
+#: A peak stands this factor (in ripple, 1.5 = 3.5 dB) above the higher of the
+#: lowest points between it and the nearest higher ripple on either side.
+PEAK_PROMINENCE = 1.5
+
+
+#: Peaks lower than this share of the highest one are not reported.
+PEAK_MIN_FRACTION = 0.1
+
+
+def prominent_peaks(speeds_rps: Sequence[float], ripple: Sequence[float],
+                    prominence: float = PEAK_PROMINENCE,
+                    min_fraction: float = PEAK_MIN_FRACTION) -> list[dict[str, float]]:
+    """Local maxima of ``ripple`` against speed whose topographic prominence, as a
+    ratio, is at least ``prominence``: the peak over the higher of the two
+    minima that separate it from higher ground (or from the sweep's ends), and
+    that reach ``min_fraction`` of the highest such peak (a well-damped curve's
+    small aliasing spikes are not humps). Flat tops count once (their first
+    point). Non-finite points (lost runs) separate peaks. Returns
+    ``speed_rps``, ``ripple``, ``prominence`` (ratio) and ``lone`` (more than
+    ``SPIKE_RATIO`` x 2 above both neighbours: one speed, likely aliasing with
+    the PWM or encoder rate, not a resonance), highest first."""
+    v = np.asarray(speeds_rps, dtype=float)
+    y = np.asarray(ripple, dtype=float)
+    n = len(y)
+    out = []
+    for i in range(n):
+        if not (math.isfinite(y[i]) and y[i] > 0):
+            continue
+        left_higher = i > 0 and math.isfinite(y[i - 1]) and y[i - 1] >= y[i]
+        right_higher = i + 1 < n and math.isfinite(y[i + 1]) and y[i + 1] > y[i]
+        if left_higher or right_higher:
+            continue
+        bases = []
+        for step in (-1, 1):
+            low, j = y[i], i + step
+            while 0 <= j < n and math.isfinite(y[j]) and y[j] <= y[i]:
+                low = min(low, y[j])
+                j += step
+            bases.append(low)
+        base = max(bases)
+        ratio = y[i] / base if base > 0 else math.inf
+        if ratio >= prominence:
+            near = [y[j] for j in (i - 1, i + 1) if 0 <= j < n and math.isfinite(y[j])]
+            lone = bool(near) and bool(y[i] > 2.0 * SPIKE_RATIO * max(near))
+            out.append({"speed_rps": float(v[i]), "ripple": float(y[i]),
+                        "prominence": float(ratio), "lone": lone})
+    out.sort(key=lambda p: -p["ripple"])
+    return [p for p in out if p["ripple"] >= min_fraction * out[0]["ripple"]] if out else []
 
 
 def _run_point(args: tuple[SystemParams, RunSettings, float, float]) -> dict[str, Any]:

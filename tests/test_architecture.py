@@ -22,9 +22,10 @@ FLOORS = {
     "stepdamp_env.estimators": 0, "stepdamp_env.numba_cache": 0, "stepdamp_env.fixedmath": 0,
     "stepdamp_env.simulation": 1, "stepdamp_env.response": 1,
     "stepdamp_env.identify": 2, "stepdamp_env.sweep": 2, "stepdamp_env.plots": 2,
-    "stepdamp_env.analysis": 2,
+    "stepdamp_env.analysis": 2, "stepdamp_env.drivelog": 2,
     "stepdamp_env": 3,                       # the package root exports the env floor
     "stepdamp_env.env": 3, "stepdamp_env.sb3": 3, "stepdamp_env.fields": 0,
+    "stepdamp_env.motorfile": 0,
     "stepdamp_env.bench": 4,
     "stepdamp_baselines": 5, "stepdamp_agents": 5,
     "stepdamp_env.cli": 6,

@@ -391,7 +391,9 @@ def test_default_leaderboard_is_v3_with_its_figures_report_and_check(tmp_path, c
                  "velocity_error_resonances_mid-band.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = (out / "LEADERBOARD.md").read_text()
-    assert "## mid-band, extrapolation" in md and "gap closed" in md
+    assert "(LEADERBOARD_mid-band.md), extrapolation" in md and len(md.encode()) < 5000
+    page = (out / "LEADERBOARD_mid-band.md").read_text()
+    assert "## mid-band, extrapolation" in page and "gap closed" in page
     capsys.readouterr()
     assert main(["report", str(out)]) == 0
     assert "attenuation" in capsys.readouterr().out

@@ -199,6 +199,7 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == [
         "stepdamp sweep: interrupted; earlier results are unchanged"]
+    assert err.startswith("\n")        # never glued to a progress bar's line
     assert not (tmp_path / "o").exists()
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
     assert sorted(os.listdir(tmp_path)) == ["warm"]

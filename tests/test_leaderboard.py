@@ -205,8 +205,9 @@ def test_cli_writes_leaderboard(tmp_path, capsys):
     rc = main(["leaderboard", "--quick", "--suite", "open-loop", "--entries", "none",
                "--out", str(out), "--no-progress", "--no-plots"])
     assert rc == 0
-    assert sorted(os.listdir(out)) == ["LEADERBOARD.md", "leaderboard.json",
-                                       "leaderboard_runs.json.xz", "notes.txt"]
+    assert sorted(os.listdir(out)) == ["LEADERBOARD.md", "LEADERBOARD_open-loop.md",
+                                       "leaderboard.json", "leaderboard_runs.json.xz",
+                                       "notes.txt"]
     assert (out / "notes.txt").read_text() == "mine"
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
 
@@ -247,3 +248,20 @@ def test_policy_styles_are_distinct_on_a_full_board():
     styles = policy_styles(names)
     colours = [styles[n][0] for n in names]
     assert len(set(colours)) == len(names)
+
+
+def test_warm_up_marks_this_code_version_compiled(tmp_path, monkeypatch, capsys):
+    """The leaderboard's warm-up leaves a marker in this code version's numba
+    cache; without it (a cold cache) it says it is compiling, on stderr."""
+    from stepdamp_env import numba_cache
+    from stepdamp_env.bench.leaderboard import warm_up
+    from stepdamp_env.params import load_system
+
+    marker = os.path.join(numba_cache.user_cache_dir(), "compiled")
+    if os.path.exists(marker):
+        os.remove(marker)
+    assert warm_up(load_system("patent"), workers=1, progress=True) >= 0.0
+    assert "compiling the simulation kernels" in capsys.readouterr().err
+    assert os.path.exists(marker)
+    warm_up(load_system("patent"), workers=1, progress=True)
+    assert capsys.readouterr().err == ""

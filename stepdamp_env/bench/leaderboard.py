@@ -28,10 +28,13 @@ from ..env.options import EnvOptions
 from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
 from ..env.v1 import StepperDampV1Env
+from .. import fixedmath as fm
+from .. import numba_cache
 from ..identify import identify
 from ..io import cache_dir, read_json_or_none, write_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..presets import get_preset
 from ..simulation import RunSettings, SpeedProfile, simulate
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
@@ -39,7 +42,8 @@ from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
 from .provenance import board_fingerprint, code_fingerprint, environment, package_versions
 from .registry import PolicySource, default_policy_names, registered_policies, resolve_policy
-from .runner import EpisodeSpec, run_episode, run_episodes
+from .runner import (RUN_ERRORS, EpisodeResult, EpisodeSpec, could_not_run, run_episode,
+                     run_episodes)
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
            "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
@@ -193,16 +197,27 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
         motor, knowledge = kept[key]
         specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j], seed,
                                  motor.settle_s(batch.suite)))
-    if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
-        results = [run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
+    def alone(e: EpisodeSpec) -> EpisodeResult:
+        try:
+            return run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
                                mode=mode, speed_rps=e.speed_rps, seed=e.seed,
                                accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
                                settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit())
-                   for e in specs]
+        except RUN_ERRORS as exc:
+            return could_not_run(exc)
+
+    if _WORKER.get("runner") == "scalar":     # the reference of the batched runner
+        results = [alone(e) for e in specs]
     else:
-        results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
-                               mode=mode, accel_rps2=protocol.accel_rps2,
-                               window_s=protocol.window_s, lag_limit_steps=protocol.lag_limit())
+        try:
+            results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
+                                   mode=mode, accel_rps2=protocol.accel_rps2,
+                                   window_s=protocol.window_s,
+                                   lag_limit_steps=protocol.lag_limit())
+        except RUN_ERRORS:
+            # An entry that cannot run on one motor stops its batch: each run alone
+            # then says which could not (the others give the batch's numbers).
+            results = [alone(e) for e in specs]
     records = []
     for (i, seed, j), spec, result in zip(batch.runs, specs, results):
         motor = motors[i]
@@ -239,24 +254,75 @@ def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardM
                           rig=CalibrationRig(motor.system, seed, protocol.accel_rps2))
 
 
-def _warm_up(system: SystemParams) -> None:
-    """Load the compiled kernel and env helpers once, before forking, so that the
-    workers inherit them instead of each loading the numba cache again."""
+def _warm_core(system: SystemParams) -> None:
+    """The simulation core and the identification's fits (servo runs, lstsq)."""
     simulate(system, settings=RunSettings(settle_s=0.0, window_s=0.001), trace=True,
              profile=SpeedProfile(speed_rps=0.5, accel_rps2=1000.0))
+    fm.lstsq(np.eye(3), np.ones(3))
+    # The learned entries' network, with the argument types bench.network passes.
+    fm.mlp_forward(np.zeros((1, 1), np.float32), np.ones(1), np.zeros(1),
+                   np.array([1, 1], np.int64), np.zeros(1, np.int64))
+
+
+def _warm_v0(system: SystemParams) -> None:
+    """StepperDamp-v0's compiled step, scalar and batched."""
     env = StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0)
     env.reset(seed=0)
     env.step(np.zeros(env.action_space.shape, dtype=np.float32))
     env.run_metrics()
-    # The batched runner's compiled steps (v0, and v1 with and without its law).
-    for make in (lambda: StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0),
-                 lambda: StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0),
-                 lambda: StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
-                                          action_mode="harmonic")):
-        env = make()
+    batch = StepperDampBatch([env])
+    batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
+
+
+def _warm_v1(system: SystemParams) -> None:
+    """StepperDamp-v1's batched steps, with its damping law and with harmonic actions."""
+    for options in ({}, {"action_mode": "harmonic"}):
+        env = StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0, **options)
         env.reset(seed=0)
         batch = StepperDampBatch([env])
         batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
+
+
+#: The warm-up in parts that share no compiled code, longest first (about 35,
+#: 27 and 13 s to compile on one core of the reference machine).
+_WARM_PARTS = (_warm_v0, _warm_v1, _warm_core)
+
+
+def _warm_part(job: tuple[int, SystemParams]) -> None:
+    _WARM_PARTS[job[0]](job[1])
+
+
+def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> float:
+    """Load the compiled kernel, env steps and fits once, before forking, so that
+    the workers inherit them instead of each loading the numba cache again.
+    Where this version's numba cache is cold, the parts compile in ``workers``
+    processes first (they share no compiled code), with a line on stderr if
+    ``progress``. Returns the seconds spent."""
+    start = time.perf_counter()
+    marker = os.path.join(numba_cache.user_cache_dir(), "compiled")
+    cold = not os.path.exists(marker)
+    if cold and progress:
+        print(f"compiling the simulation kernels for this version of the code, once "
+              f"({min(workers, len(_WARM_PARTS))} process(es); about a minute)...",
+              file=sys.stderr, flush=True)
+    if cold and workers > 1:
+        try:
+            pool_map(_warm_part, [(k, system) for k in range(len(_WARM_PARTS))],
+                     min(workers, len(_WARM_PARTS)), min_jobs=2)
+        except Exception:       # noqa: BLE001 - a part failed: compiled here below
+            pass
+    for part in _WARM_PARTS:
+        part(system)
+    if cold:
+        try:
+            with open(marker, "w", encoding="utf-8") as fh:
+                fh.write("compiled\n")
+        except OSError:
+            pass
+        if progress:
+            print(f"compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr,
+                  flush=True)
+    return time.perf_counter() - start
 
 
 def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
@@ -339,8 +405,10 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
                                                 default_policy_names()))])
     workers = default_workers() if workers is None else max(1, int(workers))
     run_map = pool_map if backend is None else backend
+    # First: drawing a protocol's motors may simulate (v3's grids), so that the
+    # kernels compile here in parallel, not serially inside the draw.
+    warm_up(get_preset("patent"), workers if backend is None else 1, progress)
     motors = protocol_motors(protocol)
-    _warm_up(motors[0].system)
     identified, failures = _identify_all(protocol, motors, run_map, workers, progress)
     knowledge = {pair: protocol_knowledge(motors[pair[0]], pair[1], model, protocol)
                  for pair, model in identified.items()}

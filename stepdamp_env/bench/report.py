@@ -34,7 +34,8 @@ from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
 __all__ = ["RESULT_FILES", "RUNS_FILE", "GZIP_RUNS_FILE", "open_runs_file", "format_summary", "render_markdown", "render_results",
-           "render_ladder", "entry_knowledge", "entry_rows", "render_per_motor", "has_splits", "splits",
+           "render_ladder", "render_suite_page", "suite_page", "row_notes", "best_eligible", "scored_in_db",
+           "highlighted_rows", "entry_knowledge", "entry_rows", "render_per_motor", "has_splits", "splits",
            "plot_performance_profile",
            "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
            "plot_resonance_traces", "trace_run", "write_outputs"]
@@ -44,7 +45,8 @@ __all__ = ["RESULT_FILES", "RUNS_FILE", "GZIP_RUNS_FILE", "open_runs_file", "for
 RUNS_FILE = "leaderboard_runs.json.xz"
 GZIP_RUNS_FILE = "leaderboard_runs.json.gz"
 #: What a leaderboard run writes (glob patterns): replaced as a set, never mixed.
-RESULT_FILES = ("leaderboard.json", RUNS_FILE, GZIP_RUNS_FILE, "LEADERBOARD.md", "overview.png",
+RESULT_FILES = ("leaderboard.json", RUNS_FILE, GZIP_RUNS_FILE, "LEADERBOARD.md",
+                "LEADERBOARD_*.md", "overview.png",
                 "performance_profile.png",
                 "ripple_vs_speed_*.png", "velocity_error_resonances_*.png")
 _RAW_KEYS = ("scores", "runs")
@@ -81,6 +83,41 @@ def row_rank(e: Mapping[str, Any]) -> str:
     return "zero-shot" if e.get("zero_shot") else "privileged" if e.get("privileged") else "-"
 
 
+def row_notes(e: Mapping[str, Any]) -> list[str]:
+    """Why a v3 row's score needs reading with care: it lost every run, it has
+    no score, or it is privileged and still worse than no damping."""
+    if "attenuation_db" not in e or e.get("reference"):
+        return []
+    notes = []
+    att = e["attenuation_db"]["iqm"]
+    sl = e["step_losses"]
+    if sl["runs"] and sl["runs_lost"] == sl["runs"]:
+        notes.append("loses every run: the rotor falls behind the command at every speed "
+                     "of this suite on these motors, with or without this entry's help")
+    elif not math.isfinite(att):
+        notes.append("no score: `none` lost every headline run on these motors, so there "
+                     "is no undamped ripple to attenuate (a stalled rotor does not resonate)")
+    errors = [r["error"] for r in e.get("runs", []) if r.get("error")]
+    if errors:
+        notes.append(f"could not run in {len(errors)} of {sl['runs']} runs, each counted as "
+                     f"lost (first: {errors[0]})")
+    if e.get("privileged") and math.isfinite(att) and att < 0.0:
+        notes.append("privileged, yet worse than no damping: the exact model or true state "
+                     "does not make this law right for this motor and suite (a privileged "
+                     "row shows what that knowledge buys its law; it is no floor)")
+    return notes
+
+
+def best_eligible(rows: Sequence[Mapping[str, Any]], skip: Sequence[str] = ()
+                  ) -> Mapping[str, Any] | None:
+    """The best-ranked row a drive can use: ranked (not the reference, not
+    privileged, not zero-shot), not ``none``, not in ``skip``."""
+    ranked = [e for e in rows if e.get("rank") is not None and not e.get("oracle")
+              and not e.get("reference") and e["spec"] != REFERENCE_POLICY
+              and e["spec"] not in skip]
+    return min(ranked, key=lambda e: e["rank"]) if ranked else None
+
+
 def score_label(e: Mapping[str, Any]) -> str:
     """A row's headline for a figure's legend: v3's attenuation, else the ratio."""
     if "attenuation_db" in e:
@@ -92,8 +129,10 @@ def entry_line(e: Mapping[str, Any]) -> str:
     """One console line of a row."""
     sl = e["step_losses"]
     if "attenuation_db" in e:
+        notes = "".join(f"\n             note: {n}" for n in row_notes(e))
         return (f"{row_rank(e):>9s}. {e['name']:28s} {format_db(e['attenuation_db']):26s} dB, "
-                f"gap closed {format_db(e['gap_closed']):24s} success {e['success_rate']:.2f}")
+                f"gap closed {format_db(e['gap_closed']):24s} success {e['success_rate']:.2f}"
+                + notes)
     return (f"{e['rank']:2d}. {e['name']:28s} headline IQM {format_summary(e['headline']):32s} "
             f"step losses {sl['runs_lost']}/{sl['runs']}")
 
@@ -112,7 +151,7 @@ def render_markdown(board: Mapping[str, Any]) -> str:
     """``LEADERBOARD.md``: one ranked table per suite (v1: per split and suite,
     with the probability of improvement of every pair)."""
     if scored_in_db(board):
-        return _render_markdown_db(board)
+        return _render_summary_db(board)
     if has_splits(board):
         return _render_markdown_by_split(board)
     p = board["protocol"]
@@ -220,14 +259,72 @@ def _render_markdown_by_split(board: Mapping[str, Any]) -> str:
     return _with_versions(board, lines)
 
 
-def _render_markdown_db(board: Mapping[str, Any]) -> str:
+def suite_page(suite: str) -> str:
+    """The file of a v3 board's full table of one suite."""
+    return f"LEADERBOARD_{suite}.md"
+
+
+def _db_header(board: Mapping[str, Any]) -> list[str]:
+    """A v3 page's title and its line on motors, seeds and time."""
     p = board["protocol"]
     counts = {sp: sum(m.get("split") == sp for m in p["motors"]) for sp in p["splits"]}
-    lines = [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
-             "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
-             + f"; evaluation seeds {', '.join(str(k) for k in p['eval_seeds'])}. Wall time "
-             f"{board.get('wall_seconds', math.nan):.0f} s, simulated "
-             f"{board.get('simulated_seconds', math.nan):.0f} s.",
+    return [f"# Leaderboard: {p['name']} {p['version']} ({p['variant']})", "",
+            "Motors per split: " + ", ".join(f"{sp} {n}" for sp, n in counts.items())
+            + f"; evaluation seeds {', '.join(str(k) for k in p['eval_seeds'])}. Wall time "
+            f"{board.get('wall_seconds', math.nan):.0f} s, simulated "
+            f"{board.get('simulated_seconds', math.nan):.0f} s."]
+
+
+def _render_summary_db(board: Mapping[str, Any]) -> str:
+    """v3's LEADERBOARD.md: per suite and split the reference, the three best
+    ranked entries and the patent's feedforward, with links to the suite pages."""
+    p = board["protocol"]
+    lines = _db_header(board) + ["",
+             "Attenuation of the velocity ripple at the suite's headline speeds against no "
+             "damping, dB (higher is better), IQM over motors [95 % interval]; `reference`: "
+             "the same motors without the phenomenon. Rank 1 may be shared (overlapping "
+             "intervals). Every entry, P(improvement), effect sizes, success and knowledge: "
+             + ", ".join(f"[{suite}]({suite_page(suite)})" for suite in p["suites"]) + ".", "",
+             "| suite, split | reference | 1st | 2nd | 3rd | patent-ff-identified |",
+             "|---|---|---|---|---|---|"]
+    notes = 0
+    for suite in p["suites"]:
+        for split in p["splits"]:
+            rows = entry_rows(board, suite, split)
+            if not rows:
+                continue
+            notes += sum(bool(row_notes(e)) for e in rows)
+            ref = next((e for e in rows if e.get("reference")), None)
+            ranked = sorted((e for e in rows if e.get("rank") is not None
+                             and e["spec"] != REFERENCE_POLICY),
+                            key=lambda e: (e["rank"], -e["attenuation_db"]["iqm"]))[:3]
+            patent = next((e for e in rows if e["spec"] == PATENT_ENTRY), None)
+
+            def cell(e: Mapping[str, Any] | None, name: bool = True) -> str:
+                if e is None:
+                    return "-"
+                db = e["attenuation_db"]["iqm"]
+                return (f"`{e['name']}` " if name else "") + \
+                    (f"{db:.1f} ({e['rank']})" if e.get("rank") is not None else f"{db:.1f}")
+
+            lines.append(f"| [{suite}]({suite_page(suite)}), {split} | {cell(ref, False)} | "
+                         + " | ".join(cell(e) for e in ranked + [None] * (3 - len(ranked)))
+                         + f" | {cell(patent, False)} |")
+    lines.append("")
+    if notes:
+        lines += [f"{notes} rows carry a note (a lost suite, no score, or a privileged entry "
+                  "worse than no damping): see the suite pages.", ""]
+    return _with_versions(board, lines)
+
+
+def render_suite_page(board: Mapping[str, Any], suite: str) -> str:
+    """A v3 board's full table of one suite (:func:`suite_page`)."""
+    return _render_markdown_db(board, suites=(suite,))
+
+
+def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None = None) -> str:
+    p = board["protocol"]
+    lines = _db_header(board) + [
              "Attenuation: 20 log10(ripple of `none` / ripple of the entry) at the suite's "
              "headline speeds, per motor (mean over speeds, seeds, training seeds), IQM over "
              "motors [95 % interval] (higher is better; 0 dB = no damping; a lost run "
@@ -238,7 +335,7 @@ def _render_markdown_db(board: Mapping[str, Any]) -> str:
              "(true state or exact model; `privileged-bound` is the bound) and `zero-shot` "
              "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
              "of the difference in dB against the best ranked entry, with its interval.", ""]
-    for suite in p["suites"]:
+    for suite in suites or p["suites"]:
         for split in p["splits"]:
             rows = entry_rows(board, suite, split)
             if not rows:
@@ -267,6 +364,10 @@ def _render_markdown_db(board: Mapping[str, Any]) -> str:
                     f"{e['success_rate']:.2f} | {fs['mean']:.3g} / {fs['worst']:.3g} | "
                     f"{effect} | {'-' if poi is None else f'{poi:.2f}'} | {seeds} | {know} |")
             lines.append("")
+            for e in rows:
+                lines += [f"Note on `{e['name']}`: {n}." for n in row_notes(e)]
+            if any(row_notes(e) for e in rows):
+                lines.append("")
         lines += _not_run(board, suite)
     return _with_versions(board, lines)
 
@@ -466,33 +567,59 @@ def _first_model(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     return [r for r in runs if r.get("training_seed") == (seeds[0] if seeds else None)]
 
 
-def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
-    """RMS ripple against speed per entry, for the representative motor and seed
-    (a learned entry: its first training seed's model).
+#: Entries a ripple figure highlights at most (the reference line included).
+HIGHLIGHTED = 6
 
-    Every entry is drawn with its own colour and marker; entries with equal
-    values lie on one another, so markers shrink with rank (the leader's is the
-    smallest, drawn on top) and every one stays visible. Resonances are marked
-    in open loop only (the servo loop has no peak there).
-    """
+
+def highlighted_rows(rows: Sequence[Mapping[str, Any]], reference: bool
+                     ) -> list[Mapping[str, Any]]:
+    """The rows a ripple figure draws in colour: ``none``, the patent's
+    feedforward, then the best eligible entries, at most :data:`HIGHLIGHTED`
+    lines with the reference's (if ``reference``)."""
+    room = HIGHLIGHTED - int(reference)
+    shown = [e for e in rows if e["spec"] in (REFERENCE_POLICY, PATENT_ENTRY)]
+    shown += [e for e in sorted((e for e in rows if e.get("rank") is not None
+                                 and not e.get("oracle") and e not in shown),
+                                key=lambda e: e["rank"])][:max(room - len(shown), 0)]
+    return shown[:room]
+
+
+def plot_ripple(board: Mapping[str, Any], suite: str, path: str) -> None:
+    """RMS ripple against speed for the representative motor and seed (a learned
+    entry: its first training seed's model): ``none``, the patent's feedforward
+    and the best eligible entries in colour (:func:`highlighted_rows`), every
+    other entry as a thin grey line. Markers shrink with rank so that equal
+    curves stay visible. Resonances are marked in open loop only (the servo loop
+    has no peak there)."""
     plt = pyplot()
     motor, seed = _representative(board)
     info = board["protocol"]["motors"][0]
     rows = _suite_rows(board, suite)
+    split = board["protocol"]["motors"][0].get("split")
+    refs = [e for e in entry_rows(board, suite, split) if e.get("reference")]
+    shown = highlighted_rows(rows, reference=bool(refs))
     styles = policy_styles([e["name"] for e in rows])
     fig, ax = plt.subplots(figsize=(9, 4.8))
-    n = len(rows)
-    for k, e in enumerate(rows):
+
+    def curve(e: Mapping[str, Any]) -> tuple[list[float], list[float]]:
         rs = sorted((r for r in _first_model(e["runs"]) if r["motor"] == motor
                      and r["seed"] == seed and r["metrics"] is not None),
                     key=lambda r: r["speed_rps"])
+        return ([r["speed_rps"] for r in rs],
+                [r["metrics"]["rms_velocity_error_rad_s"] for r in rs])
+
+    others = [e for e in rows if e not in shown]
+    where = suite_page(suite) if scored_in_db(board) else "LEADERBOARD.md"
+    for k, e in enumerate(others):
+        ax.semilogy(*curve(e), color="0.75", lw=0.7, zorder=1,
+                    label=f"{len(others)} other entries ({where})" if k == 0 else None)
+    n = len(shown)
+    shown.sort(key=lambda e: rows.index(e))
+    for k, e in enumerate(shown):
         colour, marker = styles[e["name"]]
-        ax.semilogy([r["speed_rps"] for r in rs],
-                    [r["metrics"]["rms_velocity_error_rad_s"] for r in rs], color=colour,
-                    marker=marker, ms=4 + 1.2 * k, mfc="none", lw=1.0,
-                    zorder=3 + n - k, label=f"{row_rank(e)}. {e['name']}")
-    split = board["protocol"]["motors"][0].get("split")
-    for e in entry_rows(board, suite, split):      # v3: the motor without the phenomenon
+        ax.semilogy(*curve(e), color=colour, marker=marker, ms=4 + 1.2 * k, mfc="none",
+                    lw=1.0, zorder=3 + n - k, label=f"{row_rank(e)}. {e['name']}")
+    for e in refs:                                # v3: the motor without the phenomenon
         if e.get("reference"):
             rs = sorted((r for r in e["runs"] if r["motor"] == motor and r["seed"] == seed
                          and r["metrics"] is not None), key=lambda r: r["speed_rps"])
@@ -518,11 +645,10 @@ PATENT_ENTRY = "patent-ff-identified"
 
 
 def _best(board: Mapping[str, Any], suite: str) -> Mapping[str, Any] | None:
-    """The best-ranked entry other than the reference, the patent's own feedforward
-    and oracles (a floor, not a method a drive can use)."""
-    return next((e for e in _suite_rows(board, suite)
-                 if e["spec"] not in (REFERENCE_POLICY, PATENT_ENTRY) and not e.get("oracle")),
-                None)
+    """The best-ranked eligible entry other than the patent's own feedforward
+    (:func:`best_eligible`)."""
+    rows = _suite_rows(board, suite)
+    return best_eligible(rows, skip=(PATENT_ENTRY,)) or best_eligible(rows)
 
 
 def plot_overview(board: Mapping[str, Any], path: str, protocol: Protocol,
@@ -607,8 +733,7 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     ``none`` against the best entry (patent Figs. 4-7 style), representative
     motor and seed."""
     rows = _suite_rows(board, suite)
-    # The best entry a drive can use: an oracle is a floor, not a method.
-    best = next((e for e in rows if e["spec"] != REFERENCE_POLICY and not e.get("oracle")), None)
+    best = best_eligible(rows)
     shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
     styles = policy_styles([e["name"] for e in rows])
     motor = protocol_motors(protocol)[0].for_suite(suite)
@@ -656,7 +781,11 @@ def plot_performance_profile(board: Mapping[str, Any], path: str) -> None:
     for ax, (suite, split) in zip(axes.ravel(), panels):
         rows = [e for e in entry_rows(board, suite, split) if e["name"] != REFERENCE_POLICY]
         values = [np.sort([s["headline"] for s in e["scores"]]) for e in rows]
-        finite = np.concatenate([v[np.isfinite(v)] for v in values] or [np.ones(1)])
+        finite = np.concatenate([v[np.isfinite(v)] for v in values] + [np.zeros(0)])
+        if not finite.size:             # no entry scored here (e.g. `none` lost every run)
+            finite = np.ones(1)
+            ax.text(0.5, 0.5, "no scores in this suite and split", transform=ax.transAxes,
+                    ha="center", fontsize=8)
         taus = np.geomspace(max(finite.min() * 0.8, 1e-4), max(finite.max() * 1.25, 1.1), 300)
         for e, v in zip(rows, values):
             colour, marker = styles[e["name"]]
@@ -700,6 +829,10 @@ def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
         with lzma.open(tmp, "wb", preset=1) as fh:
             fh.write(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
     write_text(os.path.join(out_dir, written[2]), render_markdown(board))
+    if scored_in_db(board):
+        for suite in board["protocol"]["suites"]:
+            write_text(os.path.join(out_dir, suite_page(suite)), render_suite_page(board, suite))
+            written.append(suite_page(suite))
     if plots:
         if has_splits(board):
             plot_performance_profile(board, os.path.join(out_dir, "performance_profile.png"))

@@ -24,12 +24,13 @@ from ..env.registration import ENV_ID_V1
 from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
 from ..env.v1 import StepperDampV1Env
-from ..params import SystemParams
+from ..params import ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
 from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
                      policy_env_options)
 
 __all__ = ["EpisodeResult", "EpisodeSpec", "run_episode", "run_episodes", "episode_window",
+           "RUN_ERRORS", "could_not_run",
            "lost_steps"]
 
 
@@ -52,6 +53,8 @@ class EpisodeResult:
         slip_cycles: with a lag limit (stepdamp-bench v3), how far the rotor
             trails its command at the end, in electrical cycles (2*pi/Nr rad);
             None otherwise (and left out of the record).
+        error: why the entry could not run at all ("" when it ran; left out of
+            the record then): :func:`could_not_run`.
     """
 
     terminated: bool
@@ -65,6 +68,7 @@ class EpisodeResult:
     calibration_s: float = 0.0
     simulated_s: float = 0.0
     slip_cycles: float | None = None
+    error: str = ""
 
     def record(self, motor: str, seed: int, speed_rps: float, speed_label: str,
                training_seed: int | None = None) -> dict[str, Any]:
@@ -85,7 +89,22 @@ class EpisodeResult:
                "simulated_s": self.simulated_s}
         if self.slip_cycles is not None:
             out["slip_cycles"] = self.slip_cycles
+        if self.error:
+            out["error"] = self.error
         return out
+
+
+#: What an entry raises when it cannot run on a motor (its law cannot be made for it).
+RUN_ERRORS = (ParameterError, ValueError, RuntimeError, ArithmeticError)
+
+
+def could_not_run(exc: BaseException) -> EpisodeResult:
+    """The result of a run the entry could not start or finish because it raised
+    (:data:`RUN_ERRORS`): lost, with the error as its one-line reason."""
+    text = " ".join(str(exc).split())
+    return EpisodeResult(terminated=True, termination="error", failed=True, steps=0,
+                         window_start_s=0.0, window_s=0.0, metrics=None,
+                         error=f"{type(exc).__name__}: {text}"[:300])
 
 
 def lost_steps(terminated: bool, metrics: dict[str, Any] | None, slip: float | None,

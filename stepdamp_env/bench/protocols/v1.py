@@ -514,13 +514,16 @@ _SENSOR_FIELDS = ("current_noise_a", "encoder_cpr")
 def load_motors_file(path: str, protocol: ProtocolV1) -> tuple[SystemParams, ...]:
     """The motors of ``--motors FILE.json``: a JSON list (or ``{"motors": [...]}``)
     of preset names or motor objects as ``--motor FILE`` reads them (flat field
-    names, optional ``"base"`` preset and ``"name"``). Sensors the file does not
+    names with an optional ``"base"`` preset, or datasheet keys; optional
+    ``"name"``), or one motor object. Sensors the file does not
     set are the protocol's. Names must be unique."""
     if not os.path.isfile(path):
         raise ParameterError(f"--motors {path!r} is not a file")
     data = read_json_file(path, "--motors")
     if isinstance(data, dict):
-        data = data.get("motors")
+        # {"motors": [...]}, or one motor object (a motor file)
+        data = data.get("motors") if "motors" in data else \
+            [{"name": os.path.splitext(os.path.basename(path))[0], **data}]
     if not isinstance(data, list) or not data:
         raise ParameterError(f"--motors {path!r} must hold a non-empty JSON list of motors "
                              "(or an object with one under \"motors\")")

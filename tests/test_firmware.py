@@ -1,0 +1,279 @@
+"""Firmware out (issue #34, point 6): the exported law is what the simulation applies,
+its C is the Python law to 1e-9, its tables and files hold together."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from stepdamp_baselines import make_baseline
+from stepdamp_env import kernel as K
+from stepdamp_env.bench import MotorKnowledge, run_episode
+from stepdamp_env.bench.firmware import (FirmwareLaw, c_source, correction, entry_law,
+                                         export_law, firmware_knowledge, from_json,
+                                         microstep_table, policy_law, to_json)
+from stepdamp_env.bench.policy import PolicyCard
+from stepdamp_env.bench.registry import resolve_policy
+from stepdamp_env.bench.rig import CalibrationRig
+from stepdamp_env.params import FeedforwardModel, ParameterError
+from stepdamp_env.presets import get_preset
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+
+
+@pytest.fixture(scope="module")
+def knowledge():
+    """The patent motor, and an identified model that differs from the plant's in
+    every field (so a law built from the wrong model shows)."""
+    plant = get_preset("patent")
+    identified = FeedforwardModel(Km=0.29, Kd1=0.0045, Kd2=0.0055, Kd4=0.013, phi1=-1.0,
+                                  phi2=0.7, Fs=0.005)
+    return MotorKnowledge(nominal=plant, identified=identified,
+                          exact=FeedforwardModel.from_motor(plant.motor), plant=plant,
+                          rig=CalibrationRig(plant, noise_seed=0, accel_rps2=50.0))
+
+
+def _pwm_trace(entry, knowledge, mode, speed_rps, until_s=0.03):
+    """Every PWM period of a short run of the entry (kernel.TRACE columns)."""
+    result = run_episode(resolve_policy(entry).make(), knowledge, knowledge.plant, mode=mode,
+                         speed_rps=speed_rps, seed=3, measure_from_s=0.0, window_s=until_s,
+                         until_s=until_s, on_step=lambda env, obs, start: env.step_trace,
+                         pwm_trace=True)
+    assert not result.terminated
+    return np.concatenate(result.trace)
+
+
+@pytest.mark.parametrize("entry, mode", [("patent-ff-identified", "open-loop"),
+                                         ("ff-delay-comp", "open-loop"),
+                                         ("ff-delay-comp", "servo"),
+                                         ("calibrated-table", "open-loop"),
+                                         ("tuned-constant-gain", "open-loop"),
+                                         ("tuned-constant-gain", "servo")])
+def test_the_python_law_is_what_the_simulation_applies(knowledge, entry, mode):
+    # The kernel's injected q current (feedforward, plus the v1 damping law's
+    # current) at each PWM period, against correction() at the Park angle the
+    # kernel took, the law's velocity error (the samples of the period before)
+    # and the command speed.
+    plant = knowledge.plant
+    speed = plant.predicted_resonances_rps()[2]       # where the delay compensation shows
+    law = entry_law(entry, knowledge, mode=mode, speed_rps=speed)
+    tr = _pwm_trace(entry, knowledge, mode, speed)
+    m = plant.motor
+    if mode == "open-loop":
+        step = m.full_step_rad / plant.drive.microsteps
+        angle = m.Nr * (np.floor(tr[:, K.TRACE.THETA_CMD] * (1.0 / step)) * step)
+    else:
+        count = 2.0 * math.pi / plant.servo.encoder_cpr
+        angle = m.Nr * (tr[:, K.TRACE.THETA_FB] + 0.5 * count)
+    e_w = tr[:-1, K.TRACE.OMEGA_CMD] - tr[:-1, K.TRACE.OMEGA_FB]
+    expected = tr[1:, K.TRACE.IQ_FF]
+    got = correction(law, angle[1:], e_w, tr[1:, K.TRACE.OMEGA_CMD])
+    assert len(expected) > 500
+    np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-12)
+    # The law is not a trivial one: the table differs from the plain identified
+    # model where it should, and the feedback and friction terms act.
+    plain = knowledge.identified.coefficients()
+    table = law.coefficients_nm()
+    delay_comp = entry != "patent-ff-identified"
+    assert (max(abs(a - b) for a, b in zip(table, plain)) > 1e-4) == delay_comp
+    if entry == "tuned-constant-gain":
+        assert law.velocity_gain_a_s_per_rad > 0.0
+        assert np.max(np.abs(law.velocity_gain_a_s_per_rad * e_w)) > 1e-3
+    assert (law.friction_a > 0.0) == (mode == "servo")
+
+
+def _compiler() -> str:
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be compiled "
+                    "and checked against the Python law here")
+    return cc
+
+
+_DRIVER = """#include <stdio.h>
+#include "{prefix}.h"
+
+int main(void)
+{{
+    double x, e, w;
+    int k;
+
+    for (k = 0; k < {macro}_TABLE_SIZE; ++k) {{
+        printf("%.17g\\n", {prefix}_microstep_table_a[k]);
+    }}
+    while (scanf("%lf %lf %lf", &x, &e, &w) == 3) {{
+        printf("%.17g\\n", {prefix}_iq_correction_a(x, e, w));
+    }}
+    return 0;
+}}
+"""
+
+
+def _synthetic_law() -> FirmwareLaw:
+    return FirmwareLaw(entry="synthetic", motor="test", mode="servo", speed_rps=1.0,
+                       pwm_hz=20000.0, nr=50, microsteps=16, km_nm_per_a=0.3,
+                       harmonics=(1, 2, 4), amplitude_a=(0.1, 0.0, 0.05),
+                       phase_rad=(-3.0, 1.0, 2.5), friction_a=0.02,
+                       velocity_gain_a_s_per_rad=-0.2, feedback_limit_a=1.5)
+
+
+@pytest.mark.parametrize("which", ["tuned-constant-gain/servo", "ff-delay-comp/open-loop",
+                                   "synthetic"])
+def test_the_c_source_computes_the_python_law(tmp_path, which):
+    cc = _compiler()
+    if which == "synthetic":
+        law = _synthetic_law()
+    else:
+        entry, mode = which.split("/")
+        law = entry_law(entry, firmware_knowledge(get_preset("patent")), mode=mode)
+    prefix = "law_under_test"
+    paths = export_law(law, "c", tmp_path, prefix)
+    assert [os.path.basename(p) for p in paths] == [f"{prefix}.h", f"{prefix}.c"]
+    (tmp_path / "main.c").write_text(_DRIVER.format(prefix=prefix, macro=prefix.upper()))
+    exe = str(tmp_path / "driver")
+    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
+                            "-lm"], capture_output=True, text=True, timeout=120)
+    assert build.returncode == 0, build.stderr
+    rng = np.random.default_rng(34)
+    n = 1000
+    x = rng.uniform(-2000.0, 2000.0, n)
+    x[:16] = 2.0 * math.pi * np.arange(16) / law.table_size     # exact microsteps too
+    e_w = rng.uniform(-30.0, 30.0, n)                           # both sides of the clamp
+    w_cmd = rng.choice([-1.0, 0.0, 1.0], n) * rng.uniform(0.0, 100.0, n)
+    text = "".join(f"{float(a)!r} {float(b)!r} {float(c)!r}\n" for a, b, c in zip(x, e_w, w_cmd))
+    run = subprocess.run([exe], input=text, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    out = np.array([float(v) for v in run.stdout.split()])
+    assert len(out) == law.table_size + n
+    np.testing.assert_array_equal(out[:law.table_size], microstep_table(law))
+    np.testing.assert_allclose(out[law.table_size:], correction(law, x, e_w, w_cmd),
+                               rtol=0.0, atol=1e-9)
+    # Every branch of the C was taken.
+    if math.isfinite(law.feedback_limit_a) and law.velocity_gain_a_s_per_rad != 0.0:
+        assert np.any(np.abs(law.velocity_gain_a_s_per_rad * e_w) > law.feedback_limit_a)
+
+
+def test_the_header_declares_one_documented_function():
+    header, source = c_source(_synthetic_law(), "demo")
+    assert header.count("(double electrical_angle_rad") == 1
+    for words in ("electrical_angle_rad  x (rad)", "velocity_error_rad_s  e_w = w_cmd - w_est",
+                  "command_speed_rad_s   w_cmd", "Returns               the correction (A)"):
+        assert words in header
+    # Only sin from libm, no allocation, no mutable globals.
+    for banned in ("malloc", "calloc", "free(", "exp(", "atan", "sqrt(", "pow("):
+        assert banned not in source
+    assert "sin(" in source and "\nstatic double" not in source and "\ndouble demo_" in source
+
+
+def test_the_microstep_table_is_the_correction_at_each_microstep():
+    law = entry_law("ff-delay-comp", firmware_knowledge(get_preset("patent")))
+    table = microstep_table(law)
+    assert table.shape == (4 * law.microsteps,)
+    k = np.arange(len(table))
+    np.testing.assert_array_equal(table, correction(law, 2.0 * math.pi * k / len(table)))
+    # What the open-loop kernel takes as its Park angle at microstep count n, for
+    # n past one period and negative, is the table's row n mod 4*microsteps.
+    system = get_preset("patent")
+    step = system.motor.full_step_rad / system.drive.microsteps
+    n = np.arange(-300, 700)
+    theta_cmd = (n + 0.5) * step
+    angle = system.motor.Nr * (np.floor(theta_cmd * (1.0 / step)) * step)
+    np.testing.assert_allclose(table[n % len(table)], correction(law, angle), rtol=0.0,
+                               atol=1e-12)
+    # Feedback and friction are not in the table.
+    tcg = entry_law("tuned-constant-gain", firmware_knowledge(system), mode="servo")
+    np.testing.assert_array_equal(microstep_table(tcg), correction(tcg, 2 * math.pi * k / 256,
+                                                                   0.0, 0.0))
+
+
+def test_json_round_trip(tmp_path):
+    system = get_preset("patent")
+    for law in (_synthetic_law(), entry_law("ff-delay-comp", firmware_knowledge(system)),
+                entry_law("tuned-constant-gain", firmware_knowledge(system), mode="servo")):
+        data = to_json(law)
+        assert from_json(json.loads(json.dumps(data))) == law
+        [path] = export_law(law, "json", tmp_path / "out")
+        assert os.path.basename(path) == law.entry.replace("-", "_") + ".json"
+        with open(path, encoding="utf-8") as fh:
+            written = json.load(fh)
+        assert from_json(written) == law
+        assert written["microstep_table_a"] == microstep_table(law).tolist()
+        assert [r["harmonic"] for r in written["harmonic_table"]] == [1, 2, 4]
+    # No limit is written as null (JSON has no infinity) and read back as inf.
+    ff = entry_law("ff-delay-comp", firmware_knowledge(system))
+    assert to_json(ff)["feedback_limit_a"] is None and math.isinf(from_json(to_json(ff))
+                                                                  .feedback_limit_a)
+    with pytest.raises(ParameterError, match="format"):
+        from_json({"entry": "x"})
+
+
+class _Learned:
+    name = "some-agent"
+    card = PolicyCard(sensors="encoder", model="identified", learned=True)
+
+    def env_options(self, knowledge):
+        return {"base_controller": "patent-ff", "action_mode": "harmonic"}
+
+    def reset(self, context):
+        pass
+
+    def act(self, observation):
+        return np.zeros(6, dtype=np.float32)
+
+
+@pytest.mark.parametrize("entry, why", [
+    ("none", "adds no correction"), ("adaptive-ff", "adapts its harmonic table on line"),
+    ("velocity-feedback", "filters run at the agent rate"),
+    ("sensorless-damping", "filters run at the agent rate"),
+    ("repetitive-control", "changes while it runs"), ("oracle-floor", "oracle"),
+    ("privileged-bound", "oracle")])
+def test_entries_that_cannot_be_exported_say_why_in_one_line(entry, why):
+    with pytest.raises(ParameterError, match=f"entry '{entry}' cannot be exported: .*{why}") \
+            as info:
+        entry_law(entry, firmware_knowledge(get_preset("patent")))
+    assert "\n" not in str(info.value)
+
+
+def test_policies_without_a_law_and_missing_knowledge_are_one_line_errors():
+    system = get_preset("patent")
+    know = firmware_knowledge(system)
+    with pytest.raises(ParameterError, match="'some-agent' cannot be exported: it is a learned"):
+        policy_law(_Learned(), know)
+    with pytest.raises(ParameterError, match="'test-nominal-ff' cannot be exported: it has no "
+                                             "firmware_law"):
+        entry_law(os.path.join(HERE, "leaderboard_policy.py") + ":NominalFeedforward", know)
+    # A ValueError of the entry (here: no rig to calibrate on) becomes one line.
+    no_rig = MotorKnowledge(nominal=system, identified=know.identified, exact=know.exact)
+    with pytest.raises(ParameterError, match="'calibrated-table' cannot be exported: "
+                                             "calibrated-table needs a calibration rig"):
+        policy_law(make_baseline("calibrated-table"), no_rig)
+    no_model = MotorKnowledge(nominal=system, identified=None, exact=know.exact)
+    for entry in ("ff-delay-comp", "tuned-constant-gain"):
+        with pytest.raises(ParameterError, match=f"'{entry}' cannot be exported: .*identified"):
+            entry_law(entry, no_model)
+
+
+def test_bad_arguments_name_the_parameter(tmp_path):
+    law = _synthetic_law()
+    know = firmware_knowledge(get_preset("patent"))
+    with pytest.raises(ParameterError, match="mode='sideways'"):
+        entry_law("ff-delay-comp", know, mode="sideways")
+    with pytest.raises(ParameterError, match="speed_rps=-1.0"):
+        entry_law("ff-delay-comp", know, speed_rps=-1.0)
+    with pytest.raises(ParameterError, match="format='pdf'"):
+        export_law(law, "pdf", tmp_path)
+    for prefix in ("1law", "my-law", "_law", "double", ""):
+        with pytest.raises(ParameterError, match="prefix="):
+            export_law(law, "c", tmp_path, prefix)
+    with pytest.raises(ParameterError, match="amplitude_a"):
+        FirmwareLaw(**{**law.__dict__, "amplitude_a": (0.1, math.nan, 0.0)})
+    with pytest.raises(ParameterError, match="feedback_limit_a"):
+        FirmwareLaw(**{**law.__dict__, "feedback_limit_a": 0.0})
+    assert os.listdir(tmp_path) == []
