@@ -35,17 +35,3 @@ class Privileged(NominalFeedforward):
     def env_options(self, knowledge: Any) -> dict[str, Any]:
         return {**super().env_options(knowledge), "privileged": True}
 
-
-class Fragile(NominalFeedforward):
-    """Cannot make its law above 1 rev/s (as a law whose design fails on a motor):
-    those runs must be recorded as lost with the reason, the board must render."""
-
-    name = "test-fragile"
-
-    def reset(self, context: Any) -> None:
-        if context.speed_rps > 1.0:
-            from stepdamp_env.params import ParameterError
-
-            raise ParameterError(f"speed_rps={context.speed_rps:.3g} is outside this law's "
-                                 "design range (0, 1] rev/s")
-        super().reset(context)

@@ -304,7 +304,7 @@ def test_drive_logs_of_the_example_motor_identify_back(tmp_path, capsys):
 def test_an_entry_that_cannot_run_is_lost_with_its_reason(tmp_path, capsys):
     from stepdamp_env.bench.report import load_leaderboard, row_notes
 
-    policy = os.path.join(ROOT, "tests", "leaderboard_policy.py") + ":Fragile"
+    policy = os.path.join(ROOT, "tests", "fragile_policy.py") + ":Fragile"
     out = tmp_path / "b"
     assert main(["leaderboard", "--quick", "--motors", EXAMPLE, "--suite", "open-loop",
                  "--entries", "ff-delay-comp", "--policy", policy, "--no-progress",
