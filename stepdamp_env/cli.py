@@ -433,11 +433,19 @@ def _cmd_motors(args: argparse.Namespace) -> int:
               f"{p['Kd1']:.3g}/{p['Kd2']:.3g}/{p['Kd4']:.3g} N*m, Fs {p['Fs']:.3g} N*m")
         print(f"  holding current {p['holding_current']:.4g} A, Vdc {p['Vdc']:.4g} V, "
               f"encoder {p['encoder_cpr']} counts/rev, drive mode {p['drive_mode']}")
+        top = r["max_speed_rps"]
         print("  resonances " + ", ".join(f"h={h}: {res[h]:.3f}" for h in ("4", "2", "1"))
-              + f" rev/s; top speed the bus allows {r['max_speed_rps']:.2f} rev/s")
+              + f" rev/s; top speed the bus allows {top:.2f} rev/s (bridge circle Vdc/sqrt(2))")
         print("  mid-band " + "; ".join(
             f"{m}: " + (f"{b[0]:.2f}-{b[1]:.2f} rev/s" if b else "none")
+            + (" (reaches past the top speed: the linear analysis holds below it)"
+               if b and b[1] > top else "")
             for m, b in r["midband_rps"].items()))
+        if top <= 0.0:
+            print(f"  warning: R * holding current = {p['R'] * p['holding_current']:.3g} V "
+                  f"already exceeds the bridge circle Vdc/sqrt(2) = "
+                  f"{p['Vdc'] / math.sqrt(2.0):.3g} V: the drive cannot push the holding "
+                  "current at any speed")
         if r["assumed"]:
             print("  assumed (not in the file): " + ", ".join(
                 f"{k}={_fmt(v)}" for k, v in r["assumed"].items()))
@@ -626,7 +634,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_motors)
     p = sub.add_parser("presets", help="the same as `stepdamp motors` (older name)",
                        formatter_class=_Formatter)
-    p.set_defaults(func=_cmd_motors, motors=[], json=False)
+    p.add_argument("motors", nargs="*", metavar="NAME|FILE")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_motors)
 
     p = command("analyse", "the predicted mid-band (unstable speed band) per motor and "
                 "drive mode, from the eigenvalues of the linearised drive")
@@ -702,8 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="overrides", action="append", default=[],
                    metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
     p.add_argument("--format", choices=("c", "json"), default="c",
-                   help="c: PREFIX.h and PREFIX.c (C99, sin/cos from libm only); json: "
-                        "PREFIX.json")
+                   help="c: PREFIX.h and PREFIX.c (C99, libm's sin only); json: PREFIX.json")
     p.add_argument("--mode", choices=("open-loop", "servo"), default="open-loop",
                    help="the drive's mode the law is computed for")
     p.add_argument("--speed", type=_number(float, 1e-3, 1e3), default=None, metavar="RPS",
@@ -728,9 +737,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the protocol's reduced CI variant (v1 and v2: 8 motors, resonant speeds, "
                         "two servo speeds, 0.1 s window; v0: presets, one seed)")
     p.add_argument("--motors", metavar="FILE.json", default=None,
-                   help="v1 on your own motors (split 'custom'): a JSON list of preset names "
-                        "or motor objects (flat parameter names, optional 'base' and 'name'); "
-                        "the nominal model is the file's values")
+                   help="the protocol on your own motors (split 'custom'): a motor file (a "
+                        "datasheet file or model fields, docs/motors.md) or a JSON list of "
+                        "them and preset names; the nominal model is the file's values")
     p.add_argument("--policy", action="append", nargs="+", default=[], metavar="SPEC",
                    help="extra policy: package.module:attr or path/file.py:attr (a Policy "
                         "class, factory or instance), a model `stepdamp train` wrote "

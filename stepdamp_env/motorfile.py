@@ -113,8 +113,9 @@ def _resolve(values: Mapping[str, Any]) -> _Resolved:
     for key, field_name in REQUIRED:
         if key not in values and field_name not in values:
             raise ParameterError(f"{key} (or the model field {field_name}) is missing: a "
-                                 "datasheet motor needs phase_resistance_ohm, "
-                                 "phase_inductance_H, holding_torque_Nm and rotor_inertia_kgm2")
+                                 "datasheet motor needs rated_current_A, holding_torque_Nm, "
+                                 "phase_resistance_ohm, phase_inductance_H and "
+                                 "rotor_inertia_kgm2")
     if "rated_current_A" not in values and "holding_current" not in values:
         raise ParameterError("rated_current_A (or the model field holding_current) is missing")
     if "holding_torque_Nm" in values and "rated_current_A" not in values:
@@ -148,7 +149,8 @@ def _resolve(values: Mapping[str, Any]) -> _Resolved:
         out["L"] = given["phase_inductance_H"]
     if "J" not in out:
         out["J"] = given["rotor_inertia_kgm2"] + ds("load_inertia_kgm2")
-    t_hold = float(out["Km"]) * float(out["holding_current"])
+    # The defaults below are shares of the datasheet's holding torque where it is given.
+    t_hold = given.get("holding_torque_Nm", float(out["Km"]) * float(out["holding_current"]))
     if not any(k in out for k in ("Kd1", "Kd2", "Kd4")):
         if "detent_torque_Nm" in given:
             detent = given["detent_torque_Nm"]
@@ -256,7 +258,8 @@ def describe_spec(spec: str) -> list[MotorDescription]:
             raise ParameterError(f"motor file {spec!r}: item {k} must be a preset name or a "
                                  "JSON object of motor values")
         item = dict(item)
-        item.setdefault("name", stem if len(items) == 1 else f"{stem}{k}")
+        # As --motors names them: a lone object by its file, list items custom<k>.
+        item.setdefault("name", stem if isinstance(data, dict) else f"custom{k}")
         try:
             out.append(describe(item))
         except ParameterError as exc:

@@ -320,3 +320,19 @@ def test_an_entry_that_cannot_run_is_lost_with_its_reason(tmp_path, capsys):
     # The runs that could run are the batch's own numbers: as ff-delay-comp's base alone.
     fine = [r for r in row["runs"] if not r.get("error")]
     assert fine and all(not r["failed"] for r in fine)
+
+
+def test_the_worked_example_prints_what_docs_motors_md_shows(capsys):
+    assert main(["motors", EXAMPLE]) == 0
+    doc = open(os.path.join(ROOT, "docs", "motors.md"), encoding="utf-8").read()
+    for line in capsys.readouterr().out.splitlines():
+        assert line in doc, line
+
+
+def test_motors_warns_where_the_bus_cannot_push_the_current(tmp_path, capsys):
+    path = tmp_path / "low.json"
+    path.write_text(json.dumps({**SHEET, "bus_voltage_V": 2.0}))
+    assert main(["presets", str(path)]) == 0           # the older name takes files too
+    text = capsys.readouterr().out
+    assert "warning: R * holding current = 3.61 V already exceeds the bridge circle" in text
+    assert "top speed the bus allows 0.00 rev/s" in text

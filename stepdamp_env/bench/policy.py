@@ -156,7 +156,10 @@ class Policy(TypingProtocol):
         estimate, action_mode, ...); only ``POLICY_OPTIONS`` are allowed."""
 
     def reset(self, context: PolicyContext) -> None:
-        """Called after each ``env.reset``."""
+        """Called after each ``env.reset``. A policy whose law cannot be made for
+        this motor or speed raises ``ParameterError`` (here or in
+        ``env_options``): the run counts as lost and the row's note gives the
+        message. Any other exception stops the board (a bug)."""
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         """Action in [-1, 1] (float32) for one observation."""

@@ -94,8 +94,10 @@ class EpisodeResult:
         return out
 
 
-#: What an entry raises when it cannot run on a motor (its law cannot be made for it).
-RUN_ERRORS = (ParameterError, ValueError, RuntimeError, ArithmeticError)
+#: What an entry raises when it cannot run on a motor: a parameter outside its law's
+#: range (its law cannot be made for it). Any other exception is a bug and stops
+#: the board with its one-line message.
+RUN_ERRORS = (ParameterError,)
 
 
 def could_not_run(exc: BaseException) -> EpisodeResult:
