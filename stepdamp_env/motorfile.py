@@ -38,8 +38,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from .params import (DRIVE_FIELDS, MOTOR_FIELDS, SERVO_FIELDS, DriveParams, ParameterError,
-                     ServoParams, SystemParams, allowed)
+from .params import (DRIVE_FIELDS, MOTOR_FIELDS, SERVO_FIELDS, DriveParams, MotorParams,
+                     ParameterError, ServoParams, SystemParams, allowed)
 
 __all__ = ["DATASHEET_KEYS", "DATASHEET_DEFAULTS", "is_datasheet", "datasheet_fields",
            "MotorDescription", "describe", "describe_spec", "DETENT_SPLIT", "DAMPING_RATIO", "FRICTION_FRACTION",
@@ -83,6 +83,12 @@ DATASHEET_DEFAULTS: dict[str, float] = {
 DETENT_FRACTION = 0.03
 
 
+_FIELD_RANGES = {f.name: f.metadata["allowed"] for cls in (MotorParams, DriveParams, ServoParams)
+                 for f in dataclasses.fields(cls)}
+_OPTIONAL = {f.name for cls in (DriveParams, ServoParams) for f in dataclasses.fields(cls)
+             if f.default is None}
+
+
 def is_datasheet(values: Mapping[str, Any]) -> bool:
     """Whether a motor mapping gives any datasheet key."""
     return any(k in values for k in DATASHEET_KEYS)
@@ -124,6 +130,9 @@ def _resolve(values: Mapping[str, Any]) -> _Resolved:
     given = {k: _check(k, values[k]) for k in DATASHEET_KEYS if k in values}
     out: dict[str, Any] = {k: values[k] for k in values
                            if k in MOTOR_FIELDS or k in DRIVE_FIELDS or k in SERVO_FIELDS}
+    for name, value in out.items():     # checked now: the conversion below uses some
+        if value is not None or name not in _OPTIONAL:
+            _FIELD_RANGES[name].check(name, value)
     assumed: dict[str, Any] = {}
 
     def ds(key: str) -> float:

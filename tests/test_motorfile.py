@@ -336,3 +336,15 @@ def test_motors_warns_where_the_bus_cannot_push_the_current(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "warning: R * holding current = 3.61 V already exceeds the bridge circle" in text
     assert "top speed the bus allows 0.00 rev/s" in text
+
+
+@pytest.mark.parametrize("extra, words", [
+    ({"holding_current": "2"}, "holding_current must be a number"),
+    ({"holding_current": -1.0}, "holding_current=-1.0 is outside its allowed range"),
+    ({"D": "x"}, "D must be a number"),
+    ({"drive_mode": "pwm"}, "drive_mode='pwm' is not one of"),
+])
+def test_model_fields_in_a_datasheet_file_are_checked_first(extra, words):
+    with pytest.raises(ParameterError) as err:
+        SystemParams.from_dict({**SHEET, **extra})
+    assert words in str(err.value)
