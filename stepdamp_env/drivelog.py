@@ -41,7 +41,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from . import fixedmath as fm
-from .identify import effort_response
+from .identify import effort_response, model_from_coefficients
 from .io import write_text
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams, load_system
 from .simulation import MODES, RunResult
@@ -496,11 +496,7 @@ def _sinc_and_model(coef: np.ndarray, nominal: SystemParams, fs: float) -> Feedf
     if not np.all(np.isfinite(out)):
         raise ParameterError("the logs do not determine the detent harmonics (the fit is "
                              "rank deficient): give longer logs at distinct speeds")
-    s1, c1, s2, c2, s4, c4 = out
-    kd4 = fm.hypot(s4, c4) * (1.0 if s4 >= 0 else -1.0)
-    return FeedforwardModel(Km=m.Km, Kd1=fm.hypot(s1, c1), Kd2=fm.hypot(s2, c2),
-                            Kd4=max(kd4, 0.0), phi1=fm.atan2(c1, s1), phi2=fm.atan2(c2, s2),
-                            Fs=max(fs, 0.0))
+    return model_from_coefficients(nominal, out, fs)
 
 
 def _rms(x: np.ndarray) -> float:

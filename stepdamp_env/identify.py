@@ -43,7 +43,7 @@ from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemPa
 from .response import servo_loop
 from .simulation import RunSettings, SpeedProfile, build_config, initial_state, new_accumulators
 
-__all__ = ["IdentificationResult", "identify", "METHODS"]
+__all__ = ["IdentificationResult", "identify", "METHODS", "model_from_coefficients"]
 
 METHODS = ("least-squares", "iterative")
 HARMONICS = DETENT_HARMONICS
@@ -156,7 +156,10 @@ def _regress(system: SystemParams, speed_rps: float, theta: np.ndarray, effort: 
     return float(sol[0]), coef, harmonic_rms
 
 
-def _model_from(system: SystemParams, coef: np.ndarray, fs: float) -> FeedforwardModel:
+def model_from_coefficients(system: SystemParams, coef: np.ndarray, fs: float
+                            ) -> FeedforwardModel:
+    """The detent model of sin/cos coefficients (s1, c1, s2, c2, s4, c4) in N*m and
+    a friction Fs (N*m), with ``system``'s Km; Kd4 and Fs clipped at 0."""
     s1, c1, s2, c2, s4, c4 = coef
     kd4 = fm.hypot(s4, c4) * (1.0 if s4 >= 0 else -1.0)
     return FeedforwardModel(Km=system.motor.Km, Kd1=fm.hypot(s1, c1), Kd2=fm.hypot(s2, c2),
@@ -242,7 +245,7 @@ def identify(system: SystemParams | str, *, method: str = "iterative",
         previous = residual
         while iterations < max_iterations:
             fs, _ = _friction(speeds, intercepts, system.motor.D)
-            estimate = _model_from(system, total, fs)
+            estimate = model_from_coefficients(system, total, fs)
             intercepts, coef, residual = measure(estimate)
             iterations += 1
             total = total + coef
@@ -251,7 +254,7 @@ def identify(system: SystemParams | str, *, method: str = "iterative",
             previous = residual
         coef = total
     fs, damping = _friction(speeds, intercepts, system.motor.D)
-    model = _model_from(system, coef, fs)
+    model = model_from_coefficients(system, coef, fs)
     return IdentificationResult(model=model, D=damping, method=method,
                                 speeds_rps=speeds, iterations=iterations,
                                 residual_harmonic_nm=residual, errors=_errors(model, system))

@@ -180,8 +180,6 @@ def find_resonance_peaks(speeds: np.ndarray, ripple: np.ndarray,
 #: A peak stands this factor (in ripple, 1.5 = 3.5 dB) above the higher of the
 #: lowest points between it and the nearest higher ripple on either side.
 PEAK_PROMINENCE = 1.5
-
-
 #: Peaks lower than this share of the highest one are not reported.
 PEAK_MIN_FRACTION = 0.1
 
