@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from . import numba_cache
 from .io import check_output_dir, check_writable, staged_directory
 from .ray_backend import backend_map
 from .params import FeedforwardModel, ParameterError, load_system, parse_set_overrides
@@ -801,7 +802,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError:              # not the main thread: leave signals alone
         previous = None
     try:
-        return int(args.func(args))
+        # Room on the frame stack: numba compiles at whatever depth a command calls it.
+        return int(numba_cache.call_with_frame_room(args.func, args))
     except ParameterError as exc:
         print(f"stepdamp {args.command}: error: {exc}", file=sys.stderr)
         return 2

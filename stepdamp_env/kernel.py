@@ -1017,16 +1017,18 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 def run_batch(configs, states, accs, inputs, n_periods):
     """Advance N drives (rows of the arrays) by ``n_periods`` each, without trace."""
     empty = np.zeros((0, len(TRACE)))
+    every = np.int64(1)     # not the literal 1: that specialisation compiles 3x slower
     for i in range(configs.shape[0]):
-        run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, 1)
+        run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, every)
 
 
 @_jit
 def run_batch_law(configs, states, accs, inputs, laws, n_periods):
     """:func:`run_batch` with each drive's damping law (rows of ``laws``)."""
     empty = np.zeros((0, len(TRACE)))
+    every = np.int64(1)
     for i in range(configs.shape[0]):
-        _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, 1)
+        _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, every)
 
 
 @njit(cache=True)

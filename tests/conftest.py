@@ -2,13 +2,28 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
+
 import numpy as np
 import pytest
 
 from stepdamp_env import kernel as K
+from stepdamp_env.numba_cache import call_with_frame_room
 from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
                                      new_accumulators)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_pyfunc_call(pyfuncitem):
+    """Each test runs with room on CPython's frame stack, so that numba compiling
+    inside it does not thrash the stack's chunks (numba_cache.call_with_frame_room)."""
+    fn = pyfuncitem.obj
+    params = inspect.signature(fn).parameters
+    kwargs = {k: v for k, v in pyfuncitem.funcargs.items() if k in params}
+    call_with_frame_room(functools.partial(fn, **kwargs))
+    return True
 
 
 def run_raw(system, profile, settings=None, n_periods=1000, state=None, window_start_s=0.0,

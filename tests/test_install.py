@@ -123,3 +123,15 @@ def test_every_package_folder_is_installed():
                 rel = os.path.relpath(here, base)
                 found.add(top if rel == "." else top + "." + rel.replace(os.sep, "."))
     assert found == set(tool["packages"])
+
+
+def test_call_with_frame_room_calls_through_and_reserves_a_large_frame():
+    from stepdamp_env import numba_cache
+
+    def deep(n, acc):
+        return acc if n == 0 else deep(n - 1, acc + n)
+
+    assert numba_cache.call_with_frame_room(deep, 500, 0) == sum(range(501))
+    assert numba_cache.call_with_frame_room(dict) == {}
+    # The frame's value stack is what makes CPython give it a chunk of its own.
+    assert numba_cache._ROOMY.__code__.co_stacksize >= 1 << 17
