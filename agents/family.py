@@ -36,9 +36,14 @@ class TrainingFamily(abc.ABC):
     @abc.abstractmethod
     def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
-                 algo: str, algo_kwargs: dict[str, Any]) -> Any:
+                 algo: str, algo_kwargs: dict[str, Any], threads: int = 1) -> Any:
         """The training ``VecEnv``: ``per_motor`` drives around each preset of
-        ``motors``, drive k seeded ``seed + k``; may set defaults in ``algo_kwargs``."""
+        ``motors``, drive k seeded ``seed + k``, each step's drives on ``threads``
+        of numba's threads; may set defaults in ``algo_kwargs``."""
+
+    @abc.abstractmethod
+    def seconds_per_step(self, env: Any) -> float:
+        """Simulated time (s) of one agent step of the training ``env``."""
 
     def after_build(self, env: Any, seed: int) -> None:
         """After the algorithm is built (SB3 seeds the env with the run's seed)."""

@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
+from stepdamp_env.io import write_json
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
@@ -157,6 +158,9 @@ class Args:
     extra: dict[str, Any] = option(None, "override one YAML hyperparameter (value parsed as "
                                    "YAML); repeatable", metavar="KEY=VALUE", flag="--set",
                                    repeat=True, parse=parse_overrides, default_factory=dict)
+    threads: int | None = option(None, "numba threads that step the training drives (default: "
+                                 "all of numba's threads, one per core); any count gives the "
+                                 "same model", metavar="N", low=1, high=4096)
     backend: str = option("local", "--seeds one after the other here, or as Ray tasks "
                           "(extra [ray])", choices=("local", "ray"))
     ray_address: str | None = option(None, "with --backend ray: a running cluster ('auto' or "
@@ -454,8 +458,9 @@ def train(args: Args) -> dict[str, Any]:
     env_kwargs.pop("motor", None)
     algo_kwargs = dict(sp["algo_kwargs"])
     _check_algo_kwargs(algo_kwargs)
+    threads = training_threads(args)
     env = family.make_env(args.motors, per_motor, 1000 * args.seed, env_kwargs, wk, args.algo,
-                          algo_kwargs)
+                          algo_kwargs, threads)
     os.makedirs(args.out, exist_ok=True)
     config = _agent_config(args, sp)
     start_action = algo_kwargs.pop("start_action", None)
@@ -553,6 +558,8 @@ def train(args: Args) -> dict[str, Any]:
         evaluate("final")
     log["train_wall_s"] = round(train_s, 1)
     log["wall_s"] = round(time.time() - t0, 1)
+    write_training_record(args.out, int(model.num_timesteps), family.seconds_per_step(env),
+                          train_s, threads)
     log["best"] = {k: v for k, v in best.items() if k not in ("per_motor", "per_motor_db")} \
         if validator else None
     with open(os.path.join(args.out, "train_log.json"), "w", encoding="utf-8") as fh:
@@ -563,6 +570,30 @@ def train(args: Args) -> dict[str, Any]:
           + (", best.zip" if validator else "") + ", train_log.json", flush=True)
     env.close()
     return log
+
+
+def training_threads(args: Args) -> int:
+    """``args.threads``, or all of numba's threads; one-line error above them."""
+    import numba
+
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    if args.threads is not None and args.threads > top:
+        raise ParameterError(f"--threads {args.threads} is outside its allowed range [1, {top}] "
+                             f"({top} = numba's threads on this machine)")
+    return top if args.threads is None else int(args.threads)
+
+
+def write_training_record(out: str, env_steps: int, seconds_per_step: float, wall_s: float,
+                          threads: int) -> dict[str, Any]:
+    """``training.json`` in ``out``: what the training simulated and how long it took
+    (``wall_seconds``: ``model.learn`` with its updates and dev checks)."""
+    record = {"env_steps": env_steps, "seconds_per_env_step": seconds_per_step,
+              "simulated_seconds": env_steps * seconds_per_step,
+              "wall_seconds": round(wall_s, 3), "threads": threads,
+              "simulated_seconds_per_wall_second": env_steps * seconds_per_step / wall_s
+              if wall_s > 0 else None}
+    write_json(os.path.join(out, "training.json"), record)
+    return record
 
 
 def train_seeds(args: Args) -> list[dict[str, Any]]:

@@ -30,16 +30,21 @@ class PerStepTraining(TrainingFamily):
 
     def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
-                 algo: str, algo_kwargs: dict[str, Any]) -> Any:
+                 algo: str, algo_kwargs: dict[str, Any], threads: int = 1) -> Any:
         from .per_step import SameEpisodes, make_training_env
 
-        env = make_training_env(motors, per_motor, seed, env_kwargs)
+        env = make_training_env(motors, per_motor, seed, env_kwargs, threads)
         if algo == "ars":
             # Every candidate of an update on the same episodes, one per drive,
             # the blocks cycling through this seed's 1000 training seeds.
             env = SameEpisodes(env, seed, span=1000)
             algo_kwargs.setdefault("n_eval_episodes", env.num_envs)
         return env
+
+    def seconds_per_step(self, env: Any) -> float:
+        while not hasattr(env, "parts"):        # SameEpisodes around the presets' envs
+            env = env.venv
+        return float(env.parts[0].venv.task.seconds_per_step)
 
     def after_build(self, env: Any, seed: int) -> None:
         env.seed(seed)          # SB3 seeded the env with the run's seed: the run's own seeds

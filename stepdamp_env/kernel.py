@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .fields import describe, layout
 from .fixedmath import log, sincos, sincos_shifted
@@ -1029,6 +1029,31 @@ def run_batch_law(configs, states, accs, inputs, laws, n_periods):
     every = np.int64(1)
     for i in range(configs.shape[0]):
         _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, every)
+
+
+# Parallel twins: the drives of a batch on numba's threads (numba.set_num_threads
+# in the calling thread). Each drive's arithmetic is the serial loop's, in its own
+# row, so the results do not depend on the number of threads.
+_jit_parallel = njit(cache=True, error_model="numpy", parallel=True)
+
+
+@_jit_parallel
+def run_batch_parallel(configs, states, accs, inputs, n_periods):
+    """:func:`run_batch`, the drives spread over numba's threads."""
+    empty = np.zeros((0, len(TRACE)))
+    every = np.int64(1)
+    for i in prange(configs.shape[0]):
+        run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, every)
+
+
+@_jit_parallel
+def run_batch_law_parallel(configs, states, accs, inputs, laws, n_periods):
+    """:func:`run_batch_law`, the drives spread over numba's threads."""
+    empty = np.zeros((0, len(TRACE)))
+    every = np.int64(1)
+    for i in prange(configs.shape[0]):
+        run_periods_law(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty,
+                        every)
 
 
 @njit(cache=True)

@@ -269,3 +269,36 @@ def test_resonant_gain_cancels_the_ripple_at_its_harmonic():
     kv = [only_kv.step(a)[4]["velocity_error_rms_rad_s"] for _ in range(600)]
     late = slice(400, 600)
     assert np.mean(held[late]) < 0.3 * np.mean(kv[late]) < 0.3 * np.mean(free[late])
+
+
+def _rollout(make, steps=40):
+    env = make()
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    out = [obs]
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(
+            rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        out += [obs, reward, terminated, truncated]
+    return out
+
+
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="one numba thread")
+@pytest.mark.parametrize("kwargs", [{}, {"action_mode": "harmonic", "randomize": True}])
+def test_vector_envs_on_two_threads_give_the_same_bits(kwargs):
+    from stepdamp_env.env import StepperDampVectorEnv
+
+    for cls, opts in ((StepperDampV1VectorEnv, {"agent_hz": 500.0, **kwargs}),
+                      (StepperDampVectorEnv, {"action_mode": "harmonic"})):
+        one = _rollout(lambda: cls(num_envs=5, **opts))
+        two = _rollout(lambda: cls(num_envs=5, num_threads=2, **opts))
+        assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
+
+
+def test_num_threads_is_checked_with_one_line():
+    import numba
+
+    top = numba.config.NUMBA_NUM_THREADS
+    for bad in (0, top + 1, 1.5, True):
+        with pytest.raises(ParameterError, match=rf"^num_threads=.* allowed range \[1, {top}\]"):
+            StepperDampV1VectorEnv(num_envs=2, num_threads=bad)

@@ -42,6 +42,19 @@ def check_vector_args(num_envs: Any, autoreset_mode: Any, render_mode: Any) -> A
     return mode
 
 
+def check_num_threads(num_threads: Any) -> int:
+    """Check a vector env's ``num_threads``: 1 up to numba's thread count (the cores,
+    or ``NUMBA_NUM_THREADS``)."""
+    import numba
+
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) \
+            or not 1 <= num_threads <= top:
+        raise ParameterError(f"num_threads={num_threads!r} is outside its allowed range "
+                             f"[1, {top}] (integer; {top} = numba's threads on this machine)")
+    return int(num_threads)
+
+
 def reseed(rngs: list[np.random.Generator | None], seed: Any, options: dict[str, Any] | None,
            first: bool) -> np.ndarray:
     """Seed the generators of a vector reset in place; returns the mask of drives to reset.

@@ -21,6 +21,7 @@ from types import SimpleNamespace
 from typing import Any, Sequence
 
 import gymnasium as gym
+import numba
 import numpy as np
 
 from .. import kernel as K
@@ -99,6 +100,8 @@ class DriveBatch:
     def __init__(self, task: EnvTask, n: int) -> None:
         self.task = task
         self.n = n
+        #: numba threads a step spreads the drives over (1: the serial loop).
+        self.threads = 1
         self.c = np.zeros((n, len(K.CONFIG)))
         self.s = np.zeros((n, len(K.STATE)))
         self.acc = np.zeros((n, len(K.ACC)))
@@ -181,6 +184,12 @@ class DriveBatch:
                                   trace, 1)
             else:
                 K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
+        elif self.threads > 1 and self.n > 1:
+            numba.set_num_threads(self.threads)
+            if self.task.law_actions:
+                K.run_batch_law_parallel(self.c, self.s, self.acc, self.u, self.law, n)
+            else:
+                K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
         elif self.task.law_actions:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:

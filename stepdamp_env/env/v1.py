@@ -25,7 +25,7 @@ from ..simulation import (RunSettings, SpeedProfile, build_config, initial_state
                           merge_accumulators, new_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
-from .arguments import check_render_mode, check_vector_args, reseed
+from .arguments import check_render_mode, check_num_threads, check_vector_args, reseed
 from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
@@ -375,14 +375,19 @@ class StepperDampV1VectorEnv(VectorEnv):
     ignored, reward 0) or SAME_STEP (``infos["final_obs"]``,
     ``infos["final_info"]``). ``infos`` holds the scalar env's step info as
     arrays with ``_key`` masks. Rendering: None only.
+    ``num_threads`` (default 1) spreads each step's drives over that many of
+    numba's threads (``kernel.run_batch_parallel``); a drive's numbers are the
+    same for any count.
     """ + OPTIONS_DOC_V1
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, **options: Any) -> None:
+                 render_mode: str | None = None, num_threads: int = 1,
+                 **options: Any) -> None:
         mode = check_vector_args(num_envs, autoreset_mode, render_mode)
+        threads = check_num_threads(num_threads)
         self.render_mode = None
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
@@ -397,6 +402,7 @@ class StepperDampV1VectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         self._drives = DriveBatch(task, n)
+        self._drives.threads = self.num_threads = threads
         self._autoreset = np.zeros(n, dtype=bool)
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._ready = False

@@ -12,7 +12,7 @@ from gymnasium.vector.utils import batch_space
 
 from ..params import ParameterError, SystemParams
 from . import compiled as C
-from .arguments import check_vector_args, reseed
+from .arguments import check_num_threads, check_vector_args, reseed
 from .engine import DriveBatch
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import DEFAULT_EPISODE_STEPS
@@ -37,14 +37,19 @@ class StepperDampVectorEnv(VectorEnv):
     ``velocity_error_rms_rad_s``, ``lag_rad``, ``injected_current_rms_a``,
     ``peak_current_a``, ``step_loss``, ``overcurrent`` with ``_key`` masks.
     Rendering is not supported (``render_mode`` must be None).
+    ``num_threads`` (default 1) spreads each step's drives over that many of
+    numba's threads (``kernel.run_batch_parallel``); a drive's numbers are the
+    same for any count.
     """ + OPTIONS_DOC
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, **options: Any) -> None:
+                 render_mode: str | None = None, num_threads: int = 1,
+                 **options: Any) -> None:
         mode = check_vector_args(num_envs, autoreset_mode, render_mode)
+        threads = check_num_threads(num_threads)
         if max_episode_steps is not None and (
                 isinstance(max_episode_steps, bool)
                 or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
@@ -66,6 +71,7 @@ class StepperDampVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, n)
         self._act_shape = (n, f.act_dim)
         self._drives = DriveBatch(f, n)
+        self._drives.threads = self.num_threads = threads
         self._drives.max_steps[:] = -1 if max_episode_steps is None else int(max_episode_steps)
         self._autoreset = np.zeros(n, dtype=bool)
         self._rngs: list[np.random.Generator | None] = [None] * n

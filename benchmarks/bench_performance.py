@@ -1,0 +1,135 @@
+"""Performance: the kernel's rate, and the board's and PPO's share of it, in one run.
+
+Run: ``PYTHONPATH=. python benchmarks/bench_performance.py [--cores 2] [--skip-board]
+[--skip-ppo]``.
+
+Everything is measured in this run, one thing after the other:
+
+* **kernel**: ``benchmarks/bench_sim.py``'s single-core rate, in a process pinned
+  to one core (the patent preset in open loop at 1 rev/s, 20 kHz PWM, RK4, no
+  trace): simulated seconds per wall second, median of 3.
+* **board**: ``stepdamp leaderboard`` (the default protocol, full) with
+  ``--workers cores``, caches warm (a first run fills them). Efficiency =
+  ``simulated_seconds / wall_seconds / (cores x kernel)``; ``wall_seconds`` is the
+  board's own (motors, identification, runs, scores; no imports or figures), and
+  the end-to-end time is printed beside it. Target: >= 0.5.
+* **PPO**: SB3's PPO on ``StepperDamp-v1`` at 100 Hz (0.01 s simulated per env
+  step), throughput settings (512 drives, 32-step rollouts, one epoch of batches
+  of 8192; torch on one thread), updates included, with the drives on one of
+  numba's threads (as before 0.15.0) and on ``cores``. Then ``stepdamp train
+  --algo ppo`` with the committed settings (32 drives, 100-step rollouts, ten
+  epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
+  ``env-steps/s x 0.01 s / (cores x kernel)``. Target: >= 0.5.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+KERNEL = ("import os, importlib.util, json, sys; os.sched_setaffinity(0, {int(sys.argv[1])}); "
+          "spec = importlib.util.spec_from_file_location('bench_sim', sys.argv[2]); "
+          "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m); "
+          "print(json.dumps(m.measure(10.0, 3, 1.0, 'patent')))")
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "MPLBACKEND": "Agg",
+            "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def kernel_rate() -> float:
+    """Single-core kernel rate (simulated s per wall s), in a pinned child process."""
+    core = sorted(os.sched_getaffinity(0))[0]
+    out = subprocess.run([sys.executable, "-c", KERNEL, str(core),
+                          os.path.join(ROOT, "benchmarks", "bench_sim.py")],
+                         check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+    return float(json.loads(out.stdout.strip().splitlines()[-1])["median"])
+
+
+def board(cores: int, out: str) -> tuple[float, dict]:
+    """One full default board, end to end: (wall s, leaderboard.json)."""
+    cmd = [sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--out", out,
+           "--no-progress", "--workers", str(cores)]
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    with open(os.path.join(out, "leaderboard.json"), encoding="utf-8") as fh:
+        return wall, json.load(fh)
+
+
+def ppo_throughput(threads: int, drives: int = 512, updates: int = 12) -> float:
+    """Env-steps per wall second of PPO (throughput settings, updates included)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from stepdamp_env.sb3 import make_sb3_vec_env_v1
+
+    torch.set_num_threads(1)
+    venv = make_sb3_vec_env_v1(num_envs=drives, agent_hz=100.0, num_threads=threads)
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=8192, n_epochs=1, seed=0,
+                verbose=0, device="cpu")
+    model.learn(drives * 32)                                  # warm-up (compiles)
+    steps = drives * 32 * updates
+    t0 = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    rate = steps / (time.perf_counter() - t0)
+    venv.close()
+    return rate
+
+
+def ppo_committed(threads: int, steps: int, out: str) -> dict:
+    """``stepdamp train --algo ppo`` (committed settings, no dev checks): its training.json."""
+    cmd = [sys.executable, "-m", "stepdamp_env.cli", "train", "--algo", "ppo",
+           "--total-timesteps", str(steps), "--eval-freq", "0", "--checkpoint-freq", "0",
+           "--no-progress", "--no-tensorboard", "--threads", str(threads), "--out", out]
+    subprocess.run(cmd, check=True, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL)
+    with open(os.path.join(out, "training.json"), encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--cores", type=int, default=len(os.sched_getaffinity(0)))
+    p.add_argument("--skip-board", action="store_true")
+    p.add_argument("--skip-ppo", action="store_true")
+    p.add_argument("--ppo-steps", type=int, default=96_000,
+                   help="env steps of the committed-settings PPO run")
+    args = p.parse_args()
+    sys.path.insert(0, ROOT)
+    rate = kernel_rate()
+    ceiling = args.cores * rate
+    print(f"kernel: {rate:.1f} simulated s per s on one core; ceiling on {args.cores} cores "
+          f"{ceiling:.0f} (100 Hz: {ceiling * 100:,.0f} env-steps/s)", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        if not args.skip_board:
+            board(args.cores, os.path.join(tmp, "b0"))                  # fills the caches
+            wall, b = board(args.cores, os.path.join(tmp, "b1"))
+            sim, own = b["simulated_seconds"], b["wall_seconds"]
+            print(f"board (stepdamp-bench {b['protocol']['version']}, full, {args.cores} "
+                  f"workers): {own:.1f} s ({wall:.1f} s end to end), simulated {sim:.0f} s, {sim / own:.0f} per s; "
+                  f"efficiency {sim / own / ceiling:.2f} (end to end "
+                  f"{sim / wall / ceiling:.2f}; target >= 0.5)", flush=True)
+        if not args.skip_ppo:
+            for threads in (1, args.cores):
+                r = ppo_throughput(threads)
+                print(f"ppo, v1 100 Hz, throughput settings, drives on {threads} thread(s): "
+                      f"{r:,.0f} env-steps/s, efficiency {r * 0.01 / ceiling:.2f} "
+                      "(target >= 0.5)", flush=True)
+            for threads in (1, args.cores):
+                t = ppo_committed(threads, args.ppo_steps, os.path.join(tmp, f"ppo{threads}"))
+                print(f"ppo, committed settings (stepdamp train, v1 100 Hz), drives on "
+                      f"{threads} thread(s): {t['env_steps'] / t['wall_seconds']:,.0f} "
+                      f"env-steps/s, efficiency "
+                      f"{t['simulated_seconds_per_wall_second'] / ceiling:.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""Where a board's time goes: the full default board in one process, timed by part.
+
+Run: ``PYTHONPATH=. python benchmarks/profile_board.py [--quick] [--top 25]``.
+
+The board runs with one worker (every part in this process, caches warm: a first
+board fills them), with timers around the kernel's entry points, the
+identification, the policies' batched forward passes and the parts of
+``run_leaderboard``; then cProfile's top functions by own time. Kernel time is
+split into what the identification, the calibration rig and the runs spend. The
+rest of the runs' time is Python: env building, policy code, the runner's step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import collections
+import functools
+import os
+import pstats
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TIMES: collections.Counter[str] = collections.Counter()
+_STACK: list[str] = []
+
+
+def timed(label: str, fn, exclusive_of_kernel: bool = False):
+    """``fn`` with its wall time added to ``TIMES[label]`` (outermost call only)."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if label in _STACK:
+            return fn(*args, **kwargs)
+        _STACK.append(label)
+        t0 = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            TIMES[label] += time.perf_counter() - t0
+            _STACK.pop()
+    return wrapper
+
+
+def kernel_timed(name: str, fn):
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            where = ("identification" if "identification" in _STACK else
+                     "rig" if "rig" in _STACK else "motors" if "motors" in _STACK else "runs")
+            TIMES[f"kernel in {where}"] += time.perf_counter() - t0
+    return wrapper
+
+
+def install() -> None:
+    from stepdamp_env import fixedmath, kernel
+    from stepdamp_env.bench import leaderboard, rig, runner
+
+    for name in ("run_periods", "run_periods_law", "run_batch", "run_batch_law"):
+        setattr(kernel, name, kernel_timed(name, getattr(kernel, name)))
+    fixedmath.mlp_forward = timed("policy forward (mlp_forward)", fixedmath.mlp_forward)
+    leaderboard.identify = timed("identification", leaderboard.identify)
+    leaderboard.protocol_motors = timed("motors", leaderboard.protocol_motors)
+    leaderboard.warm_up = timed("warm-up", leaderboard.warm_up)
+    rig.CalibrationRig.harmonic_ripple = timed("rig", rig.CalibrationRig.harmonic_ripple)
+    runner.run_episodes = timed("runs (run_episodes)", runner.run_episodes)
+    leaderboard.run_episodes = runner.run_episodes
+    from stepdamp_env.env import StepperDampEnv, StepperDampV1Env
+
+    for cls in (StepperDampEnv, StepperDampV1Env):     # env building: construct and reset
+        cls.__init__ = timed("env building", cls.__init__)
+        cls.reset = timed("env building", cls.reset)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--top", type=int, default=25)
+    args = p.parse_args()
+    sys.path.insert(0, ROOT)
+    t0 = time.perf_counter()
+    import stepdamp_agents  # noqa: F401
+    import stepdamp_baselines
+    from stepdamp_env.bench import run_leaderboard
+    from stepdamp_env.bench.protocols import DEFAULT_VERSION, protocol_for
+
+    stepdamp_baselines.register_policies()
+    protocol = protocol_for(DEFAULT_VERSION, quick=args.quick)
+    imports = time.perf_counter() - t0
+    run_leaderboard(protocol, workers=1, progress=False)          # fills the caches
+    install()
+    t0 = time.perf_counter()
+    board = run_leaderboard(protocol, workers=1, progress=False)
+    total = time.perf_counter() - t0
+    print(f"imports {imports:.1f} s (not in the board's time); board {total:.1f} s in one "
+          f"process, simulated {board['simulated_seconds']:.0f} s "
+          f"({board['simulated_seconds'] / total:.0f} per s)")
+    for label, seconds in sorted(TIMES.items(), key=lambda kv: -kv[1]):
+        print(f"  {label:34s} {seconds:7.1f} s  {seconds / total:6.1%}")
+    kernel = sum(v for k, v in TIMES.items() if k.startswith("kernel"))
+    print(f"  {'kernel, all':34s} {kernel:7.1f} s  {kernel / total:6.1%}")
+    rest = TIMES["runs (run_episodes)"] - TIMES["kernel in runs"] - TIMES["env building"] \
+        - TIMES["policy forward (mlp_forward)"]
+    print(f"  {'runs: Python per step':34s} {rest:7.1f} s  {rest / total:6.1%}")
+    print("cProfile of the same board (its overhead slows the Python parts):", flush=True)
+    prof = cProfile.Profile()
+    prof.enable()
+    run_leaderboard(protocol, workers=1, progress=False)
+    prof.disable()
+    pstats.Stats(prof).sort_stats("tottime").print_stats(args.top)
+
+
+if __name__ == "__main__":
+    main()
