@@ -36,9 +36,9 @@ class TrainingFamily(abc.ABC):
     @abc.abstractmethod
     def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
-                 algo: str, algo_kwargs: dict[str, Any], threads: int = 1) -> Any:
+                 algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
         """The training ``VecEnv``: ``per_motor`` drives around each preset of
-        ``motors``, drive k seeded ``seed + k``, each step's drives on ``threads``
+        ``motors``, drive k seeded ``seed + k``, each step's drives on ``num_threads``
         of numba's threads; may set defaults in ``algo_kwargs``."""
 
     @abc.abstractmethod

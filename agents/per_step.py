@@ -132,12 +132,12 @@ class SameEpisodes(VecEnvWrapper):
 
 
 def make_training_env(motors: Sequence[str], envs_per_motor: int, seed: int,
-                      options: dict[str, Any], threads: int = 1) -> PresetsVecEnv:
+                      options: dict[str, Any], num_threads: int = 1) -> PresetsVecEnv:
     """``envs_per_motor`` drives around each preset of ``motors`` (v1 ``options``
     without ``motor``), drive k seeded ``seed + k``, each preset's drives stepped
-    on ``threads`` of numba's threads."""
+    on ``num_threads`` of numba's threads."""
     opts = {k: v for k, v in options.items() if k != "motor"}
-    env = PresetsVecEnv([make_sb3_vec_env_v1(envs_per_motor, motor=m, num_threads=threads,
+    env = PresetsVecEnv([make_sb3_vec_env_v1(envs_per_motor, motor=m, num_threads=num_threads,
                                              **opts) for m in motors])
     env.seed(seed)
     return env

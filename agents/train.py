@@ -112,6 +112,14 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return extra
 
 
+def _int_or_text(text: str) -> int | str:
+    """An option's integer, or its text as given (refused with its range by check_args)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
 @dataclass
 class Args:
     """All arguments of a training run; each field is its ``--name-with-dashes``
@@ -158,9 +166,10 @@ class Args:
     extra: dict[str, Any] = option(None, "override one YAML hyperparameter (value parsed as "
                                    "YAML); repeatable", metavar="KEY=VALUE", flag="--set",
                                    repeat=True, parse=parse_overrides, default_factory=dict)
-    threads: int | None = option(None, "numba threads that step the training drives (default: "
-                                 "all of numba's threads, one per core); any count gives the "
-                                 "same model", metavar="N", low=1, high=4096)
+    num_threads: int | None = option(None, "numba threads that step the training drives, at "
+                                     "most NUMBA_NUM_THREADS (default: all of them, one per "
+                                     "core; 1 per seed with --backend ray); any count gives "
+                                     "the same model", metavar="N", parse=_int_or_text)
     backend: str = option("local", "--seeds one after the other here, or as Ray tasks "
                           "(extra [ray])", choices=("local", "ray"))
     ray_address: str | None = option(None, "with --backend ray: a running cluster ('auto' or "
@@ -199,6 +208,16 @@ def check_args(args: Args) -> None:
         raise ParameterError(f"--backend {args.backend!r} is not one of ['local', 'ray']")
     if args.ray_address is not None and args.backend != "ray":
         raise ParameterError("--ray-address needs --backend ray")
+    import numba
+
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    if args.num_threads is not None and (isinstance(args.num_threads, bool) or not isinstance(
+            args.num_threads, int) or not 1 <= args.num_threads <= top):
+        raise ParameterError(f"--num-threads {args.num_threads!r}: allowed are the integers in "
+                             f"[1, {top}] ({top} = numba's threads, NUMBA_NUM_THREADS)")
+    if isinstance(args.extra.get("env_kwargs"), dict) and "num_threads" in args.extra["env_kwargs"]:
+        raise ParameterError("env_kwargs: num_threads is not an env option here; use "
+                             "--num-threads N")
     algos = FAMILIES[args.env].algos
     if args.algo not in algos:
         raise ParameterError(f"--algo {args.algo!r} is not one of {list(algos)} "
@@ -573,14 +592,11 @@ def train(args: Args) -> dict[str, Any]:
 
 
 def training_threads(args: Args) -> int:
-    """``args.threads``, or all of numba's threads; one-line error above them."""
+    """``args.num_threads``, or all of numba's threads."""
     import numba
 
-    top = int(numba.config.NUMBA_NUM_THREADS)
-    if args.threads is not None and args.threads > top:
-        raise ParameterError(f"--threads {args.threads} is outside its allowed range [1, {top}] "
-                             f"({top} = numba's threads on this machine)")
-    return top if args.threads is None else int(args.threads)
+    return int(numba.config.NUMBA_NUM_THREADS) if args.num_threads is None \
+        else int(args.num_threads)
 
 
 def write_training_record(out: str, env_steps: int, seconds_per_step: float, wall_s: float,
@@ -589,7 +605,7 @@ def write_training_record(out: str, env_steps: int, seconds_per_step: float, wal
     (``wall_seconds``: ``model.learn`` with its updates and dev checks)."""
     record = {"env_steps": env_steps, "seconds_per_env_step": seconds_per_step,
               "simulated_seconds": env_steps * seconds_per_step,
-              "wall_seconds": round(wall_s, 3), "threads": threads,
+              "wall_seconds": round(wall_s, 3), "num_threads": threads,
               "simulated_seconds_per_wall_second": env_steps * seconds_per_step / wall_s
               if wall_s > 0 else None}
     write_json(os.path.join(out, "training.json"), record)
@@ -604,8 +620,11 @@ def train_seeds(args: Args) -> list[dict[str, Any]]:
     check_args(args)
     # Absolute for Ray: a task writes where the driver means (on a cluster: a shared path).
     out = os.path.abspath(args.out) if args.backend == "ray" else args.out
+    # A Ray task has one CPU: its drives step on one thread unless told otherwise.
+    threads = args.num_threads if args.num_threads is not None or args.backend == "local" else 1
     runs = [dataclasses.replace(args, seed=k, seeds=(), out=os.path.join(out, f"seed{k}"),
-                                progress=args.progress and args.backend == "local")
+                                progress=args.progress and args.backend == "local",
+                                num_threads=threads)
             for k in args.seeds]
     if args.backend == "local":
         logs = [train(run) for run in runs]

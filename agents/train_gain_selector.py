@@ -31,13 +31,13 @@ class GainSelectorTraining(TrainingFamily):
 
     def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
-                 algo: str, algo_kwargs: dict[str, Any], threads: int = 1) -> Any:
+                 algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
         from .residual import make_residual_vec_env
 
         options = dict(env_kwargs)
         max_steps = int(options.pop("max_episode_steps", DEFAULT_EPISODE_STEPS))
         return make_residual_vec_env(motors, per_motor, seed, max_episode_steps=max_steps,
-                                     num_threads=threads, **wrapper_kwargs, **options)
+                                     num_threads=num_threads, **wrapper_kwargs, **options)
 
     def seconds_per_step(self, env: Any) -> float:
         hold = getattr(env, "hold_steps", 1)     # HeldFeedbackVecEnv: one action, hold steps

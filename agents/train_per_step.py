@@ -30,10 +30,10 @@ class PerStepTraining(TrainingFamily):
 
     def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
-                 algo: str, algo_kwargs: dict[str, Any], threads: int = 1) -> Any:
+                 algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
         from .per_step import SameEpisodes, make_training_env
 
-        env = make_training_env(motors, per_motor, seed, env_kwargs, threads)
+        env = make_training_env(motors, per_motor, seed, env_kwargs, num_threads)
         if algo == "ars":
             # Every candidate of an update on the same episodes, one per drive,
             # the blocks cycling through this seed's 1000 training seeds.

@@ -17,8 +17,8 @@ Everything is measured in this run, one thing after the other:
   step), throughput settings (512 drives, 32-step rollouts, one epoch of batches
   of 8192; torch on one thread), updates included, with the drives on one of
   numba's threads (as before 0.15.0) and on ``cores``. Then ``stepdamp train
-  --algo ppo`` with the committed settings (32 drives, 100-step rollouts, ten
-  epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
+  --algo ppo --num-threads N`` with the committed settings (32 drives, 100-step
+  rollouts, ten epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
   ``env-steps/s x 0.01 s / (cores x kernel)``. Target: >= 0.5.
 """
 
@@ -88,7 +88,7 @@ def ppo_committed(threads: int, steps: int, out: str) -> dict:
     """``stepdamp train --algo ppo`` (committed settings, no dev checks): its training.json."""
     cmd = [sys.executable, "-m", "stepdamp_env.cli", "train", "--algo", "ppo",
            "--total-timesteps", str(steps), "--eval-freq", "0", "--checkpoint-freq", "0",
-           "--no-progress", "--no-tensorboard", "--threads", str(threads), "--out", out]
+           "--no-progress", "--no-tensorboard", "--num-threads", str(threads), "--out", out]
     subprocess.run(cmd, check=True, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL)
     with open(os.path.join(out, "training.json"), encoding="utf-8") as fh:
         return json.load(fh)

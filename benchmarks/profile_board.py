@@ -26,7 +26,7 @@ TIMES: collections.Counter[str] = collections.Counter()
 _STACK: list[str] = []
 
 
-def timed(label: str, fn, exclusive_of_kernel: bool = False):
+def timed(label: str, fn):
     """``fn`` with its wall time added to ``TIMES[label]`` (outermost call only)."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -42,7 +42,7 @@ def timed(label: str, fn, exclusive_of_kernel: bool = False):
     return wrapper
 
 
-def kernel_timed(name: str, fn):
+def kernel_timed(fn):
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         t0 = time.perf_counter()
@@ -60,7 +60,7 @@ def install() -> None:
     from stepdamp_env.bench import leaderboard, rig, runner
 
     for name in ("run_periods", "run_periods_law", "run_batch", "run_batch_law"):
-        setattr(kernel, name, kernel_timed(name, getattr(kernel, name)))
+        setattr(kernel, name, kernel_timed(getattr(kernel, name)))
     fixedmath.mlp_forward = timed("policy forward (mlp_forward)", fixedmath.mlp_forward)
     leaderboard.identify = timed("identification", leaderboard.identify)
     leaderboard.protocol_motors = timed("motors", leaderboard.protocol_motors)

@@ -300,5 +300,23 @@ def test_num_threads_is_checked_with_one_line():
 
     top = numba.config.NUMBA_NUM_THREADS
     for bad in (0, top + 1, 1.5, True):
-        with pytest.raises(ParameterError, match=rf"^num_threads=.* allowed range \[1, {top}\]"):
+        with pytest.raises(ParameterError,
+                           match=rf"^num_threads=.*: allowed are the integers in \[1, {top}\]"):
             StepperDampV1VectorEnv(num_envs=2, num_threads=bad)
+
+
+def _two_thread_rollout(_: int) -> list:
+    return _rollout(lambda: StepperDampV1VectorEnv(num_envs=3, num_threads=2, agent_hz=500.0),
+                    steps=5)
+
+
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="one numba thread")
+def test_a_child_forked_after_parallel_steps_serially_with_the_same_bits():
+    import multiprocessing
+
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    here = _two_thread_rollout(0)           # the parallel path runs in this process first
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        there = pool.map_async(_two_thread_rollout, [0]).get(timeout=120)[0]
+    assert all(np.array_equal(a, b) for a, b in zip(here, there, strict=True))

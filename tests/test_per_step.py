@@ -247,16 +247,17 @@ def test_training_on_two_threads_gives_the_same_model_and_writes_training_json(t
         out = str(tmp_path / f"t{threads}")
         train(Args(algo="ppo", out=out, total_timesteps=512, motors=MOTORS, envs_per_motor=2,
                    eval_freq=0, checkpoint_freq=0, progress=False, tensorboard=False,
-                   threads=threads, extra={"n_steps": 64, "batch_size": 64, "n_epochs": 1,
+                   num_threads=threads, extra={"n_steps": 64, "batch_size": 64, "n_epochs": 1,
                                            "env_kwargs": SHORT}))
         with zipfile.ZipFile(os.path.join(out, "final.zip")) as z:
             weights.append(z.read("policy.pth"))
         with open(os.path.join(out, "training.json"), encoding="utf-8") as fh:
             record = json.load(fh)
-        assert record["threads"] == threads and record["env_steps"] >= 512
+        assert record["num_threads"] == threads and record["env_steps"] >= 512
         assert record["simulated_seconds"] == pytest.approx(
             record["env_steps"] * record["seconds_per_env_step"])
         assert record["wall_seconds"] > 0
     assert weights[0] == weights[1]
-    with pytest.raises(ParameterError, match="--threads"):
-        train(Args(algo="ppo", out=str(tmp_path / "x"), threads=4096, progress=False))
+    for bad in (0, 4096):
+        with pytest.raises(ParameterError, match=r"^--num-threads .*: allowed are the integers"):
+            train(Args(algo="ppo", out=str(tmp_path / "x"), num_threads=bad, progress=False))

@@ -50,8 +50,8 @@ def check_num_threads(num_threads: Any) -> int:
     top = int(numba.config.NUMBA_NUM_THREADS)
     if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) \
             or not 1 <= num_threads <= top:
-        raise ParameterError(f"num_threads={num_threads!r} is outside its allowed range "
-                             f"[1, {top}] (integer; {top} = numba's threads on this machine)")
+        raise ParameterError(f"num_threads={num_threads!r}: allowed are the integers in "
+                             f"[1, {top}] ({top} = numba's threads, NUMBA_NUM_THREADS)")
     return int(num_threads)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import abc
 import math
+import os
 from types import SimpleNamespace
 from typing import Any, Sequence
 
@@ -91,17 +92,35 @@ class EnvTask(abc.ABC):
                 tuple(sorted((k, w) for k, (w, _) in self.extra_rows.items())))
 
 
+class _ForkState:
+    """GNU OpenMP (numba's ``omp`` threading layer) cannot run in a child forked
+    after its parent ran it: such a child steps serially (the same bits)."""
+
+    parallel_used = False
+    after_parallel = False
+
+    @classmethod
+    def child(cls) -> None:
+        cls.after_parallel = cls.after_parallel or cls.parallel_used
+
+
+_FORK = _ForkState
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_ForkState.child)
+
+
 class DriveBatch:
     """N drives of one task: their rows, their resets, their steps."""
 
     _ROWS = ("c", "s", "acc", "u", "law", "par", "obs", "out", "a", "t", "speeds_rps",
              "max_steps")
+    #: numba threads a step spreads the drives over (1: the serial loop); at most
+    #: numba's thread count where it steps (an unpickled env may meet fewer).
+    num_threads = 1
 
     def __init__(self, task: EnvTask, n: int) -> None:
         self.task = task
         self.n = n
-        #: numba threads a step spreads the drives over (1: the serial loop).
-        self.threads = 1
         self.c = np.zeros((n, len(K.CONFIG)))
         self.s = np.zeros((n, len(K.STATE)))
         self.acc = np.zeros((n, len(K.ACC)))
@@ -184,12 +203,17 @@ class DriveBatch:
                                   trace, 1)
             else:
                 K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
-        elif self.threads > 1 and self.n > 1:
-            numba.set_num_threads(self.threads)
-            if self.task.law_actions:
-                K.run_batch_law_parallel(self.c, self.s, self.acc, self.u, self.law, n)
-            else:
-                K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
+        elif self.num_threads > 1 and self.n > 1 and not _FORK.after_parallel:
+            before = numba.get_num_threads()
+            numba.set_num_threads(min(self.num_threads, numba.config.NUMBA_NUM_THREADS))
+            try:
+                if self.task.law_actions:
+                    K.run_batch_law_parallel(self.c, self.s, self.acc, self.u, self.law, n)
+                else:
+                    K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
+            finally:
+                numba.set_num_threads(before)
+            _FORK.parallel_used = True
         elif self.task.law_actions:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:

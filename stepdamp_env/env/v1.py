@@ -402,7 +402,7 @@ class StepperDampV1VectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         self._drives = DriveBatch(task, n)
-        self._drives.threads = self.num_threads = threads
+        self._drives.num_threads = threads
         self._autoreset = np.zeros(n, dtype=bool)
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._ready = False
@@ -411,6 +411,11 @@ class StepperDampV1VectorEnv(VectorEnv):
     def systems(self) -> list[SystemParams | None]:
         """The system of each drive's current episode."""
         return list(self._drives.systems)
+
+    @property
+    def num_threads(self) -> int:
+        """numba threads each step spreads the drives over (set when built)."""
+        return self._drives.num_threads
 
     @property
     def speeds_rps(self) -> np.ndarray:

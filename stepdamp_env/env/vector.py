@@ -71,7 +71,7 @@ class StepperDampVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, n)
         self._act_shape = (n, f.act_dim)
         self._drives = DriveBatch(f, n)
-        self._drives.threads = self.num_threads = threads
+        self._drives.num_threads = threads
         self._drives.max_steps[:] = -1 if max_episode_steps is None else int(max_episode_steps)
         self._autoreset = np.zeros(n, dtype=bool)
         self._rngs: list[np.random.Generator | None] = [None] * n
@@ -91,6 +91,11 @@ class StepperDampVectorEnv(VectorEnv):
     def systems(self) -> list[SystemParams | None]:
         """The system of each drive's current episode."""
         return list(self._drives.systems)
+
+    @property
+    def num_threads(self) -> int:
+        """numba threads each step spreads the drives over (set when built)."""
+        return self._drives.num_threads
 
     @property
     def speeds_rps(self) -> np.ndarray:
