@@ -93,5 +93,6 @@ _ROOMY = type(_call)(_call.__code__.replace(co_stacksize=1 << 17), {})
 
 def call_with_frame_room(fn, *args):
     """``fn(*args)`` with about 1 MiB of room on CPython's frame stack below it, so
-    that no compile inside it straddles a frame-stack chunk boundary (see above)."""
+    that no compile inside it straddles a frame-stack chunk boundary (see above).
+    Before 3.11 (no frame stack) it only allocates one large frame."""
     return _ROOMY(fn, args)

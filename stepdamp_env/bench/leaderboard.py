@@ -295,8 +295,8 @@ def _warm_batch(env: StepperDampEnv | StepperDampV1Env) -> None:
     batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
 
 
-#: The warm-up in two parts that share no compiled code (the kernel's loop
-#: without and with the damping law: each inlines the whole drive).
+#: The warm-up in two parts that share no kernel loop (without and with the
+#: damping law: each inlines the whole drive; small helpers compile in both).
 _WARM_PARTS = (_warm_plain, _warm_law)
 
 
