@@ -114,7 +114,8 @@ def main() -> None:
             wall, b = board(args.cores, os.path.join(tmp, "b1"))
             sim, own = b["simulated_seconds"], b["wall_seconds"]
             print(f"board (stepdamp-bench {b['protocol']['version']}, full, {args.cores} "
-                  f"workers): {own:.1f} s ({wall:.1f} s end to end), simulated {sim:.0f} s, {sim / own:.0f} per s; "
+                  f"workers): {own:.1f} s ({wall:.1f} s end to end), simulated {sim:.0f} s, "
+                  f"{sim / own:.0f} per s; "
                   f"efficiency {sim / own / ceiling:.2f} (end to end "
                   f"{sim / wall / ceiling:.2f}; target >= 0.5)", flush=True)
         if not args.skip_ppo:
