@@ -12,7 +12,8 @@ code paths of another CPU:
 * ``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``: the C library's plain
   ``exp``/``log``/``sin``/``pow`` instead of its FMA variants (what a CPU
   without FMA runs);
-* 1 or 2 worker processes (and threads).
+* 1 or 2 worker processes (and threads);
+* the vector env's drives on one and on two of numba's threads (the same bits).
 
 Every variant must give the stored fingerprints (``tests/data/quick_boards.json``),
 which the native run gives too (``tests/test_cpu_determinism.py``). The full
@@ -76,7 +77,31 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
     for name in protocols:
         board = run_leaderboard(make[name][full](), workers=workers, progress=False)
         out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
+    check_threads_give_the_same_bits()
     return out
+
+
+def check_threads_give_the_same_bits() -> None:
+    """A training env's steps on numba's threads equal its serial steps here (the
+    serial ones are pinned by the boards above); AssertionError otherwise."""
+    import numba
+    import numpy as np
+
+    from stepdamp_env.env import StepperDampV1VectorEnv
+
+    def rollout(threads: int) -> bytes:
+        env = StepperDampV1VectorEnv(num_envs=4, num_threads=threads, agent_hz=250.0,
+                                     randomize=True)
+        obs, _ = env.reset(seed=5)
+        rng = np.random.default_rng(5)
+        out = [obs.tobytes()]
+        for _ in range(20):
+            obs, reward, _, _, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+            out += [obs.tobytes(), reward.tobytes()]
+        return b"".join(out)
+
+    threads = min(2, int(numba.config.NUMBA_NUM_THREADS))
+    assert rollout(1) == rollout(threads), "parallel drive steps differ from the serial ones"
 
 
 def start_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False
