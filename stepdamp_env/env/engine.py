@@ -104,7 +104,6 @@ class _ForkState:
         cls.after_parallel = cls.after_parallel or cls.parallel_used
 
 
-_FORK = _ForkState
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_ForkState.child)
 
@@ -203,7 +202,7 @@ class DriveBatch:
                                   trace, 1)
             else:
                 K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
-        elif self.num_threads > 1 and self.n > 1 and not _FORK.after_parallel:
+        elif self.num_threads > 1 and self.n > 1 and not _ForkState.after_parallel:
             before = numba.get_num_threads()
             numba.set_num_threads(min(self.num_threads, numba.config.NUMBA_NUM_THREADS))
             try:
@@ -213,7 +212,7 @@ class DriveBatch:
                     K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
             finally:
                 numba.set_num_threads(before)
-            _FORK.parallel_used = True
+            _ForkState.parallel_used = True
         elif self.task.law_actions:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:
