@@ -16,7 +16,8 @@ Everything is measured in this run, one thing after the other:
 * **PPO**: SB3's PPO on ``StepperDamp-v1`` at 100 Hz (0.01 s simulated per env
   step), throughput settings (512 drives, 32-step rollouts, one epoch of batches
   of 8192; torch on one thread), updates included, with the drives on one of
-  numba's threads (as before 0.15.0) and on ``cores``. Then ``stepdamp train
+  numba's threads (as before 0.15.0) and on ``cores``, without and with SIMD lanes
+  (``simd``, 0.16.0). Then ``stepdamp train
   --algo ppo --num-threads N`` with the committed settings (32 drives, 100-step
   rollouts, ten epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
   ``env-steps/s x 0.01 s / (cores x kernel)``. Target: >= 0.5.
@@ -64,7 +65,7 @@ def board(cores: int, out: str) -> tuple[float, dict]:
         return wall, json.load(fh)
 
 
-def ppo_throughput(threads: int, drives: int = 512, updates: int = 12) -> float:
+def ppo_throughput(threads: int, simd: bool, drives: int = 512, updates: int = 12) -> float:
     """Env-steps per wall second of PPO (throughput settings, updates included)."""
     import torch
     from stable_baselines3 import PPO
@@ -72,7 +73,7 @@ def ppo_throughput(threads: int, drives: int = 512, updates: int = 12) -> float:
     from stepdamp_env.sb3 import make_sb3_vec_env_v1
 
     torch.set_num_threads(1)
-    venv = make_sb3_vec_env_v1(num_envs=drives, agent_hz=100.0, num_threads=threads)
+    venv = make_sb3_vec_env_v1(num_envs=drives, agent_hz=100.0, num_threads=threads, simd=simd)
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=8192, n_epochs=1, seed=0,
                 verbose=0, device="cpu")
     model.learn(drives * 32)                                  # warm-up (compiles)
@@ -82,6 +83,44 @@ def ppo_throughput(threads: int, drives: int = 512, updates: int = 12) -> float:
     rate = steps / (time.perf_counter() - t0)
     venv.close()
     return rate
+
+
+def ppo_split(threads: int, updates: int = 30) -> tuple[float, float]:
+    """Wall seconds in collecting rollouts and in SB3's updates, PPO with the shape of
+    the committed v1 settings (32 drives, 100-step rollouts, ten epochs of 400,
+    64x64 net; torch on one thread)."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from stepdamp_env.sb3 import make_sb3_vec_env_v1
+
+    class Clock(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.collect = 0.0
+            self.t0 = 0.0
+
+        def _on_rollout_start(self) -> None:
+            self.t0 = time.perf_counter()
+
+        def _on_rollout_end(self) -> None:
+            self.collect += time.perf_counter() - self.t0
+
+        def _on_step(self) -> bool:
+            return True
+
+    torch.set_num_threads(1)
+    venv = make_sb3_vec_env_v1(num_envs=32, agent_hz=100.0, num_threads=threads)
+    model = PPO("MlpPolicy", venv, n_steps=100, batch_size=400, n_epochs=10, seed=0, verbose=0,
+                device="cpu", policy_kwargs={"net_arch": [64, 64]})
+    model.learn(3200)                                         # warm-up
+    clock = Clock()
+    t0 = time.perf_counter()
+    model.learn(3200 * updates, reset_num_timesteps=False, callback=clock)
+    total = time.perf_counter() - t0
+    venv.close()
+    return clock.collect, total - clock.collect
 
 
 def ppo_committed(threads: int, steps: int, out: str) -> dict:
@@ -119,11 +158,16 @@ def main() -> None:
                   f"efficiency {sim / own / ceiling:.2f} (end to end "
                   f"{sim / wall / ceiling:.2f}; target >= 0.5)", flush=True)
         if not args.skip_ppo:
-            for threads in (1, args.cores):
-                r = ppo_throughput(threads)
-                print(f"ppo, v1 100 Hz, throughput settings, drives on {threads} thread(s): "
-                      f"{r:,.0f} env-steps/s, efficiency {r * 0.01 / ceiling:.2f} "
-                      "(target >= 0.5)", flush=True)
+            for simd in (False, True):
+                for threads in (1, args.cores):
+                    r = ppo_throughput(threads, simd)
+                    print(f"ppo, v1 100 Hz, throughput settings, drives on {threads} thread(s)"
+                          f"{', in SIMD lanes' if simd else ''}: {r:,.0f} env-steps/s, "
+                          f"efficiency {r * 0.01 / ceiling:.2f} (target >= 0.5)", flush=True)
+            collect, update = ppo_split(args.cores)
+            print(f"ppo, committed settings' shape, drives on {args.cores} thread(s): collecting "
+                  f"{collect:.1f} s, updates {update:.1f} s ({update / (collect + update):.0%} "
+                  "of the time)", flush=True)
             for threads in (1, args.cores):
                 t = ppo_committed(threads, args.ppo_steps, os.path.join(tmp, f"ppo{threads}"))
                 print(f"ppo, committed settings (stepdamp train, v1 100 Hz), drives on "

@@ -22,14 +22,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from .fields import layout
 
-__all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "atan", "atan2", "hypot", "tanh",
-           "cexp", "cmul", "exp_array", "sincos_array", "dot", "weighted_rows",
-           "lstsq", "solve", "random_walk_kalman_update", "mlp_forward",
-           "ACTIVATION"]
+__all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "sincos_rotated",
+           "sincos_lane", "log_lane", "float_bits", "bits_float", "atan", "atan2", "hypot", "tanh", "cexp", "cmul", "exp_array",
+           "sincos_array", "dot", "weighted_rows", "lstsq", "solve", "random_walk_kalman_update",
+           "mlp_forward", "ACTIVATION"]
 
 # numba without fastmath: no reassociation, no contraction into FMA.
 _jit = njit(cache=True, error_model="numpy")
@@ -110,6 +112,49 @@ def log(x):
     return k * _LN2_HI - ((hfsq - (s * (hfsq + r) + k * _LN2_LO)) - f)
 
 
+@intrinsic
+def float_bits(typingctx, x):
+    """The IEEE 754 bits of a float64, as a uint64 (a bit cast; no call, so it vectorises)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+    return types.uint64(types.float64), codegen
+
+
+@intrinsic
+def bits_float(typingctx, b):
+    """The float64 whose IEEE 754 bits are the uint64 ``b``."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.uint64), codegen
+
+
+_MANTISSA = np.uint64(0x000FFFFFFFFFFFFF)
+_HALF_EXPONENT = np.uint64(1022 << 52)          # the exponent field of [0.5, 1)
+
+
+@_inline
+def log_lane(x):
+    """:func:`log` without branches or calls, for positive normal finite x: the
+    same bits there. ``frexp`` is read from the bits of x (numba calls the C
+    library's), so a loop over lanes of it vectorises."""
+    b = float_bits(x)
+    e = np.int64(b >> np.uint64(52)) - 1022
+    m = bits_float((b & _MANTISSA) | _HALF_EXPONENT)
+    small = m < _SQRT_HALF
+    m = 2.0 * m if small else m
+    e = e - 1 if small else e
+    f = m - 1.0
+    k = float(e)
+    s = f / (2.0 + f)
+    z = s * s
+    w = z * z
+    t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
+    t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
+    r = t2 + t1
+    hfsq = 0.5 * f * f
+    return k * _LN2_HI - ((hfsq - (s * (hfsq + r) + k * _LN2_LO)) - f)
+
+
 # --- sin, cos (Cody-Waite reduction to [-pi/4, pi/4], Taylor polynomials) ----
 _TWO_OVER_PI = 0.63661977236758134308
 # fdlibm's pio2_1, pio2_2 (33 bits each: k * them is exact for |k| < 2**20) and
@@ -164,6 +209,13 @@ def sincos_shifted(x0, s0, c0, delta):
     """
     if abs(delta) > 0.125:
         return sincos(x0 + delta)
+    return sincos_rotated(s0, c0, delta)
+
+
+@_inline
+def sincos_rotated(s0, c0, delta):
+    """sin and cos of x0 + delta from those of x0 (s0, c0), for |delta| <= 1/8:
+    :func:`sincos_shifted` without its branch."""
     d2 = delta * delta
     d4 = d2 * d2
     d8 = d4 * d4
@@ -171,6 +223,28 @@ def sincos_shifted(x0, s0, c0, delta):
     sd = delta * ((1.0 + _S3 * d2) + d4 * (_S5 + _S7 * d2) + d8 * _S9)
     cd = (1.0 + _C2 * d2) + d4 * (_C4 + _C6 * d2) + d8 * (_C8 + _C10 * d2)
     return s0 * cd + c0 * sd, c0 * cd - s0 * sd
+
+
+@_inline
+def sincos_lane(x):
+    """:func:`sincos` without branches, for |x| < 1e6: the same bits there.
+
+    The quadrant is chosen by selects and k stays a float, so a loop over
+    lanes of it vectorises (:mod:`stepdamp_env.lanes`); beyond 1e6, or for a
+    NaN, the caller must use :func:`sincos`.
+    """
+    k = np.floor(x * _TWO_OVER_PI + 0.5)
+    r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
+    r2 = r * r
+    sp = r + r * r2 * (_S3 + r2 * (_S5 + r2 * (_S7 + r2 * (_S9 + r2 * (_S11 + r2 * (
+        _S13 + r2 * _S15))))))
+    cp = 1.0 + r2 * (_C2 + r2 * (_C4 + r2 * (_C6 + r2 * (_C8 + r2 * (_C10 + r2 * (
+        _C12 + r2 * (_C14 + r2 * _C16)))))))
+    quadrant = k - 4.0 * np.floor(k * 0.25)
+    s = sp if quadrant == 0.0 else (cp if quadrant == 1.0 else (-sp if quadrant == 2.0 else -cp))
+    c = cp if quadrant == 0.0 else (-sp if quadrant == 1.0 else (-cp if quadrant == 2.0 else sp))
+    # sin(-0) = -0: the polynomial gives it too, the select makes it plain.
+    return (x if x == 0.0 else s), (1.0 if x == 0.0 else c)
 
 
 @_inline

@@ -457,9 +457,15 @@ def friction_torque(omega, tau_drive, fs):
 def driving_torque(theta, omega, ia, ib, p):
     """Every torque on the rotor except friction (N*m)."""
     s1, c1 = sincos(p[PLANT.NR] * theta)
-    det = harmonic_series(s1, c1, p[PLANT.DET_S1], p[PLANT.DET_C1], p[PLANT.DET_S2], p[PLANT.DET_C2],
-                          p[PLANT.DET_S4], p[PLANT.DET_C4])
-    return (electromagnetic_torque(ia, ib, s1, c1, p[PLANT.KM]) - det - p[PLANT.D] * omega
+    return driving_torque_sc(s1, c1, omega, ia, ib, p)
+
+
+@_jit_inline
+def driving_torque_sc(sin_x, cos_x, omega, ia, ib, p):
+    """:func:`driving_torque` given sin and cos of x = Nr*theta."""
+    det = harmonic_series(sin_x, cos_x, p[PLANT.DET_S1], p[PLANT.DET_C1], p[PLANT.DET_S2],
+                          p[PLANT.DET_C2], p[PLANT.DET_S4], p[PLANT.DET_C4])
+    return (electromagnetic_torque(ia, ib, sin_x, cos_x, p[PLANT.KM]) - det - p[PLANT.D] * omega
             - p[PLANT.LOAD])
 
 
@@ -516,11 +522,17 @@ def rk4_step(x, va, vb, p, h):
     s4, c4 = sincos_shifted(x0, s0, c0, nr * h * k3[0])
     k4 = motor_derivative_sc(s4, c4, w + h * k3[1], ia + h * k3[2], ib + h * k3[3],
                              va, vb, p)
+    return rk4_combine(x, k1, k2, k3, k4, h)
+
+
+@_jit_inline
+def rk4_combine(x, k1, k2, k3, k4, h):
+    """x + h/6 (k1 + 2 (k2 + k3) + k4), each of the nine components."""
     h6 = h * (1.0 / 6.0)
-    return (th + h6 * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
-            w + h6 * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
-            ia + h6 * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
-            ib + h6 * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]),
+    return (x[0] + h6 * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
+            x[1] + h6 * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
+            x[2] + h6 * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
+            x[3] + h6 * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]),
             x[4] + h6 * (k1[4] + 2.0 * (k2[4] + k3[4]) + k4[4]),
             x[5] + h6 * (k1[5] + 2.0 * (k2[5] + k3[5]) + k4[5]),
             x[6] + h6 * (k1[6] + 2.0 * (k2[6] + k3[6]) + k4[6]),
@@ -590,17 +602,25 @@ def splitmix64(x):
     return z ^ (z >> np.uint64(31))
 
 
+@_jit_inline
+def uniform_pair(seed, counter):
+    """Two uniform samples for (seed, counter): u1 in (0, 1], u2 in [0, 1)."""
+    key = splitmix64(np.uint64(seed))
+    c2 = np.uint64(counter) * np.uint64(2)
+    u1 = (float(splitmix64(key ^ c2) >> np.uint64(11)) + 1.0) * _TWO_M53
+    u2 = float(splitmix64(key ^ (c2 + np.uint64(1))) >> np.uint64(11)) * _TWO_M53
+    return u1, u2
+
+
 @_jit
 def gaussian_pair(seed, counter):
     """Two independent standard normal samples for (seed, counter).
 
-    Counter-based (Box-Muller on hashed counters): the noise of PWM period k
-    is a function of k alone, so it does not depend on how a run is chunked.
+    Counter-based (Box-Muller on hashed counters, :func:`uniform_pair`): the noise
+    of PWM period k is a function of k alone, so it does not depend on how a run
+    is chunked.
     """
-    key = splitmix64(np.uint64(seed))
-    c2 = np.uint64(counter) * np.uint64(2)
-    u1 = (float(splitmix64(key ^ c2) >> np.uint64(11)) + 1.0) * _TWO_M53      # (0, 1]
-    u2 = float(splitmix64(key ^ (c2 + np.uint64(1))) >> np.uint64(11)) * _TWO_M53
+    u1, u2 = uniform_pair(seed, counter)
     r = math.sqrt(-2.0 * log(u1))
     s, c = sincos(2.0 * math.pi * u2)
     return r * c, r * s
@@ -613,19 +633,22 @@ def quantise(x, q):
 
 
 @_jit_inline
-def command(t, kind, speed, accel, distance):
-    """Position (rad) and speed (rad/s) command at time t (s).
-
-    kind 0: from rest with acceleration ``accel`` up to ``speed`` (signed), then held.
-    kind 1: trapezoidal (or triangular) move of ``distance`` (signed) at up to |speed|.
-    """
+def constant_speed_command(t, speed, accel):
+    """Position (rad) and speed (rad/s) at time t (s) of :func:`command`'s kind 0:
+    from rest with acceleration ``accel`` up to ``speed`` (signed), then held."""
     a = accel
-    if kind == PROFILE.CONSTANT:
-        sgn = 1.0 if speed >= 0.0 else -1.0
-        t_ramp = abs(speed) / a
-        if t < t_ramp:
-            return sgn * 0.5 * a * t * t, sgn * a * t
-        return sgn * 0.5 * a * t_ramp * t_ramp + speed * (t - t_ramp), speed
+    sgn = 1.0 if speed >= 0.0 else -1.0
+    t_ramp = abs(speed) / a
+    if t < t_ramp:
+        return sgn * 0.5 * a * t * t, sgn * a * t
+    return sgn * 0.5 * a * t_ramp * t_ramp + speed * (t - t_ramp), speed
+
+
+@_jit_inline
+def move_command(t, speed, accel, distance):
+    """Position (rad) and speed (rad/s) at time t (s) of :func:`command`'s kind 1:
+    a trapezoidal (or triangular) move of ``distance`` (signed) at up to |speed|."""
+    a = accel
     sgn = 1.0 if distance >= 0.0 else -1.0
     d = abs(distance)
     vmax = abs(speed)
@@ -643,6 +666,18 @@ def command(t, kind, speed, accel, distance):
     if td < t_acc:
         return sgn * (d - d_acc + vmax * td - 0.5 * a * td * td), sgn * (vmax - a * td)
     return sgn * d, 0.0
+
+
+@_jit_inline
+def command(t, kind, speed, accel, distance):
+    """Position (rad) and speed (rad/s) command at time t (s).
+
+    kind 0: from rest with acceleration ``accel`` up to ``speed`` (signed), then held.
+    kind 1: trapezoidal (or triangular) move of ``distance`` (signed) at up to |speed|.
+    """
+    if kind == PROFILE.CONSTANT:
+        return constant_speed_command(t, speed, accel)
+    return move_command(t, speed, accel, distance)
 
 
 @_jit
@@ -860,29 +895,45 @@ def run_periods_law(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 
 
 @_jit_inline
-def law_current(law, e_w, e_theta, s1, c1, dt):
+def law_feedback(law, at, step, e_w, e_theta):
+    """The law's velocity and high-passed position terms (A), updating its
+    low-passed position error. The law's field j is ``law[at + j*step]``: (0, 1)
+    for a row of its own, a column of a structure of arrays in
+    :mod:`stepdamp_env.lanes`."""
+    e_lp = law[at + LAW.E_LP * step] + law[at + LAW.HP_ALPHA * step] * (e_theta - law[at + LAW.E_LP * step])
+    law[at + LAW.E_LP * step] = e_lp
+    return law[at + LAW.KV * step] * e_w + law[at + LAW.KP * step] * (e_theta - e_lp)
+
+
+@_jit_inline
+def resonant_phasor(law, at, step, k, e_w, sin_h, cos_h, dt, limit):
+    """The law's resonant coefficients (a, b) of harmonic k (1, 2, 4 for k = 0,
+    1, 2) after one period, clamped to +-limit (A); not stored."""
+    kr, ki = law[at + (LAW.KR1 + 2 * k) * step], law[at + (LAW.KI1 + 2 * k) * step]
+    es, ec = e_w * sin_h, e_w * cos_h
+    a = law[at + (LAW.A1 + 2 * k) * step] + dt * (kr * es - ki * ec)
+    b = law[at + (LAW.B1 + 2 * k) * step] + dt * (ki * es + kr * ec)
+    return min(max(a, -limit), limit), min(max(b, -limit), limit)
+
+
+@_jit_inline
+def law_current(law, at, step, e_w, e_theta, s1, c1, dt):
     """One period of the damping law (see ``L_*``) at the Park angle whose sin and
-    cos are given: updates its state, returns its current (A)."""
-    e_lp = law[LAW.E_LP] + law[LAW.HP_ALPHA] * (e_theta - law[LAW.E_LP])
-    law[LAW.E_LP] = e_lp
-    i = law[LAW.KV] * e_w + law[LAW.KP] * (e_theta - e_lp)
-    limit = law[LAW.LIMIT]
-    if law[LAW.RESONANT] != 0.0:
+    cos are given: updates its state, returns its current (A). Fields as in
+    :func:`law_feedback`."""
+    i = law_feedback(law, at, step, e_w, e_theta)
+    limit = law[at + LAW.LIMIT * step]
+    if law[at + LAW.RESONANT * step] != 0.0:
         s2, c2, s4, c4 = harmonics(s1, c1)
         sn = (s1, s2, s4)
         cn = (c1, c2, c4)
         for k in range(3):
-            kr, ki = law[LAW.KR1 + 2 * k], law[LAW.KI1 + 2 * k]
-            es, ec = e_w * sn[k], e_w * cn[k]
-            a = law[LAW.A1 + 2 * k] + dt * (kr * es - ki * ec)
-            b = law[LAW.B1 + 2 * k] + dt * (ki * es + kr * ec)
-            a = min(max(a, -limit), limit)
-            b = min(max(b, -limit), limit)
-            law[LAW.A1 + 2 * k] = a
-            law[LAW.B1 + 2 * k] = b
+            a, b = resonant_phasor(law, at, step, k, e_w, sn[k], cn[k], dt, limit)
+            law[at + (LAW.A1 + 2 * k) * step] = a
+            law[at + (LAW.B1 + 2 * k) * step] = b
             i += a * sn[k] + b * cn[k]
     i = min(max(i, -limit), limit)
-    law[LAW.SUM_I2] += i * i
+    law[at + LAW.SUM_I2 * step] += i * i
     return i
 
 
@@ -934,7 +985,7 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
             cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u)
         else:
             # The law's current from the previous period's samples, then held.
-            i_law = law_current(law, obs[2] - cs[3], obs[1] - cs[2], obs[8], obs[9], dt)
+            i_law = law_current(law, 0, 1, obs[2] - cs[3], obs[1] - cs[2], obs[8], obs[9], dt)
             u_law = (u[0], u[1], u[2], u[3], u[4], u[5], u[6] + i_law)
             cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u_law)
         va_next, vb_next = v_next

@@ -9,11 +9,15 @@ code paths of another CPU:
 * ``NPY_DISABLE_CPU_FEATURES``: numpy's loops without AVX2/FMA or AVX-512;
 * ``ATEN_CPU_CAPABILITY``: torch's kernels without AVX2 or AVX-512;
 * ``NUMBA_CPU_NAME=generic``: numba/LLVM code for a generic x86-64 (no FMA);
+  ``haswell`` with ``NUMBA_CPU_FEATURES=""``: an AVX2 CPU's code (numba would
+  otherwise add this CPU's features to the name);
 * ``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``: the C library's plain
   ``exp``/``log``/``sin``/``pow`` instead of its FMA variants (what a CPU
   without FMA runs);
 * 1 or 2 worker processes (and threads);
-* the vector env's drives on one and on two of numba's threads (the same bits).
+* the vector env's drives on one and on two of numba's threads, and in SIMD lanes
+  (the same bits; ``NUMBA_CPU_NAME`` sets the vector width: 2 doubles for
+  ``generic``, 4 for ``haswell``, 8 natively on AVX-512).
 
 Every variant must give the stored fingerprints (``tests/data/quick_boards.json``),
 which the native run gives too (``tests/test_cpu_determinism.py``). The full
@@ -49,7 +53,8 @@ VARIANTS: dict[str, tuple[dict[str, str], int]] = {
                    "ATEN_CPU_CAPABILITY": "default", "NUMBA_CPU_NAME": "generic",
                    "GLIBC_TUNABLES": _NO_FMA_LIBC}, 1),
     "avx2": ({"OPENBLAS_CORETYPE": "Haswell", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V3,
-              "ATEN_CPU_CAPABILITY": "avx2"}, 1),
+              "ATEN_CPU_CAPABILITY": "avx2", "NUMBA_CPU_NAME": "haswell",
+              "NUMBA_CPU_FEATURES": ""}, 1),
     # The combination the reproducibility issue names.
     "sandybridge": ({"OPENBLAS_CORETYPE": "Sandybridge", "NPY_DISABLE_CPU_FEATURES": _ABOVE_V2,
                      "ATEN_CPU_CAPABILITY": "default", "NUMBA_CPU_NAME": "generic"}, 2),
@@ -78,6 +83,7 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
         board = run_leaderboard(make[name][full](), workers=workers, progress=False)
         out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
     check_threads_give_the_same_bits()
+    check_lanes_give_the_same_bits()
     return out
 
 
@@ -102,6 +108,30 @@ def check_threads_give_the_same_bits() -> None:
 
     threads = min(2, int(numba.config.NUMBA_NUM_THREADS))
     assert rollout(1) == rollout(threads), "parallel drive steps differ from the serial ones"
+
+
+def check_lanes_give_the_same_bits() -> None:
+    """A training env's steps in SIMD lanes equal its plain steps here, on one and on
+    two of numba's threads; AssertionError otherwise."""
+    import numba
+    import numpy as np
+
+    from stepdamp_env.env import StepperDampV1VectorEnv
+
+    def rollout(simd: bool, threads: int) -> bytes:
+        env = StepperDampV1VectorEnv(num_envs=37, num_threads=threads, simd=simd, agent_hz=250.0,
+                                     action_mode="harmonic", randomize=True)
+        obs, _ = env.reset(seed=9)
+        rng = np.random.default_rng(9)
+        out = [obs.tobytes()]
+        for _ in range(10):
+            obs, reward, _, _, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+            out += [obs.tobytes(), reward.tobytes()]
+        return b"".join(out)
+
+    plain = rollout(False, 1)
+    for threads in {1, min(2, int(numba.config.NUMBA_NUM_THREADS))}:
+        assert rollout(True, threads) == plain, "SIMD lanes differ from the plain steps"
 
 
 def start_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False

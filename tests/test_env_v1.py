@@ -295,6 +295,29 @@ def test_vector_envs_on_two_threads_give_the_same_bits(kwargs):
         assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
 
 
+@pytest.mark.parametrize("kwargs", [{}, {"action_mode": "harmonic", "randomize": True},
+                                    {"velocity_estimator": "kalman", "randomize": True}])
+def test_the_vector_env_in_simd_lanes_gives_the_same_bits(kwargs):
+    from stepdamp_env.lanes import simd_by_default
+
+    # 37 drives: a full group of lanes and part of one; the Kalman filter is not
+    # the lanes' variant, so the kernel takes those drives over.
+    threads = min(2, __import__("numba").config.NUMBA_NUM_THREADS)
+    opts = {"agent_hz": 500.0, **kwargs}
+    plain = _rollout(lambda: StepperDampV1VectorEnv(num_envs=37, simd=False, **opts), steps=15)
+    assert StepperDampV1VectorEnv(num_envs=37, **opts).simd == simd_by_default(37)
+    assert not StepperDampV1VectorEnv(num_envs=31, **opts).simd
+    for t in (1, threads):
+        lanes = _rollout(lambda: StepperDampV1VectorEnv(num_envs=37, simd=True, num_threads=t,
+                                                        **opts), steps=15)
+        assert all(np.array_equal(a, b) for a, b in zip(plain, lanes, strict=True))
+
+
+def test_simd_is_checked_with_one_line():
+    with pytest.raises(ParameterError, match=r"^simd='yes': allowed are True, False and None"):
+        StepperDampV1VectorEnv(num_envs=2, simd="yes")
+
+
 def test_num_threads_is_checked_with_one_line():
     import numba
 

@@ -55,6 +55,18 @@ def check_num_threads(num_threads: Any) -> int:
     return int(num_threads)
 
 
+def check_simd(simd: Any, num_envs: int) -> bool:
+    """Check a vector env's ``simd``: True, False or None (``lanes.simd_by_default``)."""
+    from ..lanes import LANES, simd_by_default
+
+    if simd is None:
+        return simd_by_default(num_envs)
+    if not isinstance(simd, (bool, np.bool_)):
+        raise ParameterError(f"simd={simd!r}: allowed are True, False and None (on from {LANES} "
+                             "drives up on CPUs with AVX2)")
+    return bool(simd)
+
+
 def reseed(rngs: list[np.random.Generator | None], seed: Any, options: dict[str, Any] | None,
            first: bool) -> np.ndarray:
     """Seed the generators of a vector reset in place; returns the mask of drives to reset.

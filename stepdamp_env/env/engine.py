@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from .. import kernel as K
+from .. import lanes
 from ..params import ParameterError, SystemParams
 from ..simulation import RunMetrics, merge_accumulator_rows, metrics_from_accumulators
 from .actions import action_error, as_action
@@ -116,6 +117,8 @@ class DriveBatch:
     #: numba threads a step spreads the drives over (1: the serial loop); at most
     #: numba's thread count where it steps (an unpickled env may meet fewer).
     num_threads = 1
+    #: step the drives in SIMD lanes (:mod:`stepdamp_env.lanes`): the same bits.
+    simd = False
 
     def __init__(self, task: EnvTask, n: int) -> None:
         self.task = task
@@ -206,13 +209,21 @@ class DriveBatch:
             before = numba.get_num_threads()
             numba.set_num_threads(min(self.num_threads, numba.config.NUMBA_NUM_THREADS))
             try:
-                if self.task.law_actions:
+                if self.simd and self.task.law_actions:
+                    lanes.run_batch_law_lanes_parallel(self.c, self.s, self.acc, self.u, self.law, n)
+                elif self.simd:
+                    lanes.run_batch_lanes_parallel(self.c, self.s, self.acc, self.u, n)
+                elif self.task.law_actions:
                     K.run_batch_law_parallel(self.c, self.s, self.acc, self.u, self.law, n)
                 else:
                     K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
             finally:
                 numba.set_num_threads(before)
             _ForkState.parallel_used = True
+        elif self.simd and self.task.law_actions:
+            lanes.run_batch_law_lanes(self.c, self.s, self.acc, self.u, self.law, n)
+        elif self.simd:
+            lanes.run_batch_lanes(self.c, self.s, self.acc, self.u, n)
         elif self.task.law_actions:
             K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:

@@ -1,0 +1,171 @@
+"""SIMD across drives (``stepdamp_env.lanes``): the kernel's bits, vectorised.
+
+The branch-free pieces equal the kernel's branchy ones bit for bit on their
+domain; a batch stepped in lanes equals ``kernel.run_batch`` (and ``run_batch_law``)
+bit for bit, for drives of the lanes' variant and for every other drive, which the
+kernel runs again; and LLVM really did vectorise the loops over lanes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from stepdamp_env import fixedmath as fm
+from stepdamp_env import kernel as K
+from stepdamp_env import lanes
+from stepdamp_env.params import load_system
+from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
+                                     new_accumulators)
+
+RNG = np.random.default_rng(77)
+
+
+@numba.njit
+def _sincos_both(x):
+    out = np.empty((x.size, 4))
+    for i in range(x.size):
+        out[i, 0], out[i, 1] = fm.sincos(x[i])
+        out[i, 2], out[i, 3] = fm.sincos_lane(x[i])
+    return out
+
+
+@numba.njit
+def _shift_both(x0, delta):
+    out = np.empty((x0.size, 4))
+    for i in range(x0.size):
+        s0, c0 = fm.sincos(x0[i])
+        out[i, 0], out[i, 1] = fm.sincos_shifted(x0[i], s0, c0, delta[i])
+        out[i, 2], out[i, 3] = fm.sincos_rotated(s0, c0, delta[i])
+    return out
+
+
+@numba.njit
+def _log_both(x):
+    out = np.empty((x.size, 2))
+    for i in range(x.size):
+        out[i, 0] = fm.log(x[i])
+        out[i, 1] = fm.log_lane(x[i])
+    return out
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a).view(np.uint64)
+
+
+def test_sincos_lane_is_sincos_below_1e6():
+    x = np.concatenate([RNG.uniform(-1e6, 1e6, 20000), RNG.uniform(-10, 10, 20000),
+                        np.arange(-64, 65) * (math.pi / 4), [0.0, -0.0, 5e-324, -1e-300, 999999.9]])
+    out = _sincos_both(x)
+    assert np.array_equal(_bits(out[:, :2]), _bits(out[:, 2:]))
+    assert math.copysign(1.0, _sincos_both(np.array([-0.0]))[0, 2]) == -1.0
+
+
+def test_sincos_rotated_is_sincos_shifted_up_to_an_eighth():
+    x0 = RNG.uniform(-1e4, 1e4, 20000)
+    delta = RNG.uniform(-0.125, 0.125, 20000)
+    out = _shift_both(x0, delta)
+    assert np.array_equal(_bits(out[:, :2]), _bits(out[:, 2:]))
+
+
+def test_log_lane_is_log_for_positive_normal_numbers():
+    x = np.concatenate([RNG.random(20000), np.exp(RNG.uniform(-700, 700, 20000)),
+                        [1.0, 0.5, 2.0, 2.0 ** -53, 2.0 ** -1022, np.nextafter(1.0, 0.0),
+                         math.sqrt(0.5), np.nextafter(math.sqrt(0.5), 1.0)]])
+    out = _log_both(x)
+    assert np.array_equal(_bits(out[:, 0]), _bits(out[:, 1]))
+
+
+def _batch(n: int):
+    """n drives: mostly the lanes' variant (noise on some, inputs on some), and
+    every other variant the kernel must take over."""
+    names = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
+    configs, states = [], []
+    for i in range(n):
+        system = load_system(names[i % len(names)])
+        kind = i % 11
+        settings = RunSettings(noise_seed=i)
+        profile = SpeedProfile(0.2 + 0.13 * i)
+        if kind == 1:
+            system = system.replace(current_noise_a=0.02)
+        elif kind == 2:
+            settings = RunSettings(mode="servo", base_controller="patent-ff")
+        elif kind == 3:
+            system = system.replace(drive_mode="voltage")
+        elif kind == 4:
+            settings = RunSettings(velocity_estimator="kalman")
+        elif kind == 5:
+            settings = RunSettings(velocity_estimator="back-emf")
+        elif kind == 6:
+            profile = SpeedProfile(2.0, kind="move", distance_rev=0.3)
+        elif kind == 7:
+            settings = RunSettings(substeps=2)
+        elif kind == 8:
+            settings = RunSettings(base_controller="patent-ff")
+        elif kind == 9:
+            profile = SpeedProfile(0.0)       # at rest: the rotor sticks
+        c = build_config(system, profile, settings, window_start_s=0.02)
+        s = initial_state(c, theta0=2.5e4 if kind == 10 else 0.0)   # Nr*theta beyond 1e6 rad
+        configs.append(c)
+        states.append(s)
+    inputs = np.zeros((n, len(K.INPUT)))
+    inputs[1::3] = RNG.normal(0.0, 0.01, inputs[1::3].shape)
+    return np.array(configs), np.array(states), new_accumulators(n), inputs
+
+
+def _laws(n: int) -> np.ndarray:
+    laws = np.zeros((n, len(K.LAW)))
+    laws[:, K.LAW.KV] = RNG.uniform(0.0, 0.05, n)
+    laws[:, K.LAW.KP] = RNG.uniform(0.0, 0.5, n)
+    laws[::2, K.LAW.KR1:K.LAW.KI4 + 1] = RNG.uniform(-50.0, 50.0, (len(laws[::2]), 6))
+    laws[:, K.LAW.HP_ALPHA] = 0.01
+    laws[:, K.LAW.LIMIT] = RNG.choice([0.01, 0.3], n)     # some clamp
+    return laws
+
+
+@pytest.mark.parametrize("with_law", [False, True])
+def test_a_batch_in_lanes_is_the_kernels_batch(with_law):
+    n = lanes.LANES + 5                 # a full group of lanes and a part of one
+    c, s, a, u = _batch(n)
+    laws = _laws(n)
+    got = [s.copy(), a.copy(), laws.copy()]
+    want = [s.copy(), a.copy(), laws.copy()]
+    again = 0
+    for periods in (1, 400, 1600):      # chunked calls, as an env steps
+        if with_law:
+            K.run_batch_law(c, want[0], want[1], u, want[2], periods)
+            again += lanes.run_batch_law_lanes(c, got[0], got[1], u, got[2], periods)
+        else:
+            K.run_batch(c, want[0], want[1], u, periods)
+            again += lanes.run_batch_lanes(c, got[0], got[1], u, periods)
+    for x, y in zip(got, want):
+        assert np.array_equal(_bits(x), _bits(y))
+    # The kernel ran the other variants' drives, and those beyond 1e6 rad, no others.
+    first = (np.arange(n) // lanes.LANES) * lanes.LANES
+    others = sum(not lanes.in_lanes(c[i], int(c[first[i], K.CONFIG.SUBSTEPS])) for i in range(n))
+    far = sum(i % 11 == 10 for i in range(n))
+    assert again == (others + far) * 2001
+    # The drives really moved and really stuck.
+    assert np.all(np.isfinite(got[0])) and got[1][0, K.ACC.COUNT] > 0
+    assert got[0][9, K.STATE.OMEGA] == 0.0
+
+
+def test_the_loops_over_lanes_are_vectorised():
+    # Compiled afresh (cached code cannot be inspected); packed double multiplies
+    # are mulpd (SSE2) or vmulpd (AVX, AVX-512).
+    w = np.zeros(lanes.workspace_size())
+    for fn in (lanes.control_lanes, lanes.plant_lanes):
+        fresh = numba.njit(error_model="numpy")(fn.py_func)
+        fresh(w, None) if fn is lanes.control_lanes else fresh(w)
+        asm = "".join(fresh.inspect_asm().values())
+        assert "mulpd" in asm, f"{fn.__name__}: no packed multiply"
+
+
+def test_lanes_give_up_no_drive_of_their_variant():
+    c, s, a, u = _batch(lanes.LANES)
+    keep = np.array([i % 11 in (0, 1, 8) for i in range(lanes.LANES)])
+    c, s, a, u = c[keep], s[keep], a[keep], u[keep]
+    assert lanes.run_batch_lanes(c, s, a, u, 500) == 0
