@@ -100,6 +100,12 @@ def log(x):
     if m < _SQRT_HALF:
         m = 2.0 * m
         e -= 1
+    return _log_reduced(m, e)
+
+
+@_inline
+def _log_reduced(m, e):
+    """log(m 2**e) for m in [sqrt(1/2), sqrt(2)): fdlibm's polynomial."""
     f = m - 1.0
     k = float(e)
     s = f / (2.0 + f)
@@ -143,16 +149,7 @@ def log_lane(x):
     small = m < _SQRT_HALF
     m = 2.0 * m if small else m
     e = e - 1 if small else e
-    f = m - 1.0
-    k = float(e)
-    s = f / (2.0 + f)
-    z = s * s
-    w = z * z
-    t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
-    t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
-    r = t2 + t1
-    hfsq = 0.5 * f * f
-    return k * _LN2_HI - ((hfsq - (s * (hfsq + r) + k * _LN2_LO)) - f)
+    return _log_reduced(m, e)
 
 
 # --- sin, cos (Cody-Waite reduction to [-pi/4, pi/4], Taylor polynomials) ----
@@ -183,12 +180,7 @@ def sincos(x):
     if x == 0.0:                         # sin(-0) = -0
         return x, 1.0
     k = math.floor(x * _TWO_OVER_PI + 0.5)
-    r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
-    r2 = r * r
-    sp = r + r * r2 * (_S3 + r2 * (_S5 + r2 * (_S7 + r2 * (_S9 + r2 * (_S11 + r2 * (
-        _S13 + r2 * _S15))))))
-    cp = 1.0 + r2 * (_C2 + r2 * (_C4 + r2 * (_C6 + r2 * (_C8 + r2 * (_C10 + r2 * (
-        _C12 + r2 * (_C14 + r2 * _C16)))))))
+    sp, cp = _sincos_reduced(x, k)
     quadrant = int(k) & 3
     if quadrant == 0:
         return sp, cp
@@ -197,6 +189,18 @@ def sincos(x):
     if quadrant == 2:
         return -sp, -cp
     return -cp, sp
+
+
+@_inline
+def _sincos_reduced(x, k):
+    """sin and cos of r = x - k pi/2 (|r| <= pi/4): Cody-Waite, then the polynomials."""
+    r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
+    r2 = r * r
+    sp = r + r * r2 * (_S3 + r2 * (_S5 + r2 * (_S7 + r2 * (_S9 + r2 * (_S11 + r2 * (
+        _S13 + r2 * _S15))))))
+    cp = 1.0 + r2 * (_C2 + r2 * (_C4 + r2 * (_C6 + r2 * (_C8 + r2 * (_C10 + r2 * (
+        _C12 + r2 * (_C14 + r2 * _C16)))))))
+    return sp, cp
 
 
 @_inline
@@ -234,12 +238,7 @@ def sincos_lane(x):
     NaN, the caller must use :func:`sincos`.
     """
     k = np.floor(x * _TWO_OVER_PI + 0.5)
-    r = ((x - k * _PIO2_HI) - k * _PIO2_MID) - k * _PIO2_LO
-    r2 = r * r
-    sp = r + r * r2 * (_S3 + r2 * (_S5 + r2 * (_S7 + r2 * (_S9 + r2 * (_S11 + r2 * (
-        _S13 + r2 * _S15))))))
-    cp = 1.0 + r2 * (_C2 + r2 * (_C4 + r2 * (_C6 + r2 * (_C8 + r2 * (_C10 + r2 * (
-        _C12 + r2 * (_C14 + r2 * _C16)))))))
+    sp, cp = _sincos_reduced(x, k)
     quadrant = k - 4.0 * np.floor(k * 0.25)
     s = sp if quadrant == 0.0 else (cp if quadrant == 1.0 else (-sp if quadrant == 2.0 else -cp))
     c = cp if quadrant == 0.0 else (-sp if quadrant == 1.0 else (-cp if quadrant == 2.0 else sp))

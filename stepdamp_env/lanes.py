@@ -1,23 +1,25 @@
-"""Experimental: the kernel with SIMD across drives (structure of arrays).
+"""The kernel with SIMD across drives (structure of arrays).
 
 :func:`run_batch_lanes` advances a batch of drives like :func:`kernel.run_batch`
 and gives the same bits, but steps ``LANES`` drives at once: each field of the
-drives' CONFIG, STATE, ACC and INPUT rows is one row of a workspace, so that a
-loop over the drives is a loop over contiguous lanes that LLVM vectorises (8
+drives' CONFIG, STATE, ACC, INPUT and LAW rows is one row of a workspace, so that
+a loop over the drives is a loop over contiguous lanes that LLVM vectorises (8
 doubles per AVX-512 instruction, 4 per AVX2). The arithmetic per drive is the
 kernel's, in the kernel's order (no FMA, no reassociation), so vectorising
 cannot change a bit.
 
-Only one variant of the drive runs in lanes, the one ``benchmarks/bench_sim.py``
-times: open loop, DQ current loops, the encoder's low-pass velocity, current
-sensors with or without noise, a constant-speed profile, no damping law, one substep count per call.
-Each period, a drive that is not of this variant, or that leaves the branch-free
-path (an angle beyond 1e6 rad for :func:`fixedmath.sincos_lane`, an RK4 stage
-shift beyond 1/8 rad for :func:`fixedmath.sincos_rotated`, a NaN), is run again
-from its state at the period's start by the kernel's own :func:`kernel.run_periods`.
+Lanes run one variant of the drive, v1's default: open loop, DQ current loops,
+the encoder's low-pass velocity, current sensors with or without noise, a
+constant-speed profile, with or without the damping law
+(:func:`run_batch_law_lanes`), one substep count per group of LANES. A drive of
+another variant is run by the kernel's own :func:`kernel.run_periods` for the
+whole call. A drive that leaves the branch-free path in a period (an angle
+beyond 1e6 rad for :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8
+rad for :func:`fixedmath.sincos_rotated`, a NaN) is run again by the kernel
+from its state at the period's start.
 
-Not used by the envs or the board (docs/performance.md, "SIMD across drives",
-has the measurement and what adopting it would take).
+``StepperDampV1VectorEnv(simd=...)`` steps its drives here; the board does not
+(docs/performance.md, "SIMD across drives", has the measurements).
 """
 
 from __future__ import annotations
@@ -97,18 +99,19 @@ def simd_by_default(num_drives: int) -> bool:
     """Whether a vector env of ``num_drives`` drives steps in lanes unless told:
     from LANES drives up, where numba compiles for AVX2 or wider. With SSE4.2's
     two doubles per vector the lanes are no faster than the kernel
-    (``benchmarks/bench_simd.py``)."""
-    import llvmlite.binding as ll
+    (``benchmarks/bench_simd.py``). A CPU named in ``NUMBA_CPU_NAME`` without
+    ``NUMBA_CPU_FEATURES`` counts as unknown: off."""
     from numba.core import config
+    from numba.core.codegen import get_host_cpu_features
 
     if num_drives < LANES:
         return False
     if config.CPU_FEATURES is not None:
         features = config.CPU_FEATURES
     elif config.CPU_NAME is not None:
-        return False            # a CPU named without features: not known here
+        return False
     else:
-        features = ll.get_host_cpu_features().flatten()
+        features = get_host_cpu_features()      # numba's: NUMBA_ENABLE_AVX=0 drops AVX
     return "+avx2" in features.split(",")
 
 
@@ -317,13 +320,25 @@ def _run(configs, states, accs, inputs, laws, n_periods):
     for first in range(0, configs.shape[0], n):
         m = min(n, configs.shape[0] - first)
         n_sub = int(configs[first, CONFIG.SUBSTEPS])
+        # Drives of another variant: the kernel, for the whole call.
+        fixed = np.zeros(n, dtype=np.bool_)
+        for d in range(m):
+            i = first + d
+            fixed[d] = not in_lanes(configs[i], n_sub)
+            if fixed[d]:
+                again += n_periods
+                if laws is None:
+                    run_periods(configs[i], states[i], accs[i], inputs[i], n_periods, empty, every)
+                else:
+                    run_periods_law(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods,
+                                    empty, every)
+        if fixed[:m].all():
+            continue
         _load(w, first, configs, ROW.CFG, m)
         _load(w, first, states, ROW.ST, m)
         _load(w, first, accs, ROW.AC, m)
         _load(w, first, inputs, ROW.IN, m)
-        fixed = np.zeros(n, dtype=np.bool_)
         for d in range(n):
-            fixed[d] = not in_lanes(configs[first + (d if d < m else 0)], n_sub)
             sin_a, cos_a = sincos(w[_st(STATE.PARK_ANGLE, d)])
             w[ROW.SIN * n + d] = sin_a
             w[ROW.COS * n + d] = cos_a
@@ -349,7 +364,7 @@ def _run(configs, states, accs, inputs, laws, n_periods):
             for _ in range(n_sub):
                 plant_lanes(w)
             for d in range(m):
-                if fixed[d] or w[ROW.RARE * n + d] != 0.0:
+                if not fixed[d] and w[ROW.RARE * n + d] != 0.0:
                     # The kernel runs this drive's period again from its start.
                     again += 1
                     for j in range(len(STATE)):
@@ -373,6 +388,8 @@ def _run(configs, states, accs, inputs, laws, n_periods):
                     w[ROW.SIN * n + d] = sin_a
                     w[ROW.COS * n + d] = cos_a
         for d in range(m):
+            if fixed[d]:
+                continue
             for j in range(len(STATE)):
                 states[first + d, j] = w[(ROW.ST + j) * n + d]
             for j in range(len(ACC)):
@@ -388,8 +405,9 @@ def run_batch_lanes(configs, states, accs, inputs, n_periods):
     """:func:`kernel.run_batch`, LANES drives at a time; the same bits.
 
     A drive whose substep count is not that of the first drive of its group of
-    LANES, or that is not of the lanes' variant, runs through the kernel, one
-    period at a time. Returns the number of drive-periods the kernel ran.
+    LANES, or that is not of the lanes' variant, runs through the kernel for the
+    whole call. Returns the number of drive-periods the kernel ran (those, and
+    the periods run again).
     """
     return _run(configs, states, accs, inputs, None, n_periods)
 

@@ -87,24 +87,30 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
     return out
 
 
-def check_threads_give_the_same_bits() -> None:
-    """A training env's steps on numba's threads equal its serial steps here (the
-    serial ones are pinned by the boards above); AssertionError otherwise."""
-    import numba
+def _v1_rollout(seed: int, steps: int, **kwargs: Any) -> bytes:
+    """Observations and rewards of a v1 vector env (agent at 250 Hz) under seeded
+    random actions, as bytes."""
     import numpy as np
 
     from stepdamp_env.env import StepperDampV1VectorEnv
 
+    env = StepperDampV1VectorEnv(agent_hz=250.0, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = [obs.tobytes()]
+    for _ in range(steps):
+        obs, reward, _, _, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        out += [obs.tobytes(), reward.tobytes()]
+    return b"".join(out)
+
+
+def check_threads_give_the_same_bits() -> None:
+    """A training env's steps on numba's threads equal its serial steps here (the
+    serial ones are pinned by the boards above); AssertionError otherwise."""
+    import numba
+
     def rollout(threads: int) -> bytes:
-        env = StepperDampV1VectorEnv(num_envs=4, num_threads=threads, agent_hz=250.0,
-                                     randomize=True)
-        obs, _ = env.reset(seed=5)
-        rng = np.random.default_rng(5)
-        out = [obs.tobytes()]
-        for _ in range(20):
-            obs, reward, _, _, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
-            out += [obs.tobytes(), reward.tobytes()]
-        return b"".join(out)
+        return _v1_rollout(5, 20, num_envs=4, num_threads=threads, randomize=True)
 
     threads = min(2, int(numba.config.NUMBA_NUM_THREADS))
     assert rollout(1) == rollout(threads), "parallel drive steps differ from the serial ones"
@@ -114,24 +120,23 @@ def check_lanes_give_the_same_bits() -> None:
     """A training env's steps in SIMD lanes equal its plain steps here, on one and on
     two of numba's threads; AssertionError otherwise."""
     import numba
-    import numpy as np
 
-    from stepdamp_env.env import StepperDampV1VectorEnv
+    def rollout(simd: bool, threads: int, mode: str) -> bytes:
+        return _v1_rollout(9, 10, num_envs=37, num_threads=threads, simd=simd, action_mode=mode,
+                           randomize=True)
 
-    def rollout(simd: bool, threads: int) -> bytes:
-        env = StepperDampV1VectorEnv(num_envs=37, num_threads=threads, simd=simd, agent_hz=250.0,
-                                     action_mode="harmonic", randomize=True)
-        obs, _ = env.reset(seed=9)
-        rng = np.random.default_rng(9)
-        out = [obs.tobytes()]
-        for _ in range(10):
-            obs, reward, _, _, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
-            out += [obs.tobytes(), reward.tobytes()]
-        return b"".join(out)
+    for mode in ("harmonic", "damping-gains"):           # the plain loop, the law's
+        plain = rollout(False, 1, mode)
+        for threads in {1, min(2, int(numba.config.NUMBA_NUM_THREADS))}:
+            assert rollout(True, threads, mode) == plain, f"SIMD lanes differ ({mode})"
 
-    plain = rollout(False, 1)
-    for threads in {1, min(2, int(numba.config.NUMBA_NUM_THREADS))}:
-        assert rollout(True, threads) == plain, "SIMD lanes differ from the plain steps"
+
+def runs_here(name: str) -> bool:
+    """False for a variant whose numba code needs an instruction set this CPU lacks."""
+    from numba.core.codegen import get_host_cpu_features
+
+    needs = {"avx2": "+avx2"}.get(name)
+    return needs is None or needs in get_host_cpu_features().split(",")
 
 
 def start_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False

@@ -29,7 +29,7 @@ EMULATED = ("x86-64-v2", "avx2", "skylakex")
 def emulated():
     """The emulated variants, started together (each one worker: side by side on
     two cores, in about half the time one after the other)."""
-    procs = {name: V.start_variant(name) for name in EMULATED}
+    procs = {name: V.start_variant(name) for name in EMULATED if V.runs_here(name)}
     yield procs
     for proc in procs.values():
         if proc.poll() is None:
@@ -39,6 +39,8 @@ def emulated():
 
 @pytest.mark.parametrize("variant", EMULATED)
 def test_the_quick_boards_on_an_emulated_cpu_are_the_stored_ones(variant, emulated):
+    if variant not in emulated:
+        pytest.skip(f"{variant}: this CPU cannot run its code")
     assert V.differences(V.stored(), V.finish_variant(emulated[variant])) == []
 
 

@@ -205,7 +205,9 @@ class DriveBatch:
                                   trace, 1)
             else:
                 K.run_periods(self.c[0], self.s[0], self.acc[0], self.u[0], n, trace, 1)
-        elif self.num_threads > 1 and self.n > 1 and not _ForkState.after_parallel:
+        elif (self.num_threads > 1 and self.n > (lanes.LANES if self.simd else 1)
+              and not _ForkState.after_parallel):
+            # (In lanes, one group of LANES drives is one thread's work.)
             before = numba.get_num_threads()
             numba.set_num_threads(min(self.num_threads, numba.config.NUMBA_NUM_THREADS))
             try:

@@ -377,8 +377,9 @@ class StepperDampV1VectorEnv(VectorEnv):
     ``infos["final_info"]``). ``infos`` holds the scalar env's step info as
     arrays with ``_key`` masks. Rendering: None only.
     ``num_threads`` (default 1) spreads each step's drives over that many of
-    numba's threads (``kernel.run_batch_parallel``); a drive's numbers are the
-    same for any count. ``simd`` steps the drives in SIMD lanes, LANES (32) at a
+    numba's threads (``kernel.run_batch_parallel``, or groups of 32 drives in
+    lanes); a drive's numbers are the same for any count. ``simd`` steps the
+    drives in SIMD lanes, LANES (32) at a
     time (:mod:`stepdamp_env.lanes`): the same numbers, 2.3-4x faster per core
     for open-loop current-mode drives with the low-pass velocity estimate (the
     default options); None (default): on from 32 drives up where numba compiles
