@@ -211,27 +211,26 @@ class DriveBatch:
             before = numba.get_num_threads()
             numba.set_num_threads(min(self.num_threads, numba.config.NUMBA_NUM_THREADS))
             try:
-                if self.simd and self.task.law_actions:
-                    lanes.run_batch_law_lanes_parallel(self.c, self.s, self.acc, self.u, self.law, n)
-                elif self.simd:
-                    lanes.run_batch_lanes_parallel(self.c, self.s, self.acc, self.u, n)
-                elif self.task.law_actions:
-                    K.run_batch_law_parallel(self.c, self.s, self.acc, self.u, self.law, n)
-                else:
-                    K.run_batch_parallel(self.c, self.s, self.acc, self.u, n)
+                self._batch_step(n, parallel=True)
             finally:
                 numba.set_num_threads(before)
             _ForkState.parallel_used = True
-        elif self.simd and self.task.law_actions:
-            lanes.run_batch_law_lanes(self.c, self.s, self.acc, self.u, self.law, n)
-        elif self.simd:
-            lanes.run_batch_lanes(self.c, self.s, self.acc, self.u, n)
-        elif self.task.law_actions:
-            K.run_batch_law(self.c, self.s, self.acc, self.u, self.law, n)
         else:
-            K.run_batch(self.c, self.s, self.acc, self.u, n)
+            self._batch_step(n, parallel=False)
         self.task.observe(self, None)
         self.t += 1
+
+    def _batch_step(self, n: int, parallel: bool) -> None:
+        """``n`` PWM periods of every drive: kernel.run_batch[_law][_parallel], or
+        lanes.run_batch[_law]_lanes[_parallel] (looked up at each call)."""
+        law = self.task.law_actions
+        name = (("run_batch_law" if law else "run_batch") + ("_lanes" if self.simd else "")
+                + ("_parallel" if parallel else ""))
+        step = getattr(lanes if self.simd else K, name)
+        if law:
+            step(self.c, self.s, self.acc, self.u, self.law, n)
+        else:
+            step(self.c, self.s, self.acc, self.u, n)
 
     def advance(self) -> tuple[np.ndarray, np.ndarray]:
         """Run one agent step of every drive; returns (terminated, truncated) masks."""
