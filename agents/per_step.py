@@ -24,7 +24,9 @@ Pieces:
   episodes for ``repeat`` consecutive resets (ARS's candidates are then
   compared on common motors, speeds and noise: the motor-to-motor spread of
   the return is ten times the effect of a gain);
-* :class:`ResidualARS` and :data:`ALGOS` (``ars``, ``ppo``, ``sac``, ``td3``);
+* :class:`ResidualARS`, :class:`ResidualRecurrentPPO` (sb3-contrib's
+  RecurrentPPO, an LSTM before PPO's heads, its action net zero; ``ppo_lstm``)
+  and :data:`ALGOS` (``ars``, ``ppo``, ``ppo_lstm``, ``sac``, ``td3``);
 * :class:`StepAgent`: a trained model as a leaderboard policy (``env_id`` =
   ``StepperDamp-v1``), its options from its ``.agent.json``.
 """
@@ -48,7 +50,8 @@ from .task import ENV_ID_V1, INTERFACE_OPTIONS, REFERENCE_TASK, task_options
 
 __all__ = ["ENV_ID_V1", "REFERENCE_TASK", "INTERFACE_OPTIONS", "task_options", "PresetsVecEnv",
            "SameEpisodes",
-           "make_training_env", "ResidualARS", "ALGOS", "POLICIES", "StepAgent"]
+           "make_training_env", "ResidualARS", "ResidualRecurrentPPO", "ResidualLstmPolicy",
+           "ALGOS", "POLICIES", "StepAgent"]
 
 
 class PresetsVecEnv(WholeVecEnv):
@@ -176,15 +179,54 @@ def _residual_ars():
     return ResidualARS
 
 
+@functools.cache
+def _residual_recurrent_ppo():
+    import torch as th
+    from sb3_contrib import RecurrentPPO
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+
+    from .residual import DEFAULT_LOG_STD_INIT
+
+    class ResidualLstmPolicy(RecurrentActorCriticPolicy):
+        """sb3-contrib's LSTM actor-critic with a zero ``action_net`` (its
+        deterministic action is 0, the base controller, whatever the LSTM's
+        state) and ``log_std_init`` -3 by default."""
+
+        def __init__(self, *args: Any, log_std_init: float = DEFAULT_LOG_STD_INIT,
+                     **kwargs: Any) -> None:
+            super().__init__(*args, log_std_init=log_std_init, **kwargs)
+
+        def _build(self, lr_schedule: Any) -> None:
+            super()._build(lr_schedule)
+            with th.no_grad():
+                self.action_net.weight.zero_()
+                self.action_net.bias.zero_()
+
+    class ResidualRecurrentPPO(RecurrentPPO):
+        """sb3-contrib's RecurrentPPO, ``policy="ResidualLstmPolicy"`` by default."""
+
+        policy_aliases = {**RecurrentPPO.policy_aliases, "ResidualLstmPolicy": ResidualLstmPolicy}
+
+        def __init__(self, policy: Any = "ResidualLstmPolicy", *args: Any, **kwargs: Any) -> None:
+            super().__init__(policy, *args, **kwargs)
+
+    return ResidualRecurrentPPO, ResidualLstmPolicy
+
+
 def __getattr__(name: str) -> Any:
     # sb3-contrib and the SB3 algorithms load on first use.
     if name == "ResidualARS":
         return _residual_ars()
+    if name in ("ResidualRecurrentPPO", "ResidualLstmPolicy"):
+        return _residual_recurrent_ppo()[name == "ResidualLstmPolicy"]
     if name in ("ALGOS", "POLICIES"):
         from .residual import ALGOS as V0_ALGOS, POLICIES as V0_POLICIES
 
+        rppo, lstm_policy = _residual_recurrent_ppo()
         # ARS's models name their own policy class (linear or MLP).
-        return {"ars": _residual_ars(), **V0_ALGOS} if name == "ALGOS" else dict(V0_POLICIES)
+        if name == "ALGOS":
+            return {"ars": _residual_ars(), **V0_ALGOS, "ppo_lstm": rppo}
+        return {**V0_POLICIES, "ppo_lstm": lstm_policy}
     raise AttributeError(name)
 
 
@@ -196,12 +238,17 @@ class StepAgent:
     env_id = ENV_ID_V1
 
     def __init__(self, path: str, name: str | None = None) -> None:
+        from stepdamp_env.bench.network import recurrent_network
+
         from .policy import load_agent_config, load_model, trained_suites, training_coverage
 
         self.path = path
         self.config = load_agent_config(path)
         self.name = name or self.config.get("name", "per-step-agent")
         self.model = load_model(path)
+        # A recurrent policy's memory: one row per run of the last reset.
+        self.network = recurrent_network(self.model.policy)
+        self._memory = None if self.network is None else self.network.initial_state(1)
         self.options = {k: v for k, v in self.config.get("env_options", {}).items()
                         if k in INTERFACE_OPTIONS}
         self.estimate = self.config.get("estimate", "identified")
@@ -217,17 +264,23 @@ class StepAgent:
                 "estimate": resolve_estimate(self.estimate, knowledge)}
 
     def reset(self, context: PolicyContext) -> None:
-        pass
+        self.reset_batch([context])
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        return self.act_batch(np.asarray(observation, dtype=np.float32)[None], np.zeros(1))[0]
+        return self.act_batch(np.asarray(observation, dtype=np.float32)[None],
+                              np.zeros(1, dtype=np.int64))[0]
 
     # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy).
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        pass
+        if self.network is not None:
+            self._memory = self.network.initial_state(len(contexts))
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         from stepdamp_env.bench.network import predict_rows
 
+        if self.network is not None:
+            actions = self.network.step(observations, self._memory, rows)
+            low, high = self.model.action_space.low, self.model.action_space.high
+            return np.clip(np.clip(actions, low, high).astype(np.float32), -1.0, 1.0)
         return np.clip(np.asarray(predict_rows(self.model, observations), dtype=np.float32),
                        -1.0, 1.0)

@@ -72,7 +72,7 @@ PRESETS = tuple(preset_names())
 #: The agent families, by the env they train on (``--env``).
 FAMILIES: dict[str, TrainingFamily] = {f.env_id: f for f in (PER_STEP, GAIN_SELECTOR)}
 ENV_IDS = tuple(FAMILIES)
-ALGO_CHOICES = ("ars", "ppo", "sac", "td3")
+ALGO_CHOICES = ("ars", "ppo", "ppo_lstm", "sac", "td3")
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:

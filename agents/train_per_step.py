@@ -21,7 +21,7 @@ __all__ = ["FAMILY", "PerStepTraining"]
 
 class PerStepTraining(TrainingFamily):
     env_id = ENV_ID_V1
-    algos = ("ars", "ppo", "sac", "td3")
+    algos = ("ars", "ppo", "ppo_lstm", "sac", "td3")
     kind = "per-step"
 
     def task_kwargs(self, env_kwargs: dict[str, Any] | None

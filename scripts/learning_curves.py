@@ -1,7 +1,9 @@
 """Learning curves of the committed reference agents, from their training logs.
 
 Run: ``python scripts/learning_curves.py [--out docs/figures/learning_curves.png]
-[--out-dev docs/figures/learning_curves_dev.png]``.
+[--out-dev docs/figures/learning_curves_dev.png]
+[--experiments docs/results/ablations/open-loop-v2 --out-experiments
+docs/figures/learning_curves_open_loop_dev.png]``.
 
 Two figures, one panel per entry and one line per seed, and a table printed:
 
@@ -10,7 +12,10 @@ Two figures, one panel per entry and one line per seed, and a table printed:
   validation headline IQM (ripple over undamped) against agent steps;
 * ``--out-dev``: agents selected on stepdamp-bench v3's dev split
   (``stepdamp train --select-on dev``): the dev attenuation (dB, IQM over the
-  suite's dev motors) against env steps.
+  suite's dev motors) against env steps;
+* ``--out-experiments``: the same for the training logs in ``--experiments``
+  (variants tried on dev, committed or not as entries), with the dev
+  attenuation of ``tuned-constant-gain`` given by ``--line``.
 """
 
 from __future__ import annotations
@@ -30,15 +35,16 @@ LOG = re.compile(r"^(?P<name>[a-z0-9-]+)\.seed(?P<seed>\d+)\.train_log\.json$")
 Curves = dict[str, dict[int, list[tuple[int, float]]]]
 
 
-def curves() -> tuple[Curves, Curves]:
-    """(validation headline IQM, dev attenuation dB) curves per entry and seed."""
+def curves(directory: str = REFERENCE) -> tuple[Curves, Curves]:
+    """(validation headline IQM, dev attenuation dB) curves per entry and seed of
+    the ``<name>.seed<K>.train_log.json`` files in ``directory``."""
     validation: Curves = {}
     dev: Curves = {}
-    for fname in sorted(os.listdir(REFERENCE)):
+    for fname in sorted(os.listdir(directory)):
         m = LOG.match(fname)
         if not m:
             continue
-        with open(os.path.join(REFERENCE, fname), encoding="utf-8") as fh:
+        with open(os.path.join(directory, fname), encoding="utf-8") as fh:
             log = json.load(fh)
         evals = log["evaluations"]
         on_dev = bool(evals) and "attenuation_db" in evals[0]
@@ -48,7 +54,7 @@ def curves() -> tuple[Curves, Curves]:
     return validation, dev
 
 
-def plot(data: Curves, out: str, on_dev: bool) -> None:
+def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = None) -> None:
     if not data:
         return
     # Validation: log axis (a run that blows up, TD3 at 200x its start, and one that
@@ -69,6 +75,8 @@ def plot(data: Curves, out: str, on_dev: bool) -> None:
                   + f"  (best {best:{fmt}})")
         base = next(iter(seeds.values()))[0][1]
         ax.axhline(base, color="k", ls="--", lw=1, label="step 0 (base)")
+        if line is not None:
+            ax.axhline(line[1], color="tab:red", ls=":", lw=1.2, label=line[0])
         ax.set_title(name)
         ax.set_xlabel("env steps (decisions)" if on_dev else "agent steps")
         ax.set_ylabel("dev attenuation IQM (dB)" if on_dev else
@@ -86,10 +94,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/figures/learning_curves.png")
     ap.add_argument("--out-dev", default="docs/figures/learning_curves_dev.png")
+    ap.add_argument("--experiments", default=None,
+                    help="a directory of <name>.seed<K>.train_log.json of dev runs")
+    ap.add_argument("--out-experiments", default="docs/figures/learning_curves_open_loop_dev.png")
+    ap.add_argument("--line", type=float, default=None,
+                    help="tuned-constant-gain's dev attenuation (dB), drawn in each panel")
     a = ap.parse_args()
     validation, dev = curves()
     plot(validation, a.out, on_dev=False)
     plot(dev, a.out_dev, on_dev=True)
+    if a.experiments:
+        line = None if a.line is None else (f"tuned-constant-gain {a.line:.1f} dB", a.line)
+        plot(curves(a.experiments)[1], a.out_experiments, on_dev=True, line=line)
 
 
 if __name__ == "__main__":

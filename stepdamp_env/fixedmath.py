@@ -31,7 +31,7 @@ from .fields import layout
 __all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "sincos_rotated",
            "sincos_lane", "log_lane", "float_bits", "bits_float", "atan", "atan2", "hypot", "tanh", "cexp", "cmul", "exp_array",
            "sincos_array", "dot", "weighted_rows", "lstsq", "solve", "random_walk_kalman_update",
-           "mlp_forward", "ACTIVATION"]
+           "mlp_forward", "lstm_step", "ACTIVATION"]
 
 # numba without fastmath: no reassociation, no contraction into FMA.
 _jit = njit(cache=True, error_model="numpy")
@@ -608,3 +608,31 @@ def mlp_forward(x, weights, biases, sizes, activations):
         for o in range(sizes[layers]):
             out[row, o] = a[o]
     return out
+
+
+@_jit
+def lstm_step(x, rows, h, c, w_ih, w_hh, bias):
+    """One step of a one-layer LSTM (torch's gate order i, f, g, o) for each row
+    ``r = rows[k]`` of the state: ``x[k]`` (n x d, float32 or float64) the input,
+    ``h[r]`` and ``c[r]`` (float64, H wide) the hidden and cell state, updated in
+    place. ``w_ih`` (4H x d) and ``w_hh`` (4H x H) row by row, ``bias`` (4H) the
+    sum of torch's two biases. Every sum in input order in float64."""
+    hidden = h.shape[1]
+    d = x.shape[1]
+    gates = np.empty(4 * hidden)
+    for k in range(rows.size):
+        r = rows[k]
+        for g in range(4 * hidden):
+            s = bias[g]
+            for i in range(d):
+                s += w_ih[g * d + i] * float(x[k, i])
+            for j in range(hidden):
+                s += w_hh[g * hidden + j] * h[r, j]
+            gates[g] = s
+        for j in range(hidden):
+            gi = 1.0 / (1.0 + exp(-gates[j]))
+            gf = 1.0 / (1.0 + exp(-gates[hidden + j]))
+            gg = tanh(gates[2 * hidden + j])
+            go = 1.0 / (1.0 + exp(-gates[3 * hidden + j]))
+            c[r, j] = gf * c[r, j] + gi * gg
+            h[r, j] = go * tanh(c[r, j])

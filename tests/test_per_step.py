@@ -114,14 +114,16 @@ def test_v1_runner_pwm_trace_records_every_period_and_changes_nothing():
     assert np.allclose(np.diff(rows[:, K.TRACE.T]), period, rtol=1e-6)
 
 
-@pytest.mark.parametrize("algo", ["ars", "ppo", "sac", "td3"])
+@pytest.mark.parametrize("algo", ["ars", "ppo", "ppo_lstm", "sac", "td3"])
 def test_zero_residual_reproduces_the_base_bit_for_bit(tmp_path, algo):
     """A fresh model of every algorithm acts exactly 0 and its leaderboard policy
     gives the base controller's run bit for bit."""
     env = make_training_env(MOTORS, 2, 0, task_options(SHORT))
     kwargs = {"ars": {"n_delta": 2}, "ppo": {"n_steps": 8, "batch_size": 16},
+              "ppo_lstm": {"n_steps": 8, "batch_size": 16},
               "sac": {"learning_starts": 0}, "td3": {"learning_starts": 0}}[algo]
-    policy = "LinearPolicy" if algo == "ars" else "ResidualMlpPolicy"
+    policy = {"ars": "LinearPolicy", "ppo_lstm": "ResidualLstmPolicy"}.get(algo,
+                                                                            "ResidualMlpPolicy")
     model = ALGOS[algo](policy, env, seed=1, device="cpu", **kwargs)
     obs = env.reset()
     act, _ = model.predict(obs, deterministic=True)
@@ -261,3 +263,41 @@ def test_training_on_two_threads_gives_the_same_model_and_writes_training_json(t
     for bad in (0, 4096):
         with pytest.raises(ParameterError, match=r"^--num-threads .*: allowed are the integers"):
             train(Args(algo="ppo", out=str(tmp_path / "x"), num_threads=bad, progress=False))
+
+
+def test_recurrent_policy_acts_through_its_memory_as_torch_does(tmp_path):
+    """A trained LSTM policy's deterministic actions through the package's
+    network (memory per run, any batch) equal torch's to float32 rounding over
+    whole episodes, are bit-identical between a batch and its runs one by one,
+    and depend on the memory (the same observation after different pasts)."""
+    import torch
+
+    env = make_training_env(MOTORS, 2, 0, task_options(SHORT))
+    model = ALGOS["ppo_lstm"]("ResidualLstmPolicy", env, seed=1, device="cpu", n_steps=8,
+                              batch_size=16, policy_kwargs={"lstm_hidden_size": 8,
+                                                            "net_arch": [16]})
+    with torch.no_grad():                       # a policy that acts, as after training
+        for p in model.policy.parameters():
+            p.copy_(torch.as_tensor(np.random.default_rng(3).normal(0, 0.3, p.shape)))
+    from stepdamp_env.bench.network import recurrent_network
+
+    network = recurrent_network(model.policy)
+    assert network is not None
+    rng = np.random.default_rng(4)
+    obs = rng.uniform(-2, 2, size=(12, 4, env.observation_space.shape[0])).astype(np.float32)
+    memory, state = network.initial_state(4), None
+    starts = np.ones(4)
+    for x in obs:
+        want, state = model.predict(x, state=state, episode_start=starts, deterministic=True)
+        starts = np.zeros(4)
+        got = np.clip(network.step(x, memory, np.arange(4)), -1, 1)
+        assert np.allclose(got, want, rtol=1e-4, atol=1e-5)
+    alone = network.initial_state(4)
+    for x in obs:
+        for r in (2, 0, 3, 1):
+            network.step(x[r:r + 1], alone, np.array([r]))
+    assert np.array_equal(alone[0], memory[0]) and np.array_equal(alone[1], memory[1])
+    again = network.initial_state(1)
+    first = network.step(obs[0][:1], again, np.array([0]))
+    second = network.step(obs[0][:1], again, np.array([0]))
+    assert not np.array_equal(first, second)

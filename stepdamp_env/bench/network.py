@@ -6,7 +6,9 @@ policy's deterministic action through :class:`PolicyNetwork` instead: its
 ``nn.Linear`` layers and activations, read through public modules, run by
 :func:`stepdamp_env.fixedmath.mlp_forward` (every sum in input order in
 float64, one row at a time whatever the batch). Used by every learned entry
-and by bare SB3 models on the leaderboard; training still uses torch. torch
+and by bare SB3 models on the leaderboard; :class:`RecurrentNetwork` does the
+same for sb3-contrib's LSTM policies (RecurrentPPO), whose memory the caller
+keeps per run. Training still uses torch. torch
 and SB3 are imported when a network is first read, never by importing this
 module.
 """
@@ -19,7 +21,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["PolicyNetwork", "policy_network", "predict_rows"]
+__all__ = ["PolicyNetwork", "policy_network", "predict_rows", "RecurrentNetwork",
+           "recurrent_network"]
 
 
 class PolicyNetwork:
@@ -187,3 +190,105 @@ def predict_rows(model: Any, observations: np.ndarray) -> np.ndarray:
         else:
             actions = np.clip(actions, policy.action_space.low, policy.action_space.high)
     return actions
+
+
+class RecurrentNetwork:
+    """The deterministic action of sb3-contrib's ``RecurrentActorCriticPolicy``
+    (one LSTM layer, not shared with the critic, before the actor's
+    :class:`PolicyNetwork` head), evaluated by
+    :func:`stepdamp_env.fixedmath.lstm_step` and ``mlp_forward``: the same bits
+    on every CPU and for any batch. The memory (hidden and cell state, float64)
+    is the caller's: :meth:`initial_state` for a batch of runs, :meth:`step`
+    advances the rows it is given."""
+
+    def __init__(self, lstm: Any, head: Sequence[Any]) -> None:
+        def flat(name: str) -> np.ndarray:
+            return getattr(lstm, name).detach().cpu().numpy().astype(np.float64).ravel()
+
+        if lstm.num_layers != 1 or lstm.bidirectional or lstm.proj_size or \
+                not lstm.bias or lstm.batch_first:
+            raise ValueError("only a plain one-layer LSTM is read")
+        self.hidden = int(lstm.hidden_size)
+        self.w_ih, self.w_hh = flat("weight_ih_l0"), flat("weight_hh_l0")
+        self.bias = flat("bias_ih_l0") + flat("bias_hh_l0")
+        self.head = PolicyNetwork(head, final_tanh=False)
+        if int(self.head.sizes[0]) != self.hidden:
+            raise ValueError("the head does not take the LSTM's output")
+
+    def initial_state(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Zero memory (hidden, cell) for ``n`` runs, as at an episode's start."""
+        return np.zeros((n, self.hidden)), np.zeros((n, self.hidden))
+
+    def step(self, observations: np.ndarray, memory: tuple[np.ndarray, np.ndarray],
+             rows: np.ndarray) -> np.ndarray:
+        """Raw actions (float64, k x action dim) of the observation rows of runs
+        ``rows``; their memory moves one step on, in place."""
+        from stepdamp_env.fixedmath import lstm_step, mlp_forward
+
+        h, c = memory
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        x = np.ascontiguousarray(observations, dtype=np.float32).reshape(len(rows), -1)
+        lstm_step(x, rows, h, c, self.w_ih, self.w_hh, self.bias)
+        return mlp_forward(np.ascontiguousarray(h[rows]), self.head.weights, self.head.biases,
+                           self.head.sizes, self.head.activations)
+
+
+_RECURRENT: "weakref.WeakKeyDictionary[Any, RecurrentNetwork | None]" = \
+    weakref.WeakKeyDictionary()
+
+
+def recurrent_network(policy: Any) -> RecurrentNetwork | None:
+    """The :class:`RecurrentNetwork` of a recurrent SB3 policy; None for a policy
+    without memory (:func:`predict_rows` serves those). A recurrent policy that
+    cannot be read this way is a ``ValueError``: acting without its memory would
+    be another policy."""
+    if policy in _RECURRENT:
+        return _RECURRENT[policy]
+    network = None
+    if hasattr(policy, "lstm_actor"):
+        from gymnasium import spaces
+        from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+        from stable_baselines3.common.distributions import DiagGaussianDistribution
+        from stable_baselines3.common.torch_layers import FlattenExtractor
+
+        name = type(policy).__name__
+        if not (isinstance(policy, RecurrentActorCriticPolicy) and not policy.shared_lstm and
+                isinstance(policy.action_dist, DiagGaussianDistribution) and
+                isinstance(policy.pi_features_extractor, FlattenExtractor) and
+                isinstance(policy.observation_space, spaces.Box) and
+                len(policy.observation_space.shape) == 1 and
+                type(policy).get_distribution is RecurrentActorCriticPolicy.get_distribution):
+            raise ValueError(f"{name}: a recurrent policy this package cannot evaluate "
+                             "deterministically (one LSTM layer, flat Box observations, "
+                             "Gaussian actions)")
+        network = RecurrentNetwork(policy.lstm_actor,
+                                   [*policy.mlp_extractor.policy_net, policy.action_net])
+        if not _recurrent_agrees_with_torch(policy, network):
+            raise ValueError(f"{name}: its LSTM does not give torch's actions")
+    _RECURRENT[policy] = network
+    return network
+
+
+def _recurrent_agrees_with_torch(policy: Any, network: RecurrentNetwork) -> bool:
+    """Eight steps of two runs through torch and through the network agree to
+    float32 rounding."""
+    import torch
+
+    low = np.maximum(policy.observation_space.low, -3.0)
+    high = np.minimum(policy.observation_space.high, 3.0)
+    probe = np.random.default_rng(0).uniform(low, high, size=(8, 2, low.size)).astype(np.float32)
+    policy.set_training_mode(False)
+    shape = (policy.lstm_actor.num_layers, 2, policy.lstm_actor.hidden_size)
+    state = (torch.zeros(shape), torch.zeros(shape))
+    memory = network.initial_state(2)
+    rows = np.arange(2)
+    for obs in probe:
+        with torch.no_grad():
+            dist, state = policy.get_distribution(torch.as_tensor(obs), state,
+                                                  torch.zeros(2))
+            want = dist.get_actions(deterministic=True).cpu().numpy()
+        got = network.step(obs, memory, rows)
+        if got.shape != want.reshape(got.shape).shape or not np.allclose(
+                got, want.reshape(got.shape), rtol=1e-4, atol=1e-5):
+            return False
+    return True
