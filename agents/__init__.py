@@ -1,7 +1,7 @@
 """Residual reinforcement-learning agents for StepperDamp (installed as ``stepdamp_agents``).
 
-ARS (sb3-contrib), PPO, SAC and TD3 (stable-baselines3) as residuals on the
-model-based baselines.
+ARS and RecurrentPPO (sb3-contrib), PPO, SAC and TD3 (stable-baselines3) as
+residuals on the model-based baselines.
 
 * :mod:`stepdamp_agents.per_step`: the per-step agents on ``StepperDamp-v1``
   (a decision every 10 ms on top of ff-delay-comp), their training envs and
@@ -15,7 +15,7 @@ model-based baselines.
   (:class:`stepdamp_agents.family.TrainingFamily`); :mod:`stepdamp_agents.arguments`:
   a dataclass's fields as command-line options;
 * :mod:`stepdamp_agents.policy`: loading models, the v0 agent as a leaderboard policy;
-* ``hyperparams/{ars,ppo,sac,td3}.yml``: rl-baselines3-zoo hyperparameters, keyed
+* ``hyperparams/{ars,ppo,ppo_lstm,sac,td3}.yml``: rl-baselines3-zoo hyperparameters, keyed
   by ``StepperDamp-v1`` (and ``StepperDampResidual-v0`` for the gain selector);
 * ``reference/``: the committed models, ``<entry>.seed<K>.zip`` with their
   ``.agent.json`` configs and training logs: ``ars-per-step``,
@@ -24,7 +24,8 @@ model-based baselines.
   up to 0.5.0: one PPO decision, a damping gain, every 0.1 s); and, one per
   stepdamp-bench v3 suite, selected on its dev split (training seeds 11-15),
   ``ars-open-loop``, ``ars-servo`` and ``ars-mid-band``, and with PPO
-  ``ppo-open-loop`` and ``ppo-mid-band`` (0.14.0);
+  ``ppo-open-loop`` and ``ppo-mid-band`` (0.14.0), and ``ppo-open-loop-long``
+  (0.17.0: ``ppo-open-loop`` trained for 1.5M decisions);
 * :mod:`stepdamp_agents.selection`: model selection on v3's dev split, and the
   splits a training config records.
 

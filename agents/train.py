@@ -126,7 +126,7 @@ class Args:
     option too (:mod:`stepdamp_agents.arguments`), with its help and range."""
 
     algo: str = option("ars", "algorithm (hyperparameters from agents/hyperparams/<algo>.yml; "
-                       "ars on StepperDamp-v1 only)", choices=ALGO_CHOICES)
+                       "ars and ppo_lstm on StepperDamp-v1 only)", choices=ALGO_CHOICES)
     seed: int = option(1, "torch/numpy seed; env seeds start at 1000*seed", low=0, high=999)
     seeds: tuple[int, ...] = option((), "train several seeds one after the other (e.g. 1-5 or "
                                     "1,3), each into DIR/seed<K>; replaces --seed",

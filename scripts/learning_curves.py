@@ -2,8 +2,7 @@
 
 Run: ``python scripts/learning_curves.py [--out docs/figures/learning_curves.png]
 [--out-dev docs/figures/learning_curves_dev.png]
-[--experiments docs/results/ablations/open-loop-v2 --out-experiments
-docs/figures/learning_curves_open_loop_dev.png]``.
+[--experiments DIR ... --names NAME ... --out-experiments PNG --line DB]``.
 
 Two figures, one panel per entry and one line per seed, and a table printed:
 
@@ -13,9 +12,15 @@ Two figures, one panel per entry and one line per seed, and a table printed:
 * ``--out-dev``: agents selected on stepdamp-bench v3's dev split
   (``stepdamp train --select-on dev``): the dev attenuation (dB, IQM over the
   suite's dev motors) against env steps;
-* ``--out-experiments``: the same for the training logs in ``--experiments``
-  (variants tried on dev, committed or not as entries), with the dev
-  attenuation of ``tuned-constant-gain`` given by ``--line``.
+* ``--out-experiments``: the same for the entries ``--names`` found in the
+  ``--experiments`` directories (variants tried on dev, committed as entries or
+  not), with a comparison entry's dev attenuation drawn at ``--line``. The open-loop
+  variants of 0.17.0::
+
+      python scripts/learning_curves.py --experiments agents/reference \
+          docs/results/ablations/open-loop --names ppo-open-loop ppo-open-loop-long \
+          ppo-lstm-open-loop --line 37.32 --out-experiments \
+          docs/figures/learning_curves_open_loop_dev.png
 """
 
 from __future__ import annotations
@@ -54,14 +59,16 @@ def curves(directory: str = REFERENCE) -> tuple[Curves, Curves]:
     return validation, dev
 
 
-def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = None) -> None:
+def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = None,
+         shared: bool = False) -> None:
     if not data:
         return
     # Validation: log axis (a run that blows up, TD3 at 200x its start, and one that
     # halves share a panel row); dev: dB, already logarithmic.
     cols = min(3, len(data))
     rows = -(-len(data) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False,
+                             sharex=shared, sharey=shared)
     for ax in axes.ravel()[len(data):]:
         ax.set_visible(False)
     for ax, (name, seeds) in zip(axes.ravel(), sorted(data.items())):
@@ -94,8 +101,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/figures/learning_curves.png")
     ap.add_argument("--out-dev", default="docs/figures/learning_curves_dev.png")
-    ap.add_argument("--experiments", default=None,
-                    help="a directory of <name>.seed<K>.train_log.json of dev runs")
+    ap.add_argument("--experiments", nargs="*", default=(),
+                    help="directories of <name>.seed<K>.train_log.json of dev runs")
+    ap.add_argument("--names", nargs="*", default=None,
+                    help="the entries of --experiments to draw (default: all)")
     ap.add_argument("--out-experiments", default="docs/figures/learning_curves_open_loop_dev.png")
     ap.add_argument("--line", type=float, default=None,
                     help="tuned-constant-gain's dev attenuation (dB), drawn in each panel")
@@ -105,7 +114,15 @@ def main() -> None:
     plot(dev, a.out_dev, on_dev=True)
     if a.experiments:
         line = None if a.line is None else (f"tuned-constant-gain {a.line:.1f} dB", a.line)
-        plot(curves(a.experiments)[1], a.out_experiments, on_dev=True, line=line)
+        found: Curves = {}
+        for directory in a.experiments:
+            found.update(curves(directory)[1])
+        names = a.names if a.names is not None else sorted(found)
+        missing = [n for n in names if n not in found]
+        if missing:
+            ap.error(f"--names {missing}: no dev training log in {list(a.experiments)}")
+        plot({n: found[n] for n in names}, a.out_experiments, on_dev=True, line=line,
+             shared=True)
 
 
 if __name__ == "__main__":

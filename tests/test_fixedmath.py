@@ -152,3 +152,27 @@ def test_mlp_forward_is_the_network_and_independent_of_the_batch():
     one = np.concatenate([fm.mlp_forward(x[k:k + 1], np.concatenate([w.ravel() for w in ws]),
                                          np.concatenate(bs), sizes, acts) for k in range(9)])
     assert np.array_equal(got, one)
+
+
+def test_lstm_step_is_the_lstm_cell_and_keeps_each_runs_memory():
+    """Gates i, f, g, o in torch's order: c' = f c + i g, h' = o tanh(c'), against a
+    numpy cell; the rows given move on, the others keep their memory."""
+    rng = np.random.default_rng(5)
+    d, hidden, runs = 3, 4, 3
+    w_ih = rng.normal(0, 0.5, (4 * hidden, d))
+    w_hh = rng.normal(0, 0.5, (4 * hidden, hidden))
+    bias = rng.normal(0, 0.5, 4 * hidden)
+    h, c = rng.normal(0, 0.5, (runs, hidden)), rng.normal(0, 0.5, (runs, hidden))
+    x = rng.normal(0, 1.0, (2, d))
+    rows = np.array([2, 0])
+    want_h, want_c = h.copy(), c.copy()
+    for k, r in enumerate(rows):
+        z = w_ih @ x[k] + w_hh @ h[r] + bias
+        i, f, g, o = (1 / (1 + np.exp(-z[:hidden])), 1 / (1 + np.exp(-z[hidden:2 * hidden])),
+                      np.tanh(z[2 * hidden:3 * hidden]), 1 / (1 + np.exp(-z[3 * hidden:])))
+        want_c[r] = f * c[r] + i * g
+        want_h[r] = o * np.tanh(want_c[r])
+    fm.lstm_step(x, rows, h, c, w_ih.ravel(), w_hh.ravel(), bias)
+    assert np.allclose(h, want_h, rtol=1e-13, atol=1e-15)
+    assert np.allclose(c, want_c, rtol=1e-13, atol=1e-15)
+    assert np.array_equal(h[1], want_h[1]) and np.array_equal(c[1], want_c[1])
