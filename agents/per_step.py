@@ -233,7 +233,9 @@ def __getattr__(name: str) -> Any:
 class StepAgent:
     """A per-step agent as a leaderboard policy: it runs in ``StepperDamp-v1`` with
     the base controller ff-delay-comp on the drive's ``estimate`` model and acts
-    every ``1/agent_hz`` s with the model's deterministic action."""
+    every ``1/agent_hz`` s with the model's deterministic action. A recurrent
+    model (``ppo_lstm``) keeps one memory per run, zero at :meth:`reset` or
+    :meth:`reset_batch`; :meth:`act` is the run of the last :meth:`reset`."""
 
     env_id = ENV_ID_V1
 
@@ -264,6 +266,7 @@ class StepAgent:
                 "estimate": resolve_estimate(self.estimate, knowledge)}
 
     def reset(self, context: PolicyContext) -> None:
+        # A recurrent policy's memory starts here, for the run of act().
         self.reset_batch([context])
 
     def act(self, observation: np.ndarray) -> np.ndarray:

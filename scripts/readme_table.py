@@ -39,10 +39,16 @@ def _db(e: dict) -> str:
     return f"{a['iqm']:.1f} dB [{a['ci'][0]:.1f}, {a['ci'][1]:.1f}]"
 
 
-def _versus(a: dict, b: dict) -> str:
+def _versus(a: dict, b: dict, protocol: dict) -> str:
+    from stepdamp_env.bench.protocols.v3 import improvement_interval
+
     eff = a["effect_db"][b["name"]]
+    p = improvement_interval(a, b, protocol)
+    if abs(p["p"] - a["probability_of_improvement"][b["name"]]) > 1e-9:
+        raise SystemExit(f"readme_table: P({a['name']} over {b['name']}) from the scores "
+                         "is not the board's")
     return (f"{eff['median']:+.1f} dB [{eff['ci'][0]:+.1f}, {eff['ci'][1]:+.1f}], "
-            f"P(better) {a['probability_of_improvement'][b['name']]:.2f}")
+            f"P(better) {p['p']:.2f} [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]")
 
 
 def _best(rows: list[dict], learned: bool, ranked_only: bool = True) -> dict | None:
@@ -78,7 +84,7 @@ def summary(board_dir: str) -> str:
             if learned is not None:
                 how = "" if learned.get("rank") is not None else " (zero-shot: outside its training)"
                 text += (f"; best learned `{learned['name']}`{how} {_db(learned)}, "
-                         f"{_versus(learned, classical)}")
+                         f"{_versus(learned, classical, board['protocol'])}")
             if split == "interpolation":
                 patent = next((e for e in rows if e["spec"] == "patent-ff-identified"), None)
                 text += (f"; `reference` (no phenomenon) {ref['attenuation_db']['iqm']:.1f} dB"

@@ -438,3 +438,21 @@ def test_the_board_does_not_depend_on_the_order_of_its_entries():
     other = run_leaderboard(p, entries[::-1], workers=1, progress=False)
     assert entry_fingerprints(one) == entry_fingerprints(other)
     assert one["fingerprint"] == other["fingerprint"]
+
+
+def test_improvement_interval_is_the_boards_p_with_its_interval():
+    """P(a over b) from two rows' cell scores: complements when swapped, 1 [1, 1]
+    for a row ahead on every cell, 0.5 against itself."""
+    from stepdamp_env.bench.protocols.v3 import improvement_interval
+
+    settings = {"bootstrap_resamples": 200, "bootstrap_seed": 3, "confidence": 0.95}
+    rng = np.random.default_rng(0)
+    motors = [f"m{k}" for k in range(6) for _ in range(3)]
+    low = {"scores": [{"motor": m, "attenuation_db": 20.0 + rng.normal()} for m in motors]}
+    high = {"scores": [{"motor": m, "attenuation_db": 30.0 + rng.normal()} for m in motors]}
+    ahead = improvement_interval(high, low, settings)
+    assert ahead["p"] == 1.0 and ahead["ci95"] == [1.0, 1.0] and ahead["motors"] == 6
+    behind = improvement_interval(low, high, settings)
+    assert behind["p"] == 0.0
+    same = improvement_interval(low, low, settings)
+    assert same["p"] == 0.5 and same["ci95"][0] <= 0.5 <= same["ci95"][1]

@@ -301,3 +301,32 @@ def test_recurrent_policy_acts_through_its_memory_as_torch_does(tmp_path):
     first = network.step(obs[0][:1], again, np.array([0]))
     second = network.step(obs[0][:1], again, np.array([0]))
     assert not np.array_equal(first, second)
+
+
+def test_recurrent_network_refuses_what_it_cannot_read_and_bad_calls():
+    """Two LSTM layers are refused with a one-line error; so are observations and
+    rows that do not match, and a recurrent model in predict_rows (no memory)."""
+    from stepdamp_env.bench.network import predict_rows, recurrent_network
+
+    env = make_training_env(MOTORS, 2, 0, task_options(SHORT))
+    deep = ALGOS["ppo_lstm"]("ResidualLstmPolicy", env, seed=1, device="cpu", n_steps=8,
+                             batch_size=16, policy_kwargs={"n_lstm_layers": 2,
+                                                           "lstm_hidden_size": 4})
+    with pytest.raises(ValueError, match="^lstm: only a plain one-layer LSTM"):
+        recurrent_network(deep.policy)
+    model = ALGOS["ppo_lstm"]("ResidualLstmPolicy", env, seed=1, device="cpu", n_steps=8,
+                              batch_size=16, policy_kwargs={"lstm_hidden_size": 4})
+    network = recurrent_network(model.policy)
+    memory = network.initial_state(2)
+    obs = np.zeros((2, env.observation_space.shape[0]), dtype=np.float32)
+    with pytest.raises(ValueError, match="^observations: shape"):
+        network.step(obs, memory, np.array([0]))
+    with pytest.raises(ValueError, match="^rows: distinct"):
+        network.step(obs, memory, np.array([0, 2]))
+    with pytest.raises(ValueError, match="^rows: distinct"):
+        network.step(obs, memory, np.array([1, 1]))
+    with pytest.raises(ValueError, match="^model: .* is recurrent"):
+        predict_rows(model, obs)
+    memory[0][:] = 1.0
+    fresh = network.initial_state(2)            # what a new reset_batch starts from
+    assert not fresh[0].any() and not fresh[1].any()

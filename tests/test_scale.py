@@ -358,3 +358,36 @@ def test_a_run_that_ends_at_its_start_takes_no_step(specs):
     got = _batched(make, rows, "open-loop", protocol)
     assert got == _scalar(make, rows, "open-loop", protocol)
     assert [r["steps"] for r in got] == [0, 0]
+
+
+def test_batched_runner_equals_scalar_runner_for_a_recurrent_agent(specs, tmp_path):
+    """An LSTM policy (random weights, so that it acts) keeps one memory per run:
+    the batched runner, whose runs end at different steps, gives the scalar runs."""
+    import json
+
+    import torch
+
+    from stepdamp_agents import agent_from_path
+    from stepdamp_agents.per_step import ALGOS, make_training_env, task_options
+
+    env = make_training_env(("patent",), 2, 0, task_options({"episode_s": 0.1}))
+    model = ALGOS["ppo_lstm"]("ResidualLstmPolicy", env, seed=1, device="cpu", n_steps=8,
+                              batch_size=16, policy_kwargs={"lstm_hidden_size": 8,
+                                                            "net_arch": [16]})
+    with torch.no_grad():
+        for p in model.policy.parameters():
+            p.copy_(torch.as_tensor(np.random.default_rng(7).normal(0, 0.2, p.shape)))
+    path = str(tmp_path / "lstm.zip")
+    model.save(path)
+    options = {k: v for k, v in task_options().items()
+               if k in ("action_mode", "agent_hz", "history", "context")}
+    with open(tmp_path / "lstm.agent.json", "w") as fh:
+        json.dump({"name": "ppo_lstm-per-step", "algo": "ppo_lstm", "env_id": "StepperDamp-v1",
+                   "estimate": "identified", "env_options": options,
+                   "training": {"seed": 1}}, fh)
+    make = lambda: agent_from_path(path)               # noqa: E731
+    assert make().network is not None
+    protocol, by_suite = specs
+    rows = by_suite["open-loop"]
+    assert _batched(make, rows, "open-loop", protocol) == _scalar(make, rows, "open-loop",
+                                                                  protocol)

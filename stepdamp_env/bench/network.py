@@ -167,6 +167,9 @@ def predict_rows(model: Any, observations: np.ndarray) -> np.ndarray:
     from gymnasium import spaces
 
     policy = model.policy
+    if recurrent_network(policy) is not None:
+        raise ValueError(f"model: {type(policy).__name__} is recurrent; its actions need the "
+                         "memory of each run (RecurrentNetwork.step, as StepAgent keeps it)")
     obs = np.asarray(observations, dtype=np.float32).reshape(
         (-1, *policy.observation_space.shape))
     network = policy_network(policy)
@@ -207,13 +210,15 @@ class RecurrentNetwork:
 
         if lstm.num_layers != 1 or lstm.bidirectional or lstm.proj_size or \
                 not lstm.bias or lstm.batch_first:
-            raise ValueError("only a plain one-layer LSTM is read")
+            raise ValueError("lstm: only a plain one-layer LSTM with biases is read")
         self.hidden = int(lstm.hidden_size)
+        self.inputs = int(lstm.input_size)
         self.w_ih, self.w_hh = flat("weight_ih_l0"), flat("weight_hh_l0")
         self.bias = flat("bias_ih_l0") + flat("bias_hh_l0")
         self.head = PolicyNetwork(head, final_tanh=False)
         if int(self.head.sizes[0]) != self.hidden:
-            raise ValueError("the head does not take the LSTM's output")
+            raise ValueError(f"head: takes {int(self.head.sizes[0])} inputs, the LSTM gives "
+                             f"{self.hidden}")
 
     def initial_state(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Zero memory (hidden, cell) for ``n`` runs, as at an episode's start."""
@@ -226,8 +231,21 @@ class RecurrentNetwork:
         from stepdamp_env.fixedmath import lstm_step, mlp_forward
 
         h, c = memory
-        rows = np.ascontiguousarray(rows, dtype=np.int64)
-        x = np.ascontiguousarray(observations, dtype=np.float32).reshape(len(rows), -1)
+        rows = np.ascontiguousarray(rows, dtype=np.int64).ravel()
+        x = np.ascontiguousarray(observations, dtype=np.float32)
+        # lstm_step does not check bounds: a wrong shape or row would read or
+        # write outside the arrays.
+        if x.shape != (rows.size, self.inputs):
+            raise ValueError(f"observations: shape {x.shape}, expected ({rows.size}, "
+                             f"{self.inputs}) (one row per entry of rows)")
+        if h.shape != c.shape or h.ndim != 2 or h.shape[1] != self.hidden or \
+                h.dtype != np.float64 or c.dtype != np.float64:
+            raise ValueError(f"memory: two float64 arrays (runs, {self.hidden}) from "
+                             "initial_state")
+        if rows.size and (rows.min() < 0 or rows.max() >= h.shape[0] or
+                          np.unique(rows).size != rows.size):
+            raise ValueError(f"rows: distinct run numbers in [0, {h.shape[0]}) expected, got "
+                             f"{rows.tolist()}")
         lstm_step(x, rows, h, c, self.w_ih, self.w_hh, self.bias)
         return mlp_forward(np.ascontiguousarray(h[rows]), self.head.weights, self.head.biases,
                            self.head.sizes, self.head.activations)

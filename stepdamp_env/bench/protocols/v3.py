@@ -126,7 +126,8 @@ from .v1 import QUICK_SETTINGS, ProtocolV1
 from .v2 import ProtocolV2, midband_grid
 
 __all__ = ["ProtocolV3", "SPLITS", "ENCODER_CPRS", "FAILURE_DB", "full_protocol_v3",
-           "quick_protocol_v3", "attenuation_db", "ratio_of_db", "eligible"]
+           "quick_protocol_v3", "attenuation_db", "ratio_of_db", "eligible",
+           "improvement_interval"]
 
 SPLITS = ("dev", "interpolation", "extrapolation", "custom")
 #: Encoders a drawn motor may have (counts/rev after quadrature): 1000, 2000 and
@@ -570,6 +571,23 @@ def eligible(trained_on: Sequence[Sequence[Any]], suite: str, speeds_rps: Sequen
     headline speed: nothing to be ranked on)."""
     ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
     return bool(ranges) and bool(speeds_rps) and all(any(lo <= v <= hi for lo, hi in ranges) for v in speeds_rps)
+
+
+def improvement_interval(a: Mapping[str, Any], b: Mapping[str, Any],
+                         protocol: Mapping[str, Any]) -> dict[str, Any]:
+    """P(row ``a`` attenuates more than row ``b``) and its two-level 95 % interval
+    (motors, then cells), from the rows' cell scores (``scores`` of a loaded
+    board) and the board's bootstrap settings (``protocol``). P is the value the
+    board stores; the board leaves its interval out (one pair here, every pair
+    there)."""
+    def cells(row: Mapping[str, Any]) -> tuple[list[float], list[str]]:
+        keep = [c for c in row["scores"] if math.isfinite(c["attenuation_db"])]
+        return [-c["attenuation_db"] for c in keep], [c["motor"] for c in keep]
+
+    (xa, ma), (xb, mb) = cells(a), cells(b)
+    return probability_of_improvement(xa, ma, xb, mb, resamples=protocol["bootstrap_resamples"],
+                                      seed=protocol["bootstrap_seed"],
+                                      confidence=protocol["confidence"])
 
 
 def full_protocol_v3() -> ProtocolV3:
