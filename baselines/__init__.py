@@ -20,6 +20,8 @@
 ``tuned-constant-gain``   ``ff-delay-comp`` plus StepperDamp-v1's damping law at one
                           constant gain tuned on training motors (what the per-step
                           agents act on)
+``tuned-gain-pair``       the same law at a constant (kv, kp) per suite, the best of a
+                          grid on v3's dev split
 ``oracle-floor``          exact cancellation and state feedback on the true state
                           (oracle): how far the ripple can fall on this drive
 ``privileged-bound``      oracle-floor's law with its gain and rate chosen per suite on
@@ -37,18 +39,20 @@ from stepdamp_env.bench.protocol import REFERENCE_POLICY
 from stepdamp_env.bench.registry import register_policy
 
 from .feedback import OracleFloor, PrivilegedBound, SensorlessDamping, TunedConstantGain, VelocityFeedback
+from .gain_pair import TunedGainPair
 from .harmonic import AdaptiveFF, DelayCompensatedFF
 from .learning import CalibratedTable, RepetitiveControl
 
 __all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
-           "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "OracleFloor",
+           "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "TunedGainPair",
+           "OracleFloor",
            "PrivilegedBound", "BASELINE_NAMES",
            "make_baseline", "register_policies"]
 
 BASELINE_NAMES = (REFERENCE_POLICY, "patent-ff-oracle", "patent-ff-identified",
                   "ff-delay-comp", "adaptive-ff", "velocity-feedback", "sensorless-damping",
                   "calibrated-table", "repetitive-control", "tuned-constant-gain",
-                  "oracle-floor", "privileged-bound")
+                  "tuned-gain-pair", "oracle-floor", "privileged-bound")
 
 _DESCRIPTIONS = {
     "patent-ff-oracle": "patent feedforward, exact model (oracle)",
@@ -61,13 +65,16 @@ _DESCRIPTIONS = {
     "repetitive-control": "feedforward learned online per electrical period (encoder)",
     "tuned-constant-gain": "ff-delay-comp plus v1's damping law at a constant gain tuned on "
                            "training motors",
+    "tuned-gain-pair": "ff-delay-comp plus v1's damping law at a constant (kv, kp) per suite "
+                       "tuned on v3's dev split",
     "oracle-floor": "exact cancellation and true-state feedback (oracle floor)",
     "privileged-bound": "oracle-floor's law tuned per suite on v3's dev split (privileged)",
 }
 
 _CLASSES = {"velocity-feedback": VelocityFeedback, "sensorless-damping": SensorlessDamping,
             "calibrated-table": CalibratedTable, "repetitive-control": RepetitiveControl,
-            "tuned-constant-gain": TunedConstantGain, "oracle-floor": OracleFloor,
+            "tuned-constant-gain": TunedConstantGain, "tuned-gain-pair": TunedGainPair,
+            "oracle-floor": OracleFloor,
             "privileged-bound": PrivilegedBound}
 
 

@@ -1,0 +1,67 @@
+"""``tuned-gain-pair``: StepperDamp-v1's damping law on ``ff-delay-comp`` at a
+constant pair (``kv``, ``kp``) per suite, the best of a grid on stepdamp-bench
+v3's dev split.
+
+``tuned-constant-gain`` sets one ``kv`` (0.5), picked on training motors by a
+reward. This entry is the same law with its velocity gain ``kv`` and its
+high-passed position gain ``kp`` (``(kv, kp) = (cos phi, -sin phi)`` leads by
+about phi at wn) tuned where the agents are selected: on the dev motors, by the
+attenuation the board scores (``python scripts/gain_pair_grid.py --suite S``,
+grids of 0.05-0.2 steps; docs/baselines.md gives the runs). The resonant gains
+are 0. It is the classical reference a learned gain schedule must beat to have
+learned more than two numbers per suite.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext
+from stepdamp_env.env.registration import ENV_ID_V1
+from stepdamp_env.params import ParameterError
+
+__all__ = ["TunedGainPair", "DEV_GAIN_PAIRS"]
+
+#: (kv, kp) per suite: the best dev attenuation of scripts/gain_pair_grid.py's grids
+#: (open loop 38.7 dB, servo 29.3 dB, mid-band 28.8 dB on dev; kv = 1 is the
+#: action's bound).
+DEV_GAIN_PAIRS: Mapping[str, tuple[float, float]] = {
+    "open-loop": (1.0, -0.7), "servo": (0.3, -0.05), "mid-band": (0.5, -0.9)}
+
+
+class TunedGainPair:
+    """The damping law at a constant (``kv``, ``kp``) per suite (the suite from the
+    drive: a voltage-mode drive is v3's mid-band, else the run's mode). Senses
+    the encoder (velocity estimate, position error) and currents; model: nominal
+    (law units), identified (feedforward)."""
+
+    env_id = ENV_ID_V1
+    card = PolicyCard(sensors="encoder (velocity estimate, position error), currents",
+                      model="nominal (law), identified (feedforward)")
+
+    def __init__(self, pairs: Mapping[str, tuple[float, float]] = DEV_GAIN_PAIRS) -> None:
+        for suite, pair in pairs.items():
+            if len(pair) != 2 or not all(math.isfinite(g) and -1.0 <= g <= 1.0 for g in pair):
+                raise ValueError(f"pairs[{suite!r}]={pair!r}: two gains (kv, kp) in [-1, 1]")
+        self.name = "tuned-gain-pair"
+        self.pairs = {k: (float(v[0]), float(v[1])) for k, v in pairs.items()}
+        self.action = np.zeros(8, dtype=np.float32)
+
+    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
+        return {"base_controller": "ff-delay-comp", "estimate": knowledge.identified,
+                "action_mode": "damping-gains", "agent_hz": 100.0}
+
+    def reset(self, context: PolicyContext) -> None:
+        voltage = context.knowledge.nominal.drive.drive_mode == "voltage"
+        suite = "mid-band" if voltage else context.mode
+        if suite not in self.pairs:
+            raise ParameterError(f"{self.name}: no gains for suite {suite!r} (tuned for "
+                                 f"{sorted(self.pairs)})")
+        self.action = np.zeros(8, dtype=np.float32)
+        self.action[:2] = self.pairs[suite]
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self.action
