@@ -27,6 +27,7 @@ KP = (-0.4, -0.2, 0.0, 0.2, 0.4)
 
 
 def main(argv: list[str] | None = None) -> int:
+    from resonant_share import print_comparison  # scripts/, beside this file
     from stepdamp_baselines.feedback import TunedConstantGain
     from stepdamp_env.bench import run_leaderboard
     from stepdamp_env.bench.policy import PolicyCard
@@ -80,16 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{kv:<8g}" + "".join(f"{rows[f'gain-pair-kv{kv:g}-kp{kp:g}']['attenuation_db']['iqm']:8.2f}"
                                     for kp in a.kp))
     best = max(names, key=lambda n: rows[n]["attenuation_db"]["iqm"])
-    shown = dict.fromkeys((best, "tuned-constant-gain", a.entry))
-    for name in shown:
-        db = rows[name]["attenuation_db"]
-        print(f"{name:28s} dev {db['iqm']:.2f} dB [{db['ci'][0]:.2f}, {db['ci'][1]:.2f}]  "
-              f"success {rows[name]['success_rate']:.2f}")
-    e = rows[a.entry]
-    for other in (o for o in shown if o != a.entry):
-        eff = e["effect_db"][other]
-        print(f"{a.entry} against {other}: P {e['probability_of_improvement'][other]:.2f}, "
-              f"effect {eff['median']:+.2f} dB [{eff['ci'][0]:+.2f}, {eff['ci'][1]:+.2f}]")
+    print_comparison(rows, a.entry, [best, "tuned-constant-gain"], width=28, entry_first=False)
     return 0
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -62,16 +63,24 @@ def main(argv: list[str] | None = None) -> int:
 
         write_outputs(board, a.out, protocol)
     rows = {e["name"]: e for e in board["entries"] if e["suite"] == a.suite}
-    for name in (a.entry, ablated, "tuned-constant-gain"):
-        db = rows[name]["attenuation_db"]
-        print(f"{name:40s} dev {db['iqm']:.2f} dB [{db['ci'][0]:.2f}, {db['ci'][1]:.2f}]  "
-              f"success {rows[name]['success_rate']:.2f}")
-    e = rows[a.entry]
-    for other in (ablated, "tuned-constant-gain"):
-        eff = e["effect_db"][other]
-        print(f"{a.entry} against {other}: P {e['probability_of_improvement'][other]:.2f}, "
-              f"effect {eff['median']:+.2f} dB [{eff['ci'][0]:+.2f}, {eff['ci'][1]:+.2f}]")
+    print_comparison(rows, a.entry, [ablated, "tuned-constant-gain"], width=40, entry_first=True)
     return 0
+
+
+def print_comparison(rows: dict[str, Any], entry: str, others: list[str], width: int,
+                     entry_first: bool) -> None:
+    """Each row's dev attenuation (``entry`` first or last), then ``entry`` against
+    each of ``others`` (P(improvement) and the effect in dB), from a v3 board's
+    rows by name."""
+    for name in dict.fromkeys([entry, *others] if entry_first else [*others, entry]):
+        db = rows[name]["attenuation_db"]
+        print(f"{name:{width}s} dev {db['iqm']:.2f} dB [{db['ci'][0]:.2f}, {db['ci'][1]:.2f}]  "
+              f"success {rows[name]['success_rate']:.2f}")
+    e = rows[entry]
+    for other in (o for o in dict.fromkeys(others) if o != entry):
+        eff = e["effect_db"][other]
+        print(f"{entry} against {other}: P {e['probability_of_improvement'][other]:.2f}, "
+              f"effect {eff['median']:+.2f} dB [{eff['ci'][0]:+.2f}, {eff['ci'][1]:+.2f}]")
 
 
 if __name__ == "__main__":
