@@ -2,8 +2,8 @@
 a classical reference tuned where the agents are selected would be.
 
 ``tuned-constant-gain`` is one constant ``kv`` (0.5) picked on training motors.
-This script runs StepperDamp-v1's damping law on ``ff-delay-comp`` at every
-constant pair of a grid (``kv`` the velocity gain, ``kp`` the high-passed
+This script runs ``tuned-gain-pair`` (StepperDamp-v1's damping law on
+``ff-delay-comp``) at every constant pair of a grid (``kv`` the velocity gain, ``kp`` the high-passed
 position gain; the resonant gains 0) on stepdamp-bench v3's dev split of one
 suite, and prints each pair's attenuation; then the best pair against an entry::
 
@@ -20,17 +20,21 @@ import argparse
 import sys
 from typing import Any
 
-import numpy as np
+#: The open-loop grid of docs/results/ablations/gain_pair_grid.txt.
+KV = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+KP = (-1.0, -0.8, -0.7, -0.6, -0.5, -0.4, -0.2, 0.0, 0.2, 0.4)
 
-KV = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 1.0)
-KP = (-0.4, -0.2, 0.0, 0.2, 0.4)
+
+def named(policy: Any, name: str) -> Any:
+    """``policy`` under another name (one grid point)."""
+    policy.name = name
+    return policy
 
 
 def main(argv: list[str] | None = None) -> int:
     from resonant_share import print_comparison  # scripts/, beside this file
-    from stepdamp_baselines.feedback import TunedConstantGain
+    from stepdamp_baselines import TunedGainPair
     from stepdamp_env.bench import run_leaderboard
-    from stepdamp_env.bench.policy import PolicyCard
     from stepdamp_env.bench.protocols import protocol_for
     from stepdamp_env.bench.registry import register_policy
 
@@ -44,33 +48,13 @@ def main(argv: list[str] | None = None) -> int:
         if not all(-1.0 <= v <= 1.0 for v in values):
             p.error(f"{flag} {list(values)}: each gain must lie in [-1, 1]")
 
-    class GainPair:
-        """The damping law at the constant (kv, kp), resonant gains 0."""
-
-        env_id = TunedConstantGain.env_id
-        card = PolicyCard(sensors="encoder (velocity estimate, position error), currents",
-                          model="nominal (law), identified (feedforward)")
-
-        def __init__(self, kv: float, kp: float) -> None:
-            self.name = f"gain-pair-kv{kv:g}-kp{kp:g}"
-            self.action = np.zeros(8, dtype=np.float32)
-            self.action[:2] = kv, kp
-
-        def env_options(self, knowledge: Any) -> dict[str, Any]:
-            return TunedConstantGain().env_options(knowledge)
-
-        def reset(self, context: Any) -> None:
-            pass
-
-        def act(self, observation: np.ndarray) -> np.ndarray:
-            return self.action
-
     names = []
     for kv in a.kv:
         for kp in a.kp:
             name = f"gain-pair-kv{kv:g}-kp{kp:g}"
-            register_policy(name, (lambda kv=kv, kp=kp: GainPair(kv, kp)), default=False,
-                            description=f"damping law at kv={kv}, kp={kp}")
+            register_policy(name, (lambda kv=kv, kp=kp: named(TunedGainPair({a.suite: (kv, kp)}),
+                                                              f"gain-pair-kv{kv:g}-kp{kp:g}")),
+                            default=False, description=f"damping law at kv={kv}, kp={kp}")
             names.append(name)
     protocol = protocol_for("v3").with_splits(["dev"]).with_suites([a.suite])
     board = run_leaderboard(protocol, [*names, a.entry, "tuned-constant-gain"], progress=False)

@@ -111,7 +111,8 @@ def caption(board_dir: str) -> str:
     p = patent["attenuation_db"]["iqm"]
     return (f"The patent's feedforward with an identified model attenuates them by {p:.1f} dB "
             f"over the interpolation motors (about {1 - 10 ** (-p / 20):.0%} less ripple), "
-            f"and the best entry, `{best['name']}`, by {best['attenuation_db']['iqm']:.1f} dB.")
+            f"and the entry with the highest IQM, `{best['name']}`, by "
+            f"{best['attenuation_db']['iqm']:.1f} dB (rank 1 is shared: see the table below).")
 
 
 def updated(text: str, marker: str, table: str) -> str:

@@ -132,3 +132,7 @@ def test_tuned_gain_pair_acts_with_its_suites_pair_and_refuses_bad_gains():
         assert not action[2:].any()
     with pytest.raises(ValueError, match=r"pairs\['servo'\]"):
         TunedGainPair({"servo": (1.5, 0.0)})
+    with pytest.raises(ValueError, match=r"pairs\['servo'\]"):
+        TunedGainPair({"servo": 3})
+    with pytest.raises(RuntimeError, match="reset"):
+        TunedGainPair().act(np.zeros(3, dtype=np.float32))
