@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import math
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext
+from stepdamp_env.bench.policy import PolicyCard, PolicyContext
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
+
+from .feedback import TunedConstantGain
 
 __all__ = ["TunedGainPair", "DEV_GAIN_PAIRS"]
 
@@ -59,9 +61,8 @@ class TunedGainPair:
         self.pairs = {k: (float(v[0]), float(v[1])) for k, v in pairs.items()}
         self.action: np.ndarray | None = None     # the run's gains, set by reset
 
-    def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
-        return {"base_controller": "ff-delay-comp", "estimate": knowledge.identified,
-                "action_mode": "damping-gains", "agent_hz": 100.0}
+    # The same law, run the same way as tuned-constant-gain's.
+    env_options = TunedConstantGain.env_options
 
     def reset(self, context: PolicyContext) -> None:
         voltage = context.knowledge.nominal.drive.drive_mode == "voltage"
