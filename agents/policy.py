@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import json
 import math
 import os
 from collections import OrderedDict
@@ -26,6 +25,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from stepdamp_env.bench.network import predict_rows
+from stepdamp_env.io import read_json
+from stepdamp_env.params import ParameterError
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
 
 __all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "trained_suites",
@@ -43,8 +44,11 @@ def agent_config_path(path: str) -> str:
 
 
 def load_agent_config(path: str) -> dict[str, Any]:
-    with open(agent_config_path(path), encoding="utf-8") as fh:
-        return json.load(fh)
+    """The ``.agent.json`` beside a model (a one-line error if it is not an object)."""
+    config = read_json(agent_config_path(path), "agent config")
+    if not isinstance(config, dict):
+        raise ParameterError(f"agent config {agent_config_path(path)!r} must hold a JSON object")
+    return config
 
 
 def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float], ...]:

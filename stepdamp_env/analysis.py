@@ -67,8 +67,13 @@ class OperatingPoint:
     saturated: bool
 
 
-_ANGLES = np.linspace(0.0, TWO_PI, 720, endpoint=False)
-_SIN, _COS = fm.sincos_array(_ANGLES)
+@functools.lru_cache(maxsize=1)
+def _turn_table() -> tuple[np.ndarray, np.ndarray]:
+    """(sin, cos) of 720 angles over a turn, at first use: fm.sincos_array is
+    compiled code, and importing this module must compile nothing."""
+    sin, cos = fm.sincos_array(np.linspace(0.0, TWO_PI, 720, endpoint=False))
+    sin.flags.writeable = cos.flags.writeable = False      # shared by every call
+    return sin, cos
 
 
 @functools.lru_cache(maxsize=4096)
@@ -77,7 +82,8 @@ def bridge_gain(amplitude_v: float, vdc: float) -> complex:
     winding-voltage vector of ``amplitude_v`` turning a full circle: the SVPWM
     legs of the kernel (common-mode centred, each clamped to [0, Vdc]), averaged
     over the turn (a describing function; 1 up to Vdc/sqrt(2))."""
-    va, vb = amplitude_v * _COS, amplitude_v * _SIN
+    sin, cos = _turn_table()
+    va, vb = amplitude_v * cos, amplitude_v * sin
     vmax = np.maximum(np.maximum(va, vb), 0.0)
     vmin = np.minimum(np.minimum(va, vb), 0.0)
     v0 = 0.5 * vdc - 0.5 * (vmax + vmin)
@@ -85,8 +91,8 @@ def bridge_gain(amplitude_v: float, vdc: float) -> complex:
     a = np.clip(va + v0, 0.0, vdc) - gamma
     b = np.clip(vb + v0, 0.0, vdc) - gamma
     # (a + jb) e^{-j angle} in real arithmetic (numpy's complex loops may fuse).
-    return complex(float(np.mean(a * _COS + b * _SIN)),
-                   float(np.mean(b * _COS - a * _SIN))) / amplitude_v
+    return complex(float(np.mean(a * cos + b * sin)),
+                   float(np.mean(b * cos - a * sin))) / amplitude_v
 
 
 def _voltage_mode_voltages(system: SystemParams, w_c: float) -> tuple[float, float, bool]:

@@ -14,7 +14,6 @@ import argparse
 import json
 import math
 import os
-import shutil
 import signal
 import sys
 from typing import Any, Sequence
@@ -22,12 +21,15 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import numba_cache
-from .io import check_output_dir, check_writable, staged_directory
+from .io import check_output_dir, check_writable, output_lock, staged_directory
+from .parallel import WorkerLostError
 from .ray_backend import backend_map
+from .limits import LIMITS
 from .params import FeedforwardModel, ParameterError, load_system, parse_set_overrides
 from .presets import preset_names
-from .simulation import (BASE_CONTROLLERS, DEFAULT_ACCEL_RPS2, MODES, RunSettings, SpeedProfile,
-                         measuring_window, simulate)
+from .simulation import (BASE_CONTROLLERS, DEFAULT_ACCEL_RPS2, MAX_DURATION_S, MIN_ACCEL_RPS2,
+                         MODES, TRACE_ROW_BYTES, RunSettings, SpeedProfile, check_trace_memory,
+                         max_move_distance_rev, measuring_window, run_length_error, simulate)
 from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS, resolving_spacing
 
 __all__ = ["main"]
@@ -106,7 +108,7 @@ def _add_system_args(p: argparse.ArgumentParser, *, base_many: bool = False) -> 
     p.add_argument("--estimate", default=None, metavar="NAME|FILE.json",
                    help="motor whose Km, Kd1/2/4, phi1/2, Fs the feedforward uses "
                         "(default: the plant's own, i.e. exact)")
-    p.add_argument("--accel", type=_number(float, 1e-3, 1e6), default=DEFAULT_ACCEL_RPS2,
+    p.add_argument("--accel", type=_number(float, MIN_ACCEL_RPS2, 1e6), default=DEFAULT_ACCEL_RPS2,
                    metavar="RPS2", help="command acceleration of the start-up ramp (rev/s^2)")
     p.add_argument("--substeps", type=_number(int, 1, 1000), default=1,
                    help="RK4 plant steps per PWM period (a system too stiff for one is "
@@ -272,12 +274,31 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                                distance_rev=args.move)
     else:
         profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel)
-    if args.duration is not None:
-        start, _ = measuring_window(system, profile, settings)
-        if not args.duration > start:
-            raise ParameterError(f"--duration {args.duration:g}: must end after the measuring "
-                                 f"window opens at {start:.6g} s (ramp + settle): allowed "
-                                 f"({start:.6g}, inf) s")
+    # Bounded work, checked before anything runs: the run lasts at most --duration's cap.
+    start, length = measuring_window(system, profile, settings)
+    if not start < MAX_DURATION_S or (args.duration is None
+                                      and not start + length <= MAX_DURATION_S):
+        if args.move is not None:
+            settle = length - profile.duration_s()
+            d_max = max_move_distance_rev(args.speed, args.accel, MAX_DURATION_S - settle)
+            raise ParameterError(
+                f"--move {args.move:g}: a move of {profile.duration_s():.6g} s at --speed "
+                f"{args.speed:g} and --accel {args.accel:g}, past the {MAX_DURATION_S:g} s a run "
+                f"may last (--duration's cap, with {settle:.3g} s of settling); allowed "
+                f"{step_rev:g} <= |move| <= {d_max:.6g} rev")
+        raise ParameterError(run_length_error(system, profile, settings, {
+            "speed_rps": "--speed", "accel_rps2": "--accel", "duration_s": "--duration"}))
+    if args.duration is not None and not args.duration > start:
+        raise ParameterError(f"--duration {args.duration:g}: must end after the measuring "
+                             f"window opens at {start:.6g} s (ramp + settle): allowed "
+                             f"({start:.6g}, {MAX_DURATION_S:g}] s")
+    if args.trace is not None:
+        # Memory estimated before any is allocated: the run's buffer, its copies and
+        # the writer's (a CSV's text about twice the rest).
+        per_row = (6 if args.trace.endswith(".csv") else 4) * TRACE_ROW_BYTES
+        n_periods = round((args.duration or start + length) * system.drive.pwm_hz)
+        check_trace_memory(n_periods, 1, system.drive.pwm_hz, row_bytes=per_row,
+                           option=f"--trace {args.trace}", duration="--duration", every=None)
     result = simulate(system, profile=profile, settings=settings,
                       duration_s=args.duration, trace=args.trace is not None)
     if args.trace is not None and args.trace.endswith(".csv"):
@@ -327,6 +348,12 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+def _identified_name(name: str) -> str:
+    """The identified motor's name: the motor's with a suffix, within the name bound."""
+    suffix = "-identified"
+    return name[:LIMITS.name_chars - len(suffix)] + suffix
+
+
 def _cmd_identify(args: argparse.Namespace) -> int:
     from .identify import identify
     from .io import write_json
@@ -339,7 +366,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     model = result.model
     identified = system.replace(Kd1=model.Kd1, Kd2=model.Kd2, Kd4=model.Kd4,
                                 phi1=model.phi1, phi2=model.phi2, Fs=model.Fs)
-    motor_file = {**identified.to_dict(), "name": f"{system.name}-identified",
+    motor_file = {**identified.to_dict(), "name": _identified_name(system.name),
                   "source": f"stepdamp identify --method {args.method} on {system.name}"}
     with staged_directory(args.out, IDENTIFY_FILES) as stage:
         write_json(os.path.join(stage, "identified_motor.json"), motor_file)
@@ -370,7 +397,7 @@ def _identify_logs(args: argparse.Namespace, system: Any) -> int:
     result = identify_from_logs(system, args.log, method=args.log_method,
                                 settle_s=args.settle)
     identified = result.apply_to(system)
-    motor_file = {**identified.to_dict(), "name": f"{system.name}-identified",
+    motor_file = {**identified.to_dict(), "name": _identified_name(system.name),
                   "source": f"stepdamp identify --log-method {args.log_method} on "
                             + ", ".join(args.log)}
     with staged_directory(args.out, IDENTIFY_FILES) as stage:
@@ -495,7 +522,7 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench.protocols.v1 import load_motors_file
     from .bench.report import RESULT_FILES, entry_line, entry_rows, render_per_motor, splits
 
-    from .bench.leaderboard import RESUME_DIR
+    from .bench.leaderboard import RESUME_DIR, clear_resume_dir, open_resume_dir
 
     check_output_dir(args.out, "--out", own_dirs=(RESUME_DIR,))
     protocol = protocol_for(args.protocol, quick=args.quick)
@@ -521,13 +548,16 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
         raise ParameterError(f"--entries: unknown {unknown}; choose from {list(named)}")
     extra = [p for group in args.policy for p in group]
     resume = os.path.join(args.out, RESUME_DIR)
-    if args.no_resume:
-        shutil.rmtree(resume, ignore_errors=True)
-    board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
-                            progress=not args.no_progress, resume_dir=resume,
-                            backend=backend_map(args.backend, args.ray_address))
-    with staged_directory(args.out, RESULT_FILES) as stage:
-        written = write_outputs(board, stage, protocol, plots=not args.no_plots)
+    # One run writes an output directory at a time: its kept batches are the run's.
+    with output_lock(args.out, "--out"):
+        open_resume_dir(resume)         # refused before any work if it is a link or not ours
+        if args.no_resume:
+            clear_resume_dir(resume)
+        board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
+                                progress=not args.no_progress, resume_dir=resume,
+                                backend=backend_map(args.backend, args.ray_address))
+        with staged_directory(args.out, RESULT_FILES) as stage:
+            written = write_outputs(board, stage, protocol, plots=not args.no_plots)
     for suite in protocol.suites:
         for split in splits(board):
             where = suite if split is None else f"{suite}, {split}"
@@ -543,17 +573,15 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from .bench.report import (load_leaderboard, render_ladder, render_markdown, render_results,
-                               render_suite_page, scored_in_db)
+                               render_suite_page, scored_in_db, verify_fingerprint)
 
     path = os.path.join(args.dir, "leaderboard.json")
     if not os.path.isfile(path):
         raise ParameterError(f"DIR {args.dir!r} holds no leaderboard.json (write one with "
                              "`stepdamp leaderboard --out DIR`)")
-    try:
-        board = load_leaderboard(args.dir)
-    except (ValueError, KeyError, TypeError, AttributeError, OSError) as exc:
-        raise ParameterError(f"DIR {args.dir!r}: not a readable leaderboard ({type(exc).__name__}: "
-                             f"{exc})") from None
+    board = load_leaderboard(args.dir)
+    if not (args.no_verify or args.check):      # --check says so among its findings
+        verify_fingerprint(board, args.dir)
     if args.check:
         return _check_report(board, args.dir, args.sample)
     pages = [render_suite_page(board, suite) for suite in board["protocol"]["suites"]] \
@@ -655,7 +683,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--move", type=_number(float, -1e6, 1e6), default=None, metavar="REV",
                    help="point-to-point move of this many revolutions, measured from its start "
                         "through its settling (default: constant speed)")
-    p.add_argument("--duration", type=_number(float, 0, 1e4, low_open=True), default=None,
+    p.add_argument("--duration", type=_number(float, 0, MAX_DURATION_S, low_open=True),
+                   default=None,
                    metavar="SECONDS", help="simulated time (default: ramp + settle + 0.5 s window)")
     p.add_argument("--trace", default=None, metavar="FILE.npz|FILE.csv",
                    help="write one sample per PWM period: FILE.csv a drive log (columns in "
@@ -775,6 +804,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "it reproduces bit for bit (exit status 1 if any does not)")
     p.add_argument("--sample", type=_number(int, 1, 100000), default=12, metavar="N",
                    help="cells --check re-runs, spread over every entry, suite and split")
+    p.add_argument("--no-verify", action="store_true",
+                   help="show a board whose numbers do not match its fingerprint (edited or "
+                        "damaged files; by default that is an error)")
     p.set_defaults(func=_cmd_report)
 
     p = command("train", "train residual RL agents (ARS, PPO, SAC, TD3) on StepperDamp-v1 "
@@ -807,6 +839,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ParameterError as exc:
         print(f"stepdamp {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except WorkerLostError as exc:
+        print(f"stepdamp {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         where = f" {exc.filename!r}" if exc.filename else ""
         print(f"stepdamp {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)

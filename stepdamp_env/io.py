@@ -14,20 +14,28 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import errno
+import fcntl
 import fnmatch
 import hashlib
 import json
 import os
+import re
 import shutil
+import sys
 import tempfile
 from contextlib import contextmanager
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from .limits import LIMITS
+
 __all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writable",
            "check_output_dir", "staged_directory", "cache_dir", "read_json_or_none",
+           "read_json", "parse_json",
+           "write_checked_json", "read_checked_json", "output_lock", "refuse_link",
            "file_digest", "tree_digest", "related_files"]
+
 
 
 @contextmanager
@@ -50,9 +58,16 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[str]:
         _fsync_path(tmp)
         os.replace(tmp, path)
         _fsync_path(directory)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        # A write or fsync error (a full disk: ENOSPC) names no file, a failed
+        # rename the temporary one: name the file being written.
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = path
+        elif isinstance(exc, OSError) and exc.filename == tmp and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror, path).with_traceback(exc.__traceback__) \
+                from None
         raise
 
 
@@ -87,13 +102,114 @@ def write_json(path: str | os.PathLike[str], data: Any) -> None:
             fh.write("\n")
 
 
-def read_json_or_none(path: str | os.PathLike[str]) -> Any:
-    """The JSON in ``path``, or None if it is missing or unreadable (a cache entry)."""
+def _json_depth(text: str) -> int:
+    """Deepest nesting of ``[`` and ``{`` in JSON ``text``, brackets inside strings
+    left out, in linear time without recursion: a bracket is inside a string when
+    an odd number of unescaped quotes stands before it (a quote is escaped by an
+    odd run of backslashes)."""
+    codes = np.frombuffer(text.encode("utf-8", "surrogatepass"), dtype=np.uint8)
+    brackets = np.flatnonzero((codes == 91) | (codes == 93) | (codes == 123) | (codes == 125))
+    if brackets.size == 0:
+        return 0
+    quotes = np.flatnonzero(codes == 34)
+    slashes = np.flatnonzero(codes == 92)
+    if quotes.size and slashes.size:
+        # Length of the run of backslashes ending just before each quote.
+        new_run = np.ones(slashes.size, dtype=bool)
+        new_run[1:] = np.diff(slashes) != 1
+        run_start = np.maximum.accumulate(np.where(new_run, np.arange(slashes.size), 0))
+        j = np.searchsorted(slashes, quotes) - 1
+        touching = (j >= 0) & (slashes[np.maximum(j, 0)] == quotes - 1)
+        run = np.where(touching, j - run_start[np.maximum(j, 0)] + 1, 0)
+        quotes = quotes[run % 2 == 0]
+    outside = brackets[np.searchsorted(quotes, brackets) % 2 == 0]
+    kind = codes[outside]
+    steps = np.where((kind == 91) | (kind == 123), 1, -1)
+    return max(0, int(np.cumsum(steps).max())) if steps.size else 0
+
+
+def parse_json(text: str, label: str) -> Any:
+    """``json.loads(text)``; invalid JSON, nesting deeper than ``LIMITS.json_depth``
+    or a non-finite number is a one-line ``ParameterError`` naming ``label``."""
+    from .params import ParameterError
+
+    depth = _json_depth(text)
+    if depth > LIMITS.json_depth:
+        raise ParameterError(f"{label} nests {depth} levels deep; allowed at most "
+                             f"{LIMITS.json_depth}")
     try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
+        return json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ParameterError(f"{label} is not valid JSON: {exc}") from None
+
+
+def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -> Any:
+    """The JSON in the file ``path`` (through ``opener(path, "rt", encoding=...)`` if
+    given, e.g. ``lzma.open``); an unreadable, truncated, oversized, too deeply
+    nested or invalid file is a one-line ``ParameterError`` naming ``label`` and
+    the file. Every JSON file the tool reads goes through here."""
+    from .params import ParameterError
+
+    where = f"{label} {os.fspath(path)!r}"
+    try:
+        with (opener or open)(path, "rt", encoding="utf-8") as fh:
+            text = fh.read(LIMITS.json_bytes + 1)
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"{where} is not UTF-8 text: {exc.reason}") from None
+    except IsADirectoryError:
+        raise ParameterError(f"{where} is a directory, not a file") from None
+    except FileNotFoundError:
+        raise ParameterError(f"{where} does not exist") from None
+    except OSError as exc:
+        raise ParameterError(f"{where} cannot be read: {exc.strerror or exc}") from None
+    except (EOFError, ValueError) as exc:       # a truncated or damaged xz / gzip stream
+        raise ParameterError(f"{where} is truncated or damaged ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - lzma/gzip raise their own error types
+        raise ParameterError(f"{where} cannot be read ({type(exc).__name__}: {exc})") \
+            from None
+    if len(text) > LIMITS.json_bytes:
+        raise ParameterError(f"{where} is over {LIMITS.json_bytes} bytes; allowed at most that")
+    return parse_json(text, where)
+
+
+def read_json_or_none(path: str | os.PathLike[str]) -> Any:
+    """The JSON in ``path``, or None if it is missing, unreadable or refused by
+    :func:`read_json` (a cache entry: computed again)."""
+    from .params import ParameterError
+
+    try:
+        return read_json(path, "cache entry")
+    except ParameterError:
         return None
+
+
+def _checksum(key: str, content: Any) -> str:
+    """sha256 of a kept entry's key and its content (canonical JSON)."""
+    text = json.dumps([key, content], sort_keys=True, default=_default, allow_nan=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def write_checked_json(path: str | os.PathLike[str], key: str, content: Any) -> None:
+    """Keep ``content`` at ``path`` (atomically) with its key and a checksum of
+    both, for :func:`read_checked_json`."""
+    write_json(path, {"key": key, "sha256": _checksum(key, content), "content": content})
+
+
+def read_checked_json(path: str | os.PathLike[str], key: str, what: str) -> Any:
+    """The content kept at ``path`` by :func:`write_checked_json` under ``key``;
+    None if there is none, or (with a one-line note on stderr naming the file)
+    if it is unreadable, of another key or does not match its checksum: the
+    caller computes it again. A checksum finds damage and edits by hand, not
+    a forger, who can recompute it (docs/caches.md)."""
+    if not os.path.lexists(path):
+        return None
+    kept = read_json_or_none(path)
+    if isinstance(kept, dict) and kept.get("key") == key and "content" in kept and \
+            kept.get("sha256") == _checksum(key, kept["content"]):
+        return kept["content"]
+    print(f"stepdamp: note: {what} {os.fspath(path)!r} is damaged or edited (its checksum "
+          "does not match); computing it again", file=sys.stderr)
+    return None
 
 
 def cache_dir(kind: str) -> str | None:
@@ -216,6 +332,7 @@ def check_output_dir(path: str | os.PathLike[str], option: str,
     from .params import ParameterError
 
     path = os.fspath(path)
+    refuse_link(path, option)
     existed = os.path.isdir(path)
     check_writable(path, option, directory=True)
     if not existed:                 # made by the probe; the run makes it when done
@@ -230,6 +347,64 @@ def check_output_dir(path: str | os.PathLike[str], option: str,
             "result directory)")
 
 
+def refuse_link(path: str | os.PathLike[str], option: str,
+                hint: str = "the tool replaces it: give the real directory instead") -> None:
+    """A one-line ``ParameterError`` if ``path`` is a symbolic link: what the tool
+    deletes or replaces is never reached through one (it would act on what the
+    link points to)."""
+    from .params import ParameterError
+
+    path = os.fspath(path).rstrip(os.sep) or os.fspath(path)
+    if os.path.islink(path):
+        raise ParameterError(f"{option} {path!r} is a symbolic link (to {os.readlink(path)!r}); "
+                             f"{hint}")
+
+
+_LOCK_FILE = ".stepdamp.lock"
+
+
+@contextmanager
+def output_lock(path: str | os.PathLike[str], option: str) -> Iterator[None]:
+    """Hold an exclusive lock (``fcntl.flock``) on the output directory ``path``
+    (made if needed) while a run writes it; a second run on the same directory
+    gets a one-line ``ParameterError`` naming the process that holds it. The
+    lock file lives inside ``path`` and goes with the directory it locked."""
+    from .params import ParameterError
+
+    path = os.fspath(path)
+    refuse_link(path, option)
+    os.makedirs(path, exist_ok=True)
+    lock = os.path.join(path, _LOCK_FILE)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "another process"
+            raise ParameterError(f"{option} {path!r} is being written by process {holder}; wait "
+                                 "for it to finish or give another directory") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)                    # closing releases the lock
+
+
+def _carried_over(entry: os.DirEntry, results: Sequence[str]) -> bool:
+    """Whether a file of the previous output directory belongs in the new one:
+    every file and link but the command's own results and the tool's own
+    hidden files (the lock, temporary files)."""
+    if entry.name == _LOCK_FILE or _TEMP_FILE.fullmatch(entry.name):
+        return False
+    if any(fnmatch.fnmatch(entry.name, pat) for pat in results):
+        return False
+    return entry.is_symlink() or entry.is_file(follow_symlinks=False)
+
+
+# The temporary files of :func:`atomic_path` (mkstemp: prefix, 8 random characters).
+_TEMP_FILE = re.compile(r"\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?")
+
+
 @contextmanager
 def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> Iterator[str]:
     """Yield a fresh staging directory beside ``path``; on success it becomes ``path``.
@@ -241,19 +416,20 @@ def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> It
     On any exception the staging directory is removed and ``path`` is untouched.
     """
     path = os.path.abspath(os.fspath(path))
+    refuse_link(path, "output directory")
     parent, name = os.path.split(path)
     os.makedirs(parent, exist_ok=True)
     _clean_leftovers(parent, name)
     staging = os.path.join(parent, _STAGING.format(name=name, pid=os.getpid()))
+    refuse_link(staging, "staging directory", "stepdamp builds its output there: remove the link")
     shutil.rmtree(staging, ignore_errors=True)
     os.mkdir(staging)
     try:
         yield staging
         if os.path.isdir(path):
             for entry in os.scandir(path):
-                if entry.is_file(follow_symlinks=False) and not entry.name.startswith(".") \
-                        and not any(fnmatch.fnmatch(entry.name, pat) for pat in results) \
-                        and not os.path.exists(os.path.join(staging, entry.name)):
+                if _carried_over(entry, results) and \
+                        not os.path.lexists(os.path.join(staging, entry.name)):
                     _link_or_copy(entry.path, os.path.join(staging, entry.name))
         _fsync_path(staging)
         _swap_in(staging, path)
@@ -263,6 +439,9 @@ def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> It
 
 
 def _link_or_copy(src: str, dst: str) -> None:
+    if os.path.islink(src):             # the link itself, never its target
+        os.symlink(os.readlink(src), dst)
+        return
     try:
         os.link(src, dst)
     except OSError:
@@ -312,8 +491,10 @@ def _clean_leftovers(parent: str, name: str) -> None:
             if not entry.name.startswith(prefix):
                 continue
             pid = entry.name[len(prefix):]
-            if pid.isdigit() and _alive(int(pid)):
-                continue
+            if not pid.isdigit() or _alive(int(pid)):
+                continue                # not of our making, or a live run's
+            refuse_link(entry.path, "leftover staging directory",
+                        "stepdamp removes killed runs' leftovers: remove the link")
             if restore and not os.path.exists(path):
                 os.rename(entry.path, path)
             else:

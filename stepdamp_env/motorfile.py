@@ -241,9 +241,10 @@ def _derived(system: SystemParams, name: str) -> float:
     return float(system.derived_dict()[name])
 
 
-def describe_spec(spec: str) -> list[MotorDescription]:
+def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescription]:
     """The motors a preset name or a motor file names: one for a preset or a
-    motor object, one per item for a list file (``--motors``'s format)."""
+    motor object, one per item for a list file (``--motors``'s format; an item
+    may name another file, but no file may name itself, even through others)."""
     import os
 
     from .params import read_json_file
@@ -253,6 +254,11 @@ def describe_spec(spec: str) -> list[MotorDescription]:
         return [MotorDescription(get_preset(spec), {}, f"preset {spec}")]
     if not os.path.isfile(spec):
         get_preset(spec)        # the one-line error listing the presets
+    real = os.path.realpath(spec)
+    if real in _within:
+        raise ParameterError(f"motor file {spec!r} names itself (through "
+                             f"{' -> '.join(map(repr, _within))}); a list file may name presets "
+                             "and other motor files only")
     data = read_json_file(spec, "motor file")
     stem = os.path.splitext(os.path.basename(spec))[0]
     if isinstance(data, dict) and isinstance(data.get("motors"), list):
@@ -261,7 +267,7 @@ def describe_spec(spec: str) -> list[MotorDescription]:
     out = []
     for k, item in enumerate(items):
         if isinstance(item, str):
-            out.extend(describe_spec(item))
+            out.extend(describe_spec(item, _within + (real,)))
             continue
         if not isinstance(item, dict):
             raise ParameterError(f"motor file {spec!r}: item {k} must be a preset name or a "

@@ -7,16 +7,32 @@ inlines ``kernel.py``, so a changed kernel would leave its compiled steps
 stale. The sub-directory is named by a hash of every Python source of the
 package and the numba and llvmlite versions (:func:`code_key`), so changed
 code never meets an old cache.
+
+The cache is code: numba's index and data files are pickles, and loading one
+runs whatever it says. So the folders this module creates are private (mode
+0700), and an existing folder that another user owns or others may write is
+not used (a private temporary folder is, for this run). A cache file that
+fails to load is deleted and its function compiled again; a cache that cannot
+be written costs only the compile (docs/caches.md).
 """
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import importlib.metadata
 import os
+import re
+import shutil
+import stat
 import sys
+import tempfile
 
-__all__ = ["use_user_cache_dir", "user_cache_dir", "code_key", "call_with_frame_room"]
+__all__ = ["use_user_cache_dir", "user_cache_dir", "active_cache_dir", "code_key",
+           "call_with_frame_room"]
+
+_active = ""            # the folder numba caches this package's code in ("" none)
+_told: set[str] = set()  # notes printed, one line each per process
 
 
 def code_key(root: str | None = None) -> str:
@@ -43,15 +59,31 @@ def user_cache_dir() -> str:
     ``%LOCALAPPDATA%`` on Windows); under a ``$NUMBA_CACHE_DIR`` the user chose,
     ``$NUMBA_CACHE_DIR/stepdamp-<code_key>`` (the process's other numba code
     caches there too: numba has one cache directory per process)."""
+    return os.path.join(_cache_root(), *_own_parts())
+
+
+def active_cache_dir() -> str:
+    """The folder numba caches this package's code in, as :func:`use_user_cache_dir`
+    chose it (:func:`user_cache_dir`, or a private temporary folder when that one
+    may not be used); "" when nothing is cached or before the choice."""
+    return _active
+
+
+def _cache_root() -> str:
+    """The user's folder the cache goes under (never created private nor changed here)."""
     base = _user_base()
     if base:
-        return os.path.join(base, f"stepdamp-{code_key()}")
+        return base
     if sys.platform == "win32":
-        root = os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
-    else:
-        root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
-                                                                 ".cache")
-    return os.path.join(root, "stepdamp", "numba", code_key())
+        return os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
+    return os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+
+
+def _own_parts() -> list[str]:
+    """The folders below :func:`_cache_root` that this package creates."""
+    if _user_base():
+        return [f"stepdamp-{code_key()}"]
+    return ["stepdamp", "numba", code_key()]
 
 
 def _user_base() -> str:
@@ -63,11 +95,99 @@ def _user_base() -> str:
     return os.environ.get("_STEPDAMP_NUMBA_CACHE_BASE", "") if chosen else ""
 
 
+def _note(kind: str, line: str) -> None:
+    if kind not in _told:
+        _told.add(kind)
+        print(f"stepdamp: {line}", file=sys.stderr, flush=True)
+
+
+def _unsafe(path: str, leaf: bool) -> str:
+    """Why the existing folder ``path`` may not hold code this process loads, or "".
+    Another user's folder, or one others may write, could hold their pickles; a
+    folder above the leaf may be group-writable (a umask of 002 gives that)."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        return e.strerror or type(e).__name__
+    if not stat.S_ISDIR(st.st_mode):
+        return "not a folder"
+    if not hasattr(os, "getuid"):       # Windows: a folder in the user's own profile
+        return ""
+    if st.st_uid != os.getuid():
+        return f"owned by uid {st.st_uid}, not {os.getuid()}"
+    if st.st_mode & (0o022 if leaf else 0o002):
+        return f"writable by others, mode {stat.S_IMODE(st.st_mode):04o}"
+    return ""
+
+
+def _make_private(root: str, parts: list[str]) -> tuple[str, str]:
+    """Create ``root/parts...`` with each folder of ``parts`` private (0700) and
+    check the ones that exist; ``root`` (the user's) only created if missing.
+    Returns ("", "") or (the folder that fails, why)."""
+    try:
+        os.makedirs(root, mode=0o700, exist_ok=True)
+    except FileExistsError:
+        return root, "not a folder"
+    except OSError as e:
+        return root, e.strerror or type(e).__name__
+    here = root
+    for k, part in enumerate(parts):
+        here = os.path.join(here, part)
+        try:
+            os.mkdir(here, 0o700)
+            os.chmod(here, 0o700)          # mkdir's mode passes through the umask
+        except FileExistsError:
+            why = _unsafe(here, leaf=k == len(parts) - 1)
+            if why:
+                return here, why
+        except OSError as e:
+            return here, e.strerror or type(e).__name__
+    try:                                   # numba checks this too, then falls back silently
+        tempfile.TemporaryFile(dir=here).close()
+    except OSError as e:
+        return here, e.strerror or type(e).__name__
+    return "", ""
+
+
+def _fallback(refused: str) -> tuple[str, bool]:
+    """A private temporary folder for this run, removed at exit ("" if none can be
+    made), and whether it is the parent process's (which refused the same folder
+    and said so)."""
+    inherited = os.environ.get("NUMBA_CACHE_DIR", "")
+    if os.environ.get("_STEPDAMP_NUMBA_CACHE_REFUSED") == refused and inherited \
+            and inherited == os.environ.get("_STEPDAMP_NUMBA_CACHE_DIR") \
+            and not _unsafe(inherited, leaf=True):
+        return inherited, True
+    try:
+        path = tempfile.mkdtemp(prefix="stepdamp-numba-")      # mode 0700
+    except OSError:
+        return "", False
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    os.environ["_STEPDAMP_NUMBA_CACHE_REFUSED"] = refused
+    return path, False
+
+
 def use_user_cache_dir() -> str:
-    """Point numba's cache at :func:`user_cache_dir`."""
+    """Point numba's cache at :func:`user_cache_dir`, made private (0700); if that
+    folder may not be used, at a private temporary one, with a line on stderr.
+    Installs the guard that turns a cache file failing to load into a compile.
+    Returns the folder used ("" when nothing is cached)."""
+    global _active
     base = _user_base()
-    path = user_cache_dir()
-    if os.environ.get("NUMBA_CACHE_DIR") != path:
+    root, parts = _cache_root(), _own_parts()
+    path = os.path.join(root, *parts)
+    bad, why = _make_private(root, parts)
+    if bad:
+        path, inherited = _fallback(path)
+        if path and not inherited:
+            _note("refused", f"not using numba's cache folder {bad} ({why}); compiling into "
+                             f"a temporary folder this run (remove or fix it, or set "
+                             f"NUMBA_CACHE_DIR)")
+        elif not path:
+            _note("off", f"not using numba's cache folder {bad} ({why}); compiling without "
+                         f"a cache")
+    _active = path
+    if path and os.environ.get("NUMBA_CACHE_DIR") != path:
         os.environ["NUMBA_CACHE_DIR"] = path
         # Ours, not the user's: a child process computes its own (its code may differ).
         os.environ["_STEPDAMP_NUMBA_CACHE_DIR"] = path
@@ -75,7 +195,126 @@ def use_user_cache_dir() -> str:
         config = sys.modules.get("numba.core.config")
         if config is not None:           # numba was imported first: re-read its settings
             config.reload_config()
+    _install_guard()
     return path
+
+
+def _inside(path: str) -> bool:
+    """Whether numba's cache folder ``path`` is in the folder this package chose."""
+    if not _active:
+        return False
+    top = os.path.abspath(_active)
+    try:
+        return os.path.commonpath([os.path.abspath(path), top]) == top
+    except ValueError:                  # another drive
+        return False
+
+
+def _why(error: BaseException) -> str:
+    return getattr(error, "strerror", None) or type(error).__name__
+
+
+def _install_guard() -> None:
+    """Make numba's dispatchers build their caches through :func:`_guarded_caches`'
+    classes: in this package's folder, a cache file that fails to load (an empty
+    index: EOFError; garbage: UnpicklingError; anything else) is deleted and counts
+    as a miss, and a failed write costs only the compile; this package's functions
+    are cached nowhere else (numba would fall back to the package's folder)."""
+    try:
+        from numba.core import caching, dispatcher
+        plain = dispatcher.FunctionCache
+    except (ImportError, AttributeError):   # another numba layout: numba's own behaviour
+        return
+    if getattr(plain, "stepdamp_guard", False):
+        return
+    guarded = _guarded_caches(caching)
+
+    def function_cache(py_func):
+        ours = (getattr(py_func, "__module__", "") or "").split(".")[0] == __package__
+        try:
+            cache = guarded(py_func)
+        except Exception as e:          # noqa: BLE001 - numba found no folder it can write
+            _note("off", f"numba cannot cache in {_active or 'any folder'} ({_why(e)}); "
+                         f"compiling without a cache")
+            return caching.NullCache()
+        if ours and not _inside(cache.cache_path):
+            if _active:
+                _note("off", f"numba cannot cache in {_active}; compiling without a cache")
+            return caching.NullCache()
+        return cache
+
+    function_cache.stepdamp_guard = True
+    dispatcher.FunctionCache = function_cache
+
+
+def _guarded_caches(caching):
+    """numba's ``FunctionCache`` and its index/data file, guarded (see
+    :func:`_install_guard`); outside this package's folder they behave as numba's."""
+
+    class GuardedFile(caching.IndexDataCacheFile):
+        def __init__(self, cache_path, filename_base, source_stamp):
+            super().__init__(cache_path, filename_base, source_stamp)
+            self._stepdamp_data = re.compile(re.escape(filename_base) + r"\.\d+\.nbc")
+            self._stepdamp_name = filename_base
+
+        def discard_damaged(self, error: BaseException) -> None:
+            """Delete this function's index and data files (all of its signatures)."""
+            try:
+                names = [n for n in os.listdir(self._cache_path)
+                         if self._stepdamp_data.fullmatch(n)]
+            except OSError:
+                names = []
+            for path in [self._index_path] + [os.path.join(self._cache_path, n) for n in names]:
+                try:
+                    os.remove(path)
+                except OSError:
+                    pass
+            _note("damaged", f"discarded a damaged numba cache entry ({self._stepdamp_name}: "
+                             f"{_why(error)}) in {_active}; recompiling")
+
+        def _load_index(self):
+            try:
+                return super()._load_index()
+            except Exception as e:      # noqa: BLE001 - any failure to read is a miss
+                if not _inside(self._cache_path):
+                    raise
+                self.discard_damaged(e)
+                return {}
+
+        def load(self, key):
+            try:
+                return super().load(key)
+            except Exception as e:      # noqa: BLE001
+                if not _inside(self._cache_path):
+                    raise
+                self.discard_damaged(e)
+                return None
+
+    class GuardedCache(caching.FunctionCache):
+        def __init__(self, py_func):
+            super().__init__(py_func)
+            self._cache_file = GuardedFile(self._cache_path, self._impl.filename_base,
+                                           self._impl.locator.get_source_stamp())
+
+        def load_overload(self, sig, target_context):
+            try:
+                return super().load_overload(sig, target_context)
+            except Exception as e:      # noqa: BLE001 - e.g. rebuilding what was read
+                if not _inside(self._cache_path):
+                    raise
+                self._cache_file.discard_damaged(e)
+                return None
+
+        def save_overload(self, sig, data):
+            try:
+                super().save_overload(sig, data)
+            except Exception as e:      # noqa: BLE001 - a full disk: the compiled code still runs
+                if not _inside(self._cache_path):
+                    raise
+                _note("unwritten", f"cannot write numba's cache in {_active} ({_why(e)}); "
+                                   f"compiled code is not kept")
+
+    return GuardedCache
 
 
 def _call(fn, args):

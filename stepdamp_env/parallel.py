@@ -9,9 +9,11 @@ import multiprocessing
 import os
 import signal
 import sys
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["default_workers", "pool_map", "sigint_ignored"]
+__all__ = ["default_workers", "pool_map", "sigint_ignored", "WorkerLostError"]
 
 
 def default_workers() -> int:
@@ -37,6 +39,15 @@ def _worker_start(parent: int, initializer: Callable[..., None] | None,
         initializer(*initargs)
 
 
+class WorkerLostError(RuntimeError):
+    """A worker process of :func:`pool_map` died (killed, out of memory): the map
+    ends at once instead of waiting for its lost jobs."""
+
+
+def _run_chunk(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
+    return [fn(job) for job in chunk]
+
+
 def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
              initializer: Callable[..., None] | None = None, initargs: tuple = (),
              min_jobs: int = 2, max_chunk: int | None = None, bar: Any = None,
@@ -47,9 +58,12 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     ``workers <= 1`` or there are fewer than ``min_jobs`` jobs. Workers are
     forked where the platform can, so they inherit what the parent loaded
     (compiled kernels, models). ``bar`` (a tqdm bar) is advanced per result;
-    ``on_result(i, result)`` is called here as each result arrives (in order).
-    Workers end with the parent: on any exception here (Ctrl-C included) the
-    pool is terminated, and on Linux a worker is killed when its parent dies.
+    ``on_result(i, result)`` is called here as each result arrives (job ``i``;
+    in order when serial, as chunks finish on workers). Workers end with the
+    parent: on any exception here (Ctrl-C included) they are killed, and on
+    Linux a worker is killed when its parent dies. A worker that dies ends the
+    map within a moment with :class:`WorkerLostError` (the results handed to
+    ``on_result`` so far stand).
     """
     out: list[Any] = []
     if workers <= 1 or len(jobs) < min_jobs:
@@ -66,24 +80,41 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
     chunk = max(1, len(jobs) // (workers * 8))
     if max_chunk is not None:
         chunk = min(chunk, max_chunk)
-    pool = multiprocessing.get_context(method).Pool(
-        workers, initializer=_worker_start, initargs=(os.getpid(), initializer, initargs))
+    before = {p.pid for p in multiprocessing.active_children()}
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method),
+                               initializer=_worker_start,
+                               initargs=(os.getpid(), initializer, initargs))
+    parts: dict[int, list[Any]] = {}
     try:
-        for r in pool.imap(fn, jobs, chunksize=chunk):
-            out.append(r)
-            if on_result is not None:
-                on_result(len(out) - 1, r)
-            if bar is not None:
-                bar.update()
-        pool.close()
-    except BaseException:
-        # A second Ctrl-C inside terminate() would leave live workers that join()
-        # then waits for forever: the teardown runs with SIGINT ignored.
+        first = {pool.submit(_run_chunk, fn, jobs[k:k + chunk]): k
+                 for k in range(0, len(jobs), chunk)}
+        pending = set(first)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=first.__getitem__):
+                k = first[future]
+                parts[k] = future.result()
+                for j, result in enumerate(parts[k]):
+                    if on_result is not None:
+                        on_result(k + j, result)
+                    if bar is not None:
+                        bar.update()
+    except BaseException as exc:
+        # A second Ctrl-C inside the teardown would leave live workers behind.
         with sigint_ignored():
-            pool.terminate()
-            pool.join()
+            for child in multiprocessing.active_children():
+                if child.pid not in before:
+                    child.kill()
+            pool.shutdown(wait=True, cancel_futures=True)
+        if isinstance(exc, BrokenProcessPool):
+            raise WorkerLostError(
+                f"a worker process died (killed, or out of memory) after {len(parts)} of "
+                f"{-(-len(jobs) // chunk)} chunks of work; run the command again (a "
+                "leaderboard resumes from its finished batches)") from None
         raise
-    pool.join()
+    pool.shutdown(wait=True)
+    for k in sorted(parts):
+        out.extend(parts[k])
     return out
 
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 import numbers
 import os
@@ -46,6 +45,7 @@ from typing import Any, Iterable, Mapping, NamedTuple
 import numpy as np
 
 from . import fixedmath as fm
+from .limits import LIMITS
 
 __all__ = [
     "CurrentGains",
@@ -70,6 +70,7 @@ __all__ = [
     "fastest_plant_mode",
     "required_substeps",
     "RESONANCE_HARMONICS",
+    "check_name",
 ]
 
 
@@ -310,6 +311,21 @@ TEXT_FIELDS = ("drive_mode",)
 META_KEYS = ("base", "name", "source", "notes")
 
 
+def check_name(name: Any, label: str = "name") -> str:
+    """``name`` if it is 1 to ``LIMITS.name_chars`` printable characters, else a
+    one-line ``ParameterError`` naming ``label`` and the allowed range (a name is
+    copied into every record, file and message of a run: a 50 MB name would
+    cost gigabytes)."""
+    if not isinstance(name, str):
+        raise ParameterError(f"{label} must be text, got {type(name).__name__}")
+    if not 1 <= len(name) <= LIMITS.name_chars or not name.isprintable():
+        # Only the start of the name into the message (_show shortens it anyway).
+        raise ParameterError(f"{label}={_show(name[:60])} ({len(name)} characters) is outside "
+                             f"its allowed range: 1 to {LIMITS.name_chars} printable characters "
+                             "(no line breaks or tabs)")
+    return name
+
+
 @dataclass(frozen=True)
 class SystemParams:
     """Motor, drive and servo parameters of one simulated system."""
@@ -320,6 +336,7 @@ class SystemParams:
     name: str = "custom"
 
     def __post_init__(self) -> None:
+        check_name(self.name)
         if self.drive.pwm_hz / 2 <= self.servo.velocity_cutoff_hz:
             raise ParameterError(
                 f"velocity_cutoff_hz={self.servo.velocity_cutoff_hz} is outside its allowed "
@@ -600,14 +617,9 @@ class FeedforwardModel:
 def read_json_file(path: str, label: str) -> Any:
     """The JSON in ``path``; invalid JSON or an unreadable file is a one-line
     ``ParameterError`` naming it as ``label`` (e.g. "motor file", "--motors")."""
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"{label} {path!r} is not valid JSON: {exc}") from None
-    except OSError as exc:
-        raise ParameterError(f"{label} {path!r} cannot be read: {exc.strerror or exc}") \
-            from None
+    from .io import read_json
+
+    return read_json(path, label)
 
 
 def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,

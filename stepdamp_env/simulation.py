@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 from dataclasses import InitVar, asdict, dataclass, field
 from typing import Any, Mapping
 
@@ -17,6 +18,7 @@ import numpy as np
 from . import fixedmath as fm
 from . import kernel as K
 from .estimators import kalman_velocity_gains
+from .limits import LIMITS
 from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, SystemParams,
                      fastest_plant_mode, load_system, required_substeps)
 
@@ -25,6 +27,13 @@ __all__ = [
     "MODES",
     "BASE_CONTROLLERS",
     "DEFAULT_ACCEL_RPS2",
+    "MIN_ACCEL_RPS2",
+    "MAX_DURATION_S",
+    "max_move_distance_rev",
+    "trace_memory_limit",
+    "check_trace_memory",
+    "run_length_error",
+    "run_periods_chunked",
     "SpeedProfile",
     "RunSettings",
     "RunMetrics",
@@ -49,10 +58,21 @@ VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST.LOWPASS, "kalman": K.VEL_EST.KALMAN,
 TWO_PI = 2.0 * math.pi
 # Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
 DEFAULT_ACCEL_RPS2 = 50.0
+# Smallest command acceleration (rev/s^2) of `stepdamp ... --accel` and of the envs'
+# accel_rps2: below it the ramp alone outlasts MAX_DURATION_S at a few rev/s.
+MIN_ACCEL_RPS2 = 1e-3
+# Longest simulated time of one run (s): `stepdamp simulate --duration`'s cap, and
+# simulate()'s for a duration given or derived from the profile (a move's time, a ramp).
+MAX_DURATION_S = 1e4
+# RK4 plant steps (PWM periods x substeps) per compiled kernel call: about 0.05 s of a
+# core (~0.2 us a step). Python runs its signal handlers (Ctrl-C, SIGTERM) only between
+# compiled calls, so a run stops within a second of one. The chunks give the same bits
+# as one call: every loop variable is carried in the state and accumulators.
+CHUNK_PLANT_STEPS = 1 << 18
 
 
 def _check_choice(name: str, value: str, choices) -> None:
-    if value not in choices:
+    if not isinstance(value, str) or value not in choices:     # an array has no truth value
         raise ParameterError(f"{name}={value!r} is not one of {sorted(choices)}")
 
 
@@ -112,6 +132,17 @@ class SpeedProfile:
         if v * v / a > d:
             return 2.0 * math.sqrt(d / a)
         return d / v + v / a
+
+
+def max_move_distance_rev(speed_rps: float, accel_rps2: float, time_s: float) -> float:
+    """Longest move (rev) at top speed ``|speed_rps|`` and ``accel_rps2`` that lasts
+    at most ``time_s`` (the inverse of :meth:`SpeedProfile.duration_s`)."""
+    v, a = abs(speed_rps), accel_rps2
+    if not time_s > 0.0:
+        return 0.0
+    if time_s >= 2.0 * v / a:           # reaches its top speed: trapezoidal
+        return v * (time_s - v / a)
+    return a * time_s * time_s / 4.0    # triangular
 
 
 @dataclass(frozen=True)
@@ -451,6 +482,96 @@ class RunResult:
     accumulators: np.ndarray = field(default_factory=new_accumulators)
 
 
+def trace_memory_limit() -> int:
+    """Bytes a trace may take (estimated before anything is allocated):
+    ``LIMITS.trace_bytes``, or a quarter of this machine's physical memory where
+    that is less."""
+    try:
+        physical = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):       # no sysconf (Windows)
+        return LIMITS.trace_bytes
+    return min(LIMITS.trace_bytes, physical // 4) if physical > 0 else LIMITS.trace_bytes
+
+
+#: Bytes of one trace row in the kernel's buffer (float64 channels).
+TRACE_ROW_BYTES = 8 * len(K.TRACE)
+
+
+def check_trace_memory(n_periods: int, trace_every: int, pwm_hz: float, *,
+                       row_bytes: int = 2 * TRACE_ROW_BYTES, option: str = "trace",
+                       duration: str = "duration_s", every: str | None = "trace_every"
+                       ) -> None:
+    """Refuse, before allocating, a trace of ``n_periods`` PWM periods (one row every
+    ``trace_every``) whose ``row_bytes`` per row exceed :func:`trace_memory_limit`:
+    a one-line ``ParameterError`` naming ``option`` and how to shorten it (the
+    defaults: :func:`simulate`'s buffer and its per-channel copies)."""
+    rows = -(-n_periods // trace_every)
+    need = rows * row_bytes
+    limit = trace_memory_limit()
+    if need <= limit:
+        return
+    rows_max = max(1, limit // row_bytes)
+    advice = f"give a shorter {duration} (at most {rows_max * trace_every / pwm_hz:.6g} s)"
+    if every:
+        advice += f" or raise {every} (to at least {-(-n_periods // rows_max)})"
+    raise ParameterError(
+        f"{option}: {rows} rows ({n_periods} PWM periods at {pwm_hz:g} Hz, about "
+        f"{row_bytes} bytes a row) need about {need / 2 ** 30:.3g} GiB of memory, above the "
+        f"{limit / 2 ** 30:.3g} GiB allowed; {advice}")
+
+
+def run_length_error(system: SystemParams, profile: SpeedProfile, settings: RunSettings,
+                     names: Mapping[str, str] | None = None) -> str:
+    """Why the run of ``profile`` (its default duration, or its window's start)
+    cannot fit in :data:`MAX_DURATION_S`, naming what to change; ``names``
+    renames the parameters (the CLI's ``--move``, ``--speed``, ``--accel``)."""
+    n = {"distance_rev": "distance_rev", "speed_rps": "speed_rps",
+         "accel_rps2": "accel_rps2", "duration_s": "duration_s", **(names or {})}
+    settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
+    v, a = abs(profile.speed_rps), profile.accel_rps2
+    cap = f"past the {MAX_DURATION_S:g} s a run may last"
+    if profile.kind == "move":
+        time_s = profile.duration_s()
+        d_max = max_move_distance_rev(v, a, MAX_DURATION_S - settle)
+        return (f"{n['distance_rev']}={profile.distance_rev:g} is a move of {time_s:.6g} s at "
+                f"{n['speed_rps']}={profile.speed_rps:g} and {n['accel_rps2']}={a:g}; with "
+                f"{settle:.3g} s of settling it runs {time_s + settle:.6g} s, {cap}: allowed "
+                f"|{n['distance_rev']}| <= {d_max:.6g} rev")
+    start, length = measuring_window(system, profile, settings)
+    opens = start < MAX_DURATION_S
+    room = MAX_DURATION_S - settle - (length if opens else 0.0)
+    fixes = [f"{n['accel_rps2']} >= {v / room:.6g} rev/s^2"] if room > 0.0 and v > 0.0 else []
+    if opens:       # a shorter run: the window cut short
+        fixes.append(f"a {n['duration_s']} in ({start:.6g}, {MAX_DURATION_S:g}] s")
+    return (f"the ramp to {n['speed_rps']}={profile.speed_rps:g} at {n['accel_rps2']}={a:g} "
+            f"takes {profile.ramp_s:.6g} s; with {settle:.3g} s of settling and a "
+            f"{length:.3g} s window the run lasts {start + length:.6g} s, {cap}: allowed "
+            + (" or ".join(fixes) or "a shorter settle_s"))
+
+
+def run_periods_chunked(config: np.ndarray, state: np.ndarray, acc: np.ndarray,
+                        inputs: np.ndarray, n_periods: int, trace: np.ndarray,
+                        trace_every: int) -> int:
+    """:func:`kernel.run_periods` over ``n_periods`` in calls of about
+    :data:`CHUNK_PLANT_STEPS` plant steps each, so that signals are handled
+    between them; the same bits as one call, the trace rows included (row ``r``
+    holds period ``r * trace_every``). Returns the rows written."""
+    chunk = max(1, CHUNK_PLANT_STEPS // max(1, int(config[K.CONFIG.SUBSTEPS])))
+    empty = trace[:0]
+    done = rows = 0
+    while done < n_periods:
+        n = min(chunk, n_periods - done)
+        if done % trace_every == 0:
+            # The kernel writes a row at each multiple of trace_every from its start.
+            rows += K.run_periods(config, state, acc, inputs, n, trace[rows:], trace_every)
+        else:
+            # Up to the next period that has a row: no row to write.
+            n = min(n, trace_every - done % trace_every)
+            K.run_periods(config, state, acc, inputs, n, empty, trace_every)
+        done += n
+    return rows
+
+
 def simulate(system: SystemParams | str | Mapping[str, Any], *,
              speed_rps: float | None = None,
              profile: SpeedProfile | None = None,
@@ -483,15 +604,23 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
                              "[1, inf) (integer)")
     start, length = measuring_window(system, profile, settings)
     end = start + length
+    # Bounded work: the run (given or derived from the profile) lasts at most
+    # MAX_DURATION_S; checked before anything is built or allocated.
+    if not start < MAX_DURATION_S or (duration_s is None and not end <= MAX_DURATION_S):
+        raise ParameterError(run_length_error(system, profile, settings))
     if duration_s is None:
         duration_s = end
     _check_positive("duration_s", duration_s)
-    if not round(duration_s * system.drive.pwm_hz) * system.drive.pwm_hz ** -1 > start:
+    if not (round(duration_s * system.drive.pwm_hz) * system.drive.pwm_hz ** -1 > start
+            and duration_s <= MAX_DURATION_S):
         raise ParameterError(
             f"duration_s={duration_s:.6g} s must end after the measuring window opens at "
-            f"{start:.6g} s (ramp + settle): allowed range ({start:.6g}, inf) s")
-    config = build_config(system, profile, settings, window_start_s=start)
+            f"{start:.6g} s (ramp + settle) and last at most {MAX_DURATION_S:g} s: allowed "
+            f"range ({start:.6g}, {MAX_DURATION_S:g}] s")
     n_periods = int(round(duration_s * system.drive.pwm_hz))
+    if trace:
+        check_trace_memory(n_periods, trace_every, system.drive.pwm_hz)
+    config = build_config(system, profile, settings, window_start_s=start)
     state = initial_state(config)
     acc = new_accumulators()
     inputs = np.zeros(len(K.INPUT))
@@ -500,7 +629,7 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
         buf = np.zeros((rows, len(K.TRACE)))
     else:
         buf = np.zeros((0, len(K.TRACE)))
-    written = K.run_periods(config, state, acc, inputs, n_periods, buf, trace_every)
+    written = run_periods_chunked(config, state, acc, inputs, n_periods, buf, trace_every)
     trace_dict = None
     if trace:
         trace_dict = {name: buf[:written, i].copy() for i, name in enumerate(K.TRACE_NAMES)}

@@ -25,6 +25,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 POLICY_SOURCE = os.path.join(ROOT, "tests", "leaderboard_policy.py")
 ODD = "odd dir.ü"          # a dot, a space and a non-ASCII letter
 
+def _kept(resume: str) -> list[str]:
+    """The batch files in a resume directory (its hidden marker left out)."""
+    return sorted(n for n in os.listdir(resume) if not n.startswith("."))
+
 
 def _tiny():
     protocol = quick_protocol_v1()
@@ -164,12 +168,12 @@ def test_a_result_directory_inside_the_policys_folder_still_resumes(tmp_path, ca
         spec = str(folder)
     resume = str(folder / "board" / RESUME_DIR)
     first = run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
-    kept = sorted(os.listdir(resume))
+    kept = sorted(_kept(resume))
     capsys.readouterr()
     second = run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
     err = capsys.readouterr().err
     assert "resuming: " in err and f"{len(kept)} of {len(kept)} batches" in err
-    assert sorted(os.listdir(resume)) == kept
+    assert sorted(_kept(resume)) == kept
     assert json.dumps(first["entries"]) == json.dumps(second["entries"])
 
 
@@ -189,10 +193,10 @@ def test_kept_batches_are_not_reused_after_any_change_in_process_or_not(tmp_path
     spec = f"{policy}:NominalFeedforward"
     resume = str(folder / "board" / RESUME_DIR)
     run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
-    first = set(os.listdir(resume))
+    first = set(_kept(resume))
     _flip(policy, 0.99, 0x01)       # the last byte: a newline becomes a tab or so
     run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
-    second = set(os.listdir(resume))
+    second = set(_kept(resume))
     assert first and second and not first & second
 
     def other_process() -> str:
@@ -205,7 +209,7 @@ def test_kept_batches_are_not_reused_after_any_change_in_process_or_not(tmp_path
     assert "resuming: " in other_process()              # the same file: the same key
     _flip(policy, 0.99, 0x01)
     assert "resuming" not in other_process()            # changed: nothing kept is read
-    assert not second & set(os.listdir(resume))
+    assert not second & set(_kept(resume))
 
 
 def test_tree_digest_skips_the_excluded_result_directory_and_hidden_names(tmp_path):

@@ -29,6 +29,10 @@ from stepdamp_env.simulation import merge_accumulator_rows, merge_accumulators
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
+def _kept(resume: str) -> list[str]:
+    """The batch files in a resume directory (its hidden marker left out)."""
+    return sorted(n for n in os.listdir(resume) if not n.startswith("."))
+
 
 @pytest.fixture(scope="module")
 def specs():
@@ -195,7 +199,7 @@ def test_an_interrupted_leaderboard_resumes_to_the_same_numbers(tmp_path):
     with pytest.raises(_Interrupt):
         run_leaderboard(protocol, policies, workers=1, progress=False, resume_dir=resume,
                         backend=dies_after_two)
-    assert len(os.listdir(resume)) == 2
+    assert len(_kept(resume)) == 2
 
     ran = []
 
@@ -207,17 +211,17 @@ def test_an_interrupted_leaderboard_resumes_to_the_same_numbers(tmp_path):
     resumed = run_leaderboard(protocol, policies, workers=1, progress=False, resume_dir=resume,
                               backend=records)
     assert _numbers(resumed) == _numbers(whole)
-    assert len(ran) == len(os.listdir(resume)) - 2      # the two kept batches were not rerun
+    assert len(ran) == len(_kept(resume)) - 2      # the two kept batches were not rerun
 
 
 def test_a_changed_protocol_does_not_reuse_kept_batches(tmp_path):
     protocol = _tiny()
     resume = str(tmp_path / RESUME_DIR)
     run_leaderboard(protocol, ["ff-delay-comp"], workers=1, progress=False, resume_dir=resume)
-    first = set(os.listdir(resume))
+    first = set(_kept(resume))
     other = dataclasses.replace(protocol, window_s=protocol.window_s * 2)
     run_leaderboard(other, ["ff-delay-comp"], workers=1, progress=False, resume_dir=resume)
-    assert not first & set(os.listdir(resume))
+    assert not first & set(_kept(resume))
 
 
 def test_leaderboard_command_keeps_batches_until_done(tmp_path):
@@ -228,7 +232,7 @@ def test_leaderboard_command_keeps_batches_until_done(tmp_path):
             "--suite", "open-loop", "--workers", "1", "--no-progress", "--no-plots",
             "--out", str(out)]
     os.makedirs(out / RESUME_DIR)
-    (out / RESUME_DIR / "stale.json").write_text("[]")
+    (out / RESUME_DIR / f"{'0' * 16}-{'0' * 24}.json").write_text("[]")   # another run's
     assert main(args) == 0
     assert (out / "leaderboard.json").is_file()
     assert not (out / RESUME_DIR).exists()                  # gone with the finished run
@@ -333,10 +337,10 @@ def test_kept_batches_of_a_changed_policy_file_are_not_reused(tmp_path):
     spec = f"{policy_file}:NominalFeedforward"
     resume = str(tmp_path / RESUME_DIR)
     run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
-    first = set(os.listdir(resume))
+    first = set(_kept(resume))
     policy_file.write_text(source + "\n# changed\n")
     run_leaderboard(_tiny(), [spec], workers=1, progress=False, resume_dir=resume)
-    assert first and not first & set(os.listdir(resume))
+    assert first and not first & set(_kept(resume))
 
 
 def test_a_subclass_that_changes_act_alone_runs_per_row():

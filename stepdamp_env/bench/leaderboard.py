@@ -17,6 +17,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -32,7 +33,8 @@ from ..estimators import kalman_velocity_gains
 from .. import fixedmath as fm
 from .. import numba_cache
 from ..identify import identify
-from ..io import cache_dir, read_json_or_none, write_json
+from ..io import (cache_dir, read_checked_json, refuse_link, write_checked_json,
+                  write_text)
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..presets import get_preset
@@ -48,8 +50,7 @@ from .runner import (RUN_ERRORS, EpisodeResult, EpisodeSpec, could_not_run, run_
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
            "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
-           "BATCH_RUNS",
-           "RESUME_DIR"]
+           "BATCH_RUNS", "RESUME_DIR", "open_resume_dir", "clear_resume_dir"]
 
 # Runs of one entry, model and suite stepped together (and kept together on resume).
 BATCH_RUNS = 64
@@ -123,8 +124,9 @@ def identify_cached(system: SystemParams, method: str, seed: int) -> Feedforward
     if where is not None:
         key = json.dumps({"system": system.to_dict(), "method": method, "seed": seed,
                           "code": code_fingerprint()}, sort_keys=True)
-        path = os.path.join(where, hashlib.sha256(key.encode()).hexdigest()[:32] + ".json")
-        kept = read_json_or_none(path)
+        digest = hashlib.sha256(key.encode()).hexdigest()
+        path = os.path.join(where, digest[:32] + ".json")
+        kept = read_checked_json(path, digest, "identification cache entry")
         try:
             if isinstance(kept, dict) and kept.get("failed") is not None:
                 return str(kept["failed"])
@@ -140,7 +142,7 @@ def identify_cached(system: SystemParams, method: str, seed: int) -> Feedforward
         entry = {"model": None, "failed": model}
     if path is not None:
         try:
-            write_json(path, entry)
+            write_checked_json(path, digest, entry)
         except OSError:                 # a full or read-only cache: computed anyway
             pass
     return model
@@ -227,22 +229,80 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     return records
 
 
-def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
-                  ) -> list[str]:
-    """One file per batch, named by the run's header and the batch; files of other
-    runs (another protocol, policy, model file or package version) are removed."""
+# What the tool writes in a resume directory: the marker, batch files
+# (<run>-<batch>.json) and write_json's temporary files of them. Nothing else
+# there is ever deleted.
+_RESUME_MARKER = ".stepdamp-resume"
+_RESUME_FILE = re.compile(r"\.?[0-9a-f]{16}-[0-9a-f]{24}(\.json|\.[a-z0-9_]{8}\.tmp\.json)")
+
+
+def open_resume_dir(resume_dir: str) -> None:
+    """Make (or adopt) the resume directory: never a link, and a directory the
+    tool did not make (no marker) only if it holds nothing but batch files."""
+    hint = "stepdamp deletes files there: remove the link"
+    refuse_link(resume_dir, "resume directory", hint)
     os.makedirs(resume_dir, exist_ok=True)
-    run = hashlib.sha256(json.dumps(header, sort_keys=True, default=str).encode()
-                         ).hexdigest()[:16]
+    marker = os.path.join(resume_dir, _RESUME_MARKER)
+    if not os.path.lexists(marker):
+        foreign = sorted(n for n in os.listdir(resume_dir) if not _RESUME_FILE.fullmatch(n))
+        if foreign:
+            raise ParameterError(
+                f"resume directory {resume_dir!r} holds {foreign[0]!r}, which stepdamp did not "
+                "write; move it away (the directory keeps an interrupted run's batches)")
+        write_text(marker, "batches of an interrupted stepdamp leaderboard run\n")
+    refuse_link(marker, "resume directory marker", hint)
+
+
+def clear_resume_dir(resume_dir: str, keep_run: str | None = None) -> None:
+    """Remove the batch files in ``resume_dir`` (those of run ``keep_run`` kept);
+    only files the tool wrote (:data:`_RESUME_FILE`), never through a link."""
+    if not os.path.lexists(resume_dir):
+        return
+    open_resume_dir(resume_dir)
     for name in os.listdir(resume_dir):
-        if not name.startswith(run + "-"):
+        if _RESUME_FILE.fullmatch(name) and \
+                (keep_run is None or not name.lstrip(".").startswith(keep_run + "-")):
             try:
                 os.remove(os.path.join(resume_dir, name))
             except OSError:
                 pass
+
+
+def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
+                  ) -> list[str]:
+    """One file per batch, named by the run's header and the batch; files of other
+    runs (another protocol, policy, model file or package version) are removed."""
+    run = hashlib.sha256(json.dumps(header, sort_keys=True, default=str).encode()
+                         ).hexdigest()[:16]
+    open_resume_dir(resume_dir)
+    clear_resume_dir(resume_dir, keep_run=run)
     return [os.path.join(resume_dir, f"{run}-" + hashlib.sha256(
         repr((b.spec, b.suite, b.training_seed, b.runs)).encode()).hexdigest()[:24] + ".json")
         for b in batches]
+
+
+# The keys of every run record (EpisodeResult.record), checked on a resumed batch.
+_RECORD_KEYS = frozenset(("motor", "seed", "speed_rps", "speed_label", "terminated",
+                          "termination", "failed", "steps", "window_start_s", "window_s",
+                          "metrics", "calibration_s", "simulated_s"))
+
+
+def _resumed(path: str, batch: LeaderboardBatch, motors: Sequence[ProtocolMotor]
+             ) -> list[dict[str, Any]] | None:
+    """A kept batch's records if they are whole, match their checksum and are the
+    batch's very runs (motor, seed, speed); else None (run again)."""
+    key = os.path.basename(path)[:-len(".json")]
+    records = read_checked_json(path, key, "resume batch")
+    if not isinstance(records, list) or len(records) != len(batch.runs):
+        return None
+    for (i, seed, j), r in zip(batch.runs, records):
+        if not (isinstance(r, dict) and _RECORD_KEYS <= r.keys()
+                and r["motor"] == motors[i].name and r["seed"] == seed
+                and r["speed_rps"] == motors[i].speeds(batch.suite).speeds_rps[j]):
+            print(f"stepdamp: note: resume batch {path!r} does not hold its runs; running "
+                  "them again", file=sys.stderr)
+            return None
+    return records
 
 
 def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
@@ -311,8 +371,9 @@ def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> f
     processes first (they share no compiled code), with a line on stderr if
     ``progress``. Returns the seconds spent."""
     start = time.perf_counter()
-    marker = os.path.join(numba_cache.user_cache_dir(), "compiled")
-    cold = not os.path.exists(marker)
+    where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
+    marker = os.path.join(where, "compiled") if where else None
+    cold = marker is None or not os.path.exists(marker)
     if cold and progress:
         print(f"compiling the simulation kernels for this version of the code, once "
               f"({min(workers, len(_WARM_PARTS))} process(es); under a minute)...",
@@ -325,7 +386,7 @@ def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> f
             pass
     for k in range(len(_WARM_PARTS)):
         _warm_part((k, system))
-    if cold:
+    if cold and marker is not None:
         try:
             with open(marker, "w", encoding="utf-8") as fh:
                 fh.write("compiled\n")
@@ -526,9 +587,9 @@ def _run_batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
                       exclude=(os.path.dirname(os.path.abspath(resume_dir)),))
                       for spec, src in sources.items()}}
         paths = list(_resume_paths(resume_dir, batches, header))
-    done: list[Any] = [read_json_or_none(p) if p is not None else None for p in paths]
-    todo = [k for k, (b, d) in enumerate(zip(batches, done))
-            if not (isinstance(d, list) and len(d) == len(b.runs))]
+    done: list[Any] = [_resumed(p, b, motors) if p is not None else None
+                       for p, b in zip(paths, batches)]
+    todo = [k for k, d in enumerate(done) if d is None]
     if len(todo) < len(batches):
         print(f"resuming: {len(batches) - len(todo)} of {len(batches)} batches read from "
               f"{resume_dir}", file=sys.stderr)
@@ -536,7 +597,7 @@ def _run_batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
     def keep(j: int, records: list[dict[str, Any]]) -> None:
         path = paths[todo[j]]
         if path is not None:
-            write_json(path, records)
+            write_checked_json(path, os.path.basename(path)[:-len(".json")], records)
 
     bar = _progress_bar(progress, len(todo), "leaderboard", "batch")
     # SB3 models are loaded in the parent and inherited by the forked workers.

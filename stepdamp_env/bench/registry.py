@@ -25,7 +25,6 @@ import hashlib
 import importlib
 import importlib.metadata
 import importlib.util
-import json
 import os
 import sys
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..io import file_digest, related_files, tree_digest
+from ..io import file_digest, parse_json, read_json, related_files, tree_digest
 from ..params import ParameterError
 from ..ray_backend import BY_VALUE
 from .network import predict_rows
@@ -186,12 +185,13 @@ class SB3Policy:
     residuals on top of the patent feedforward with the identified model.
     """
 
+    DEFAULT_OPTIONS = {"base_controller": "patent-ff", "estimate": "identified",
+                       "action_mode": "harmonic"}
+
     def __init__(self, name: str, model: Any, options: Mapping[str, Any] | None) -> None:
         self.name = name
         self.model = model
-        self.options = dict(options) if options else {"base_controller": "patent-ff",
-                                                      "estimate": "identified",
-                                                      "action_mode": "harmonic"}
+        self.options = dict(options) if options else dict(self.DEFAULT_OPTIONS)
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         out = dict(self.options)
@@ -217,7 +217,7 @@ def _sb3_algo_class(path: str) -> list[Any]:
     module = ""
     try:
         with zipfile.ZipFile(path) as zf:
-            data = json.loads(zf.read("data").decode("utf-8"))
+            data = parse_json(zf.read("data").decode("utf-8"), f"SB3 model {path!r}")
         module = str(data.get("policy_class", {}).get("__module__", ""))
     except (KeyError, ValueError, zipfile.BadZipFile, AttributeError):
         pass
@@ -234,8 +234,7 @@ def _load_sb3_zip(spec: str) -> PolicySource:
     side = os.path.splitext(path)[0] + ".json"
     options = None
     if os.path.isfile(side):
-        with open(side, encoding="utf-8") as fh:
-            options = json.load(fh)
+        options = read_json(side, "env options")
         if not isinstance(options, dict):
             raise ParameterError(f"{side!r} must hold a JSON object of env options")
     errors = []
@@ -248,8 +247,26 @@ def _load_sb3_zip(spec: str) -> PolicySource:
             errors.append(f"{algo.__name__}: {exc}")
     if model is None:
         raise ParameterError(f"cannot load SB3 model {spec!r}: {'; '.join(errors)}")
+    _check_observations(spec, model, options or SB3Policy.DEFAULT_OPTIONS, side)
     name = os.path.splitext(os.path.basename(path))[0]
     return PolicySource(spec, name, lambda: SB3Policy(name, model, options))
+
+
+def _check_observations(spec: str, model: Any, options: Mapping[str, Any], side: str) -> None:
+    """A one-line error if the model does not take the observations of
+    StepperDamp-v0 with ``options`` (a model saved without its env options)."""
+    from ..env.options import EnvOptions
+    from ..env.scalar import EpisodeSampler
+
+    probe = {k: v for k, v in options.items() if k != "estimate"}   # no effect on the shape
+    want = tuple(EpisodeSampler(EnvOptions.from_kwargs(probe)).observation_space().shape)
+    got = tuple(getattr(model.observation_space, "shape", ()) or ())
+    if got != want:
+        raise ParameterError(
+            f"SB3 model {spec!r} takes observations of shape {got}, but StepperDamp-v0 with "
+            f"{'its' if os.path.isfile(side) else 'the default'} env options {dict(options)} "
+            f"gives {want}; keep its .agent.json beside it (a `stepdamp train` model) or write "
+            f"the env options it was trained with to {side!r}")
 
 
 def _import_attr(spec: str) -> Any:

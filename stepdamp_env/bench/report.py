@@ -21,8 +21,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .. import kernel as K
-from ..io import atomic_path, write_json, write_text
-from ..params import FeedforwardModel
+from ..io import atomic_path, read_json, write_json, write_text
+from ..params import FeedforwardModel, ParameterError
 from ..plots import (POLICY_COLOURS, POLICY_MARKERS, finish_ripple_axes, legend_outside,
                      mark_resonances, pyplot, save_figure)
 from .motors import ProtocolMotor, protocol_motors
@@ -30,6 +30,7 @@ from .leaderboard import protocol_knowledge
 from .policy import MotorKnowledge
 from .protocol import REFERENCE_POLICY, SUITE_MODE, Protocol
 from .protocols import protocol_class
+from .provenance import board_fingerprint
 from .registry import default_policy_names, resolve_policy
 from .runner import episode_window, run_episode
 
@@ -37,7 +38,7 @@ __all__ = ["RESULT_FILES", "RUNS_FILE", "GZIP_RUNS_FILE", "open_runs_file", "for
            "render_ladder", "render_suite_page", "suite_page", "row_notes", "best_eligible", "scored_in_db",
            "highlighted_rows", "entry_knowledge", "entry_rows", "render_per_motor", "has_splits", "splits",
            "plot_performance_profile",
-           "load_leaderboard", "policy_styles", "plot_ripple", "plot_overview",
+           "load_leaderboard", "verify_fingerprint", "policy_styles", "plot_ripple", "plot_overview",
            "plot_resonance_traces", "trace_run", "write_outputs"]
 
 #: The runs file: xz at preset 1 (the full v3 board's runs, 27 MB of JSON: 3.8 MB
@@ -521,20 +522,37 @@ def open_runs_file(path: str | os.PathLike[str]) -> Any:
 def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
     """The board as :func:`~.leaderboard.run_leaderboard` returned it, read from
     ``leaderboard.json`` and its runs file."""
-    with open(os.path.join(directory, "leaderboard.json"), encoding="utf-8") as fh:
-        board = json.load(fh)
-    path = os.path.join(directory, board.get("runs_file", GZIP_RUNS_FILE))
+    board = read_json(os.path.join(directory, "leaderboard.json"), "board")
+    if not isinstance(board, dict) or not isinstance(board.get("entries"), list):
+        raise ParameterError(f"board {os.path.join(directory, 'leaderboard.json')!r} is not a "
+                             "leaderboard (no list of entries)")
+    runs_file = board.get("runs_file", GZIP_RUNS_FILE)
+    if not isinstance(runs_file, str) or os.path.basename(runs_file) != runs_file:
+        raise ParameterError(f"board {directory!r}: runs_file must be a file name beside it, "
+                             f"got {runs_file!r}")
+    path = os.path.join(directory, runs_file)
+    raw = read_json(path, "runs file", opener=lzma.open if path.endswith(".xz") else gzip.open)
     try:
-        with open_runs_file(path) as fh:
-            raw = json.load(fh)
-    except lzma.LZMAError as exc:       # gzip's errors are OSError already
-        raise ValueError(f"{path}: not a readable runs file ({exc})") from None
-    by_key = {(r["name"], r["suite"], r.get("split")): r for r in raw["entries"]}
-    for e in board["entries"]:
-        for key in _RAW_KEYS:
-            e[key] = by_key[(e["name"], e["suite"], e.get("split"))][key]
+        by_key = {(r["name"], r["suite"], r.get("split")): r for r in raw["entries"]}
+        for e in board["entries"]:
+            for key in _RAW_KEYS:
+                e[key] = by_key[(e["name"], e["suite"], e.get("split"))][key]
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ParameterError(f"board {directory!r}: its runs file does not hold the board's "
+                             f"entries ({type(exc).__name__}: {exc})") from None
     board.pop("runs_file", None)
     return board
+
+
+def verify_fingerprint(board: Mapping[str, Any], directory: str) -> None:
+    """A one-line ``ParameterError`` if a board read back does not match the
+    fingerprint it was written with (an edited or damaged file); boards written
+    before fingerprints are taken as they are."""
+    kept = board.get("fingerprint")
+    if kept is not None and board_fingerprint(board) != kept:
+        raise ParameterError(f"board {directory!r}: its numbers do not match its fingerprint "
+                             f"{str(kept)[:16]}... (leaderboard.json or its runs file was edited "
+                             "or damaged); run the board again, or --no-verify to show it anyway")
 
 
 def _representative(board: Mapping[str, Any]) -> tuple[str, int]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import BASE_CONTROLLERS as _CORE_BASE_CONTROLLERS
-from ..simulation import DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
+from ..simulation import DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from .layout import ACTION_MODES
 from .registration import ENV_ID
 
@@ -79,7 +79,8 @@ def check_number(name: str, value: Any, low: float, high: float, *, low_open: bo
 
 
 def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
-    if value not in choices:
+    # The type first: `in` on an array asks its truth value (numpy raises).
+    if not isinstance(value, str) or value not in choices:
         raise ParameterError(f"{name}={value!r} is not one of {list(choices)}")
     return value
 
@@ -144,7 +145,8 @@ class EnvOptions:
             raise _bad("speed_range_rps", self.speed_range_rps, "1e-6 <= low <= high <= 100 (rev/s)")
         check_number("resonance_prob", self.resonance_prob, 0.0, 1.0)
         check_number("resonance_spread", self.resonance_spread, 0.0, 0.9)
-        check_number("accel_rps2", self.accel_rps2, 0.0, 1e5, low_open=True)
+        # The CLI's --accel minimum: below it the ramp alone outlasts any allowed run.
+        check_number("accel_rps2", self.accel_rps2, MIN_ACCEL_RPS2, 1e5)
         check_number("agent_hz", self.agent_hz, 1.0, 1e6)
         if self.harmonic_scale_nm is not None:
             check_number("harmonic_scale_nm", self.harmonic_scale_nm, 0.0, 100.0, low_open=True)
@@ -220,8 +222,8 @@ OPTIONS_DOC = """
       resonant speeds (h = 4, 2, 1, equally likely, of the episode's motor) times
       U(1 - ``resonance_spread``, 1 + ``resonance_spread``) (0.1), else
       U(``speed_range_rps``) ((0.25, 3.0) rev/s).
-    * ``accel_rps2`` (``DEFAULT_ACCEL_RPS2`` = 50.0): ramp acceleration (rev/s^2) from rest to the command,
-      which is then held.
+    * ``accel_rps2`` (``DEFAULT_ACCEL_RPS2`` = 50.0): ramp acceleration (rev/s^2, in [1e-3,
+      1e5]) from rest to the command, which is then held.
     * ``action_mode`` ("harmonic"): see Action Space.
     * ``agent_hz`` (1000.0): decision rate (Hz); ``pwm_hz/agent_hz`` must be a whole
       number of PWM periods.

@@ -112,7 +112,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from ... import fixedmath as fm
-from ...io import cache_dir, read_json_or_none, write_json
+from ...io import cache_dir, read_checked_json, write_checked_json
 from ...parallel import default_workers, pool_map
 from ...params import ParameterError, SystemParams
 from ...presets import get_preset
@@ -533,6 +533,7 @@ def grids_cached(protocol: ProtocolV3, systems: Sequence[SystemParams]) -> list[
     are deterministic, so a kept grid is the one it would compute."""
     where = cache_dir("grids")
     paths: list[str | None] = [None] * len(systems)
+    keys: list[str] = [""] * len(systems)
     out: list[Grids | None] = [None] * len(systems)
     if where is not None and systems:
         settings = {k: v for k, v in protocol.to_dict().items() if k != "splits"}
@@ -540,9 +541,9 @@ def grids_cached(protocol: ProtocolV3, systems: Sequence[SystemParams]) -> list[
         for i, system in enumerate(systems):
             key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code},
                              sort_keys=True, default=str)
-            paths[i] = os.path.join(where, hashlib.sha256(key.encode()).hexdigest()[:32] +
-                                    ".json")
-            out[i] = _grids_from_json(read_json_or_none(paths[i]))
+            keys[i] = hashlib.sha256(key.encode()).hexdigest()
+            paths[i] = os.path.join(where, keys[i][:32] + ".json")
+            out[i] = _grids_from_json(read_checked_json(paths[i], keys[i], "grid cache entry"))
     todo = [i for i, g in enumerate(out) if g is None]
     workers = 1 if multiprocessing.current_process().daemon else default_workers()
     workers = min(workers, len(todo))
@@ -555,8 +556,8 @@ def grids_cached(protocol: ProtocolV3, systems: Sequence[SystemParams]) -> list[
         out[i] = g
         if paths[i] is not None:
             try:
-                write_json(paths[i], [[suite, list(speeds), list(labels)]
-                                      for suite, speeds, labels in g])
+                write_checked_json(paths[i], keys[i], [[suite, list(speeds), list(labels)]
+                                                       for suite, speeds, labels in g])
             except OSError:             # a full or read-only cache: computed anyway
                 pass
     if any(g is None for g in out):
