@@ -142,7 +142,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         return _sweep_entries(args, system, speeds, entries)
     bases = list(dict.fromkeys(args.base_controller))
     settings = [_settings(args, b) for b in bases]
-    check_output_dir(args.out, "--out")
+    args.out = check_output_dir(args.out, "--out")
     backend = backend_map(args.backend, args.ray_address)
     results = [run_sweep(system, speeds, st, accel_rps2=args.accel, workers=args.workers,
                          backend=backend,
@@ -202,7 +202,7 @@ def _sweep_entries(args: argparse.Namespace, system: Any, speeds: np.ndarray,
     if unknown:
         raise ParameterError(f"--damping: unknown {unknown}; choose from {list(named)} "
                              "(or give a policy file with --policy)")
-    check_output_dir(args.out, "--out")
+    args.out = check_output_dir(args.out, "--out")
     results = [sweep_entry(e, system, speeds, mode=args.mode, seed=args.noise_seed,
                            workers=args.workers, progress=not args.no_progress)
                for e in dict.fromkeys(entries)]
@@ -358,7 +358,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from .identify import identify
     from .io import write_json
 
-    check_output_dir(args.out, "--out")
+    args.out = check_output_dir(args.out, "--out")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     if args.log:
         return _identify_logs(args, system)
@@ -522,9 +522,10 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
     from .bench.protocols.v1 import load_motors_file
     from .bench.report import RESULT_FILES, entry_line, entry_rows, render_per_motor, splits
 
-    from .bench.leaderboard import RESUME_DIR, clear_resume_dir, open_resume_dir
+    from .bench.leaderboard import (RESUME_DIR, clear_resume_dir, finish_resume_dir,
+                                    open_resume_dir)
 
-    check_output_dir(args.out, "--out", own_dirs=(RESUME_DIR,))
+    args.out = check_output_dir(args.out, "--out", own_dirs=(RESUME_DIR,))
     protocol = protocol_for(args.protocol, quick=args.quick)
     if args.motors is not None:
         protocol = protocol.with_custom_motors(load_motors_file(args.motors, protocol))
@@ -556,7 +557,8 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
         board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
                                 progress=not args.no_progress, resume_dir=resume,
                                 backend=backend_map(args.backend, args.ray_address))
-        with staged_directory(args.out, RESULT_FILES) as stage:
+        with staged_directory(args.out, RESULT_FILES,
+                              own_dirs={RESUME_DIR: finish_resume_dir}) as stage:
             written = write_outputs(board, stage, protocol, plots=not args.no_plots)
     for suite in protocol.suites:
         for split in splits(board):
@@ -637,7 +639,7 @@ def _add_backend_args(p: argparse.ArgumentParser) -> None:
     """--backend and --ray-address (``stepdamp train`` has them too)."""
     p.add_argument("--backend", choices=("local", "ray"), default="local",
                    help="where the runs go: this machine's process pool, or Ray (extra "
-                        "[ray]; see the README's section on clusters)")
+                        "[ray]; docs/performance.md, 'Running on a cluster (Ray)')")
     p.add_argument("--ray-address", default=None, metavar="ADDR",
                    help="with --backend ray: a running cluster ('auto' or HOST:PORT); "
                         "default: a local Ray on this machine's cores (loopback only)")
@@ -753,19 +755,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=".", metavar="DIR", help="output directory")
     p.set_defaults(func=_cmd_export)
 
-    from .bench.protocols import DEFAULT_VERSION, protocol_versions
+    from .bench.protocols import DEFAULT_VERSION, known_suites, protocol_about, protocol_versions
 
     p = command("leaderboard", f"run the stepdamp-bench protocol ({DEFAULT_VERSION} by "
                                "default) on the baselines, the reference agents and given "
                                "policies")
     p.add_argument("--protocol", choices=protocol_versions(), default=DEFAULT_VERSION,
-                   help="protocol version, each specified in docs/protocols.md: v1 "
-                        "(interpolation and extrapolation splits), v2 (v1 plus the "
-                        "voltage-mode drive's mid-band suite), v0 (frozen, the first "
-                        "published numbers)")
+                   help="protocol version, each specified in docs/protocols.md: " +
+                        "; ".join(f"{v} ({protocol_about(v)})" for v in protocol_versions()))
     p.add_argument("--quick", action="store_true",
-                   help="the protocol's reduced CI variant (v1 and v2: 8 motors, resonant speeds, "
-                        "two servo speeds, 0.1 s window; v0: presets, one seed)")
+                   help="the protocol's reduced CI variant: " + "; ".join(
+                       f"{v}: {protocol_about(v, quick=True)}" for v in protocol_versions()))
     p.add_argument("--motors", metavar="FILE.json", default=None,
                    help="the protocol on your own motors (split 'custom'): a motor file (a "
                         "datasheet file or model fields, docs/motors.md) or a JSON list of "
@@ -779,7 +779,7 @@ def build_parser() -> argparse.ArgumentParser:
                    default=None, metavar="NAME",
                    help="run only these registered entries, baselines and reference agents "
                         "(default: all; 'none' always runs)")
-    p.add_argument("--suite", choices=["open-loop", "servo", "mid-band", "all"], default="all",
+    p.add_argument("--suite", choices=[*known_suites(), "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
     p.add_argument("--split", choices=["dev", "interpolation", "extrapolation"], default=None,
@@ -795,7 +795,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("report", "print a result table from a leaderboard directory")
     p.add_argument("dir", metavar="DIR", help="a directory `stepdamp leaderboard` wrote")
-    p.add_argument("--suite", choices=["open-loop", "servo", "mid-band", "all"], default="all",
+    p.add_argument("--suite", choices=[*known_suites(), "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
@@ -809,9 +809,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "damaged files; by default that is an error)")
     p.set_defaults(func=_cmd_report)
 
-    p = command("train", "train residual RL agents (ARS, PPO, SAC, TD3) on StepperDamp-v1 "
-                "(or the v0 gain selector)")
-    from stepdamp_agents.train import add_arguments
+    from stepdamp_agents.train import ALGO_CHOICES, add_arguments
+
+    p = command("train", f"train residual RL agents ({', '.join(ALGO_CHOICES)}) on "
+                "StepperDamp-v1 (or the v0 gain selector)")
 
     add_arguments(p)
     p.set_defaults(func=_cmd_train)

@@ -42,7 +42,8 @@ import numpy as np
 
 from . import fixedmath as fm
 from .identify import effort_response, model_from_coefficients
-from .io import write_text
+from .io import check_regular_file, write_text
+from .limits import LIMITS
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams, load_system
 from .simulation import MODES, RunResult
 
@@ -193,13 +194,13 @@ def read_trace(path: str | os.PathLike[str], *,
     """
     name = os.fspath(path)
     label = f"drive log {name!r}"
-    if os.path.isdir(name):
-        raise ParameterError(f"{label} is a directory, not a CSV file")
-    if not os.path.exists(name):
-        raise ParameterError(f"{label} does not exist")
+    check_regular_file(name, label)         # a pipe or /dev/zero would never end
     try:
         with open(name, encoding="utf-8") as fh:
-            text = fh.read()
+            text = fh.read(LIMITS.json_bytes + 1)
+        if len(text) > LIMITS.json_bytes:
+            raise ParameterError(f"{label} is over {LIMITS.json_bytes} bytes; allowed at most "
+                                 "that (a log of a few seconds is a few MB)")
     except UnicodeDecodeError:
         raise ParameterError(f"{label} is not UTF-8 text (a CSV drive log)") from None
     except OSError as exc:

@@ -21,10 +21,11 @@ import json
 import os
 import re
 import shutil
+import stat
 import sys
 import tempfile
 from contextlib import contextmanager
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -34,6 +35,7 @@ __all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writab
            "check_output_dir", "staged_directory", "cache_dir", "read_json_or_none",
            "read_json", "parse_json",
            "write_checked_json", "read_checked_json", "output_lock", "refuse_link",
+           "check_regular_file",
            "file_digest", "tree_digest", "related_files"]
 
 
@@ -139,8 +141,9 @@ def parse_json(text: str, label: str) -> Any:
                              f"{LIMITS.json_depth}")
     try:
         return json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise ParameterError(f"{label} is not valid JSON: {exc}") from None
+    except (ValueError, RecursionError) as exc:     # a decode error, an int of 4300+ digits
+        raise ParameterError(f"{label} is not valid JSON: {' '.join(str(exc).split())}") \
+            from None
 
 
 def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -> Any:
@@ -151,6 +154,7 @@ def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -
     from .params import ParameterError
 
     where = f"{label} {os.fspath(path)!r}"
+    check_regular_file(path, where)
     try:
         with (opener or open)(path, "rt", encoding="utf-8") as fh:
             text = fh.read(LIMITS.json_bytes + 1)
@@ -170,6 +174,23 @@ def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -
     if len(text) > LIMITS.json_bytes:
         raise ParameterError(f"{where} is over {LIMITS.json_bytes} bytes; allowed at most that")
     return parse_json(text, where)
+
+
+def check_regular_file(path: str | os.PathLike[str], where: str) -> None:
+    """A one-line ``ParameterError`` unless ``path`` is a regular file (after
+    links): a FIFO would block a read for ever, a device never end it."""
+    from .params import ParameterError
+
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise ParameterError(f"{where} does not exist") from None
+    except OSError as exc:
+        raise ParameterError(f"{where} cannot be read: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(mode):
+        raise ParameterError(f"{where} is a directory, not a file")
+    if not stat.S_ISREG(mode):
+        raise ParameterError(f"{where} is not a regular file (a pipe or a device)")
 
 
 def read_json_or_none(path: str | os.PathLike[str]) -> Any:
@@ -325,19 +346,25 @@ _PREVIOUS = ".{name}.previous-{pid}"
 
 
 def check_output_dir(path: str | os.PathLike[str], option: str,
-                     own_dirs: Sequence[str] = ()) -> None:
+                     own_dirs: Sequence[str] = ()) -> str:
     """Before any work: ``path`` can be written and holds no sub-directory other
     than the command's own ``own_dirs`` (a run swaps the whole directory in,
-    carrying other files over, see :func:`staged_directory`)."""
+    carrying other files over, see :func:`staged_directory`). Returns the
+    directory as the system resolves it (``a/link/..`` is where ``link``
+    points, not ``a``), which every later step must use; a previous result
+    directory a killed run left aside is put back first."""
     from .params import ParameterError
 
-    path = os.fspath(path)
     refuse_link(path, option)
+    path = os.path.realpath(os.fspath(path))
+    parent, name = os.path.split(path)
+    if os.path.isdir(parent):
+        _clean_leftovers(parent, name)
     existed = os.path.isdir(path)
     check_writable(path, option, directory=True)
     if not existed:                 # made by the probe; the run makes it when done
         os.rmdir(path)
-        return
+        return path
     subdirs = sorted(e.name for e in os.scandir(path)
                      if e.is_dir(follow_symlinks=False) and e.name not in own_dirs)
     if subdirs:
@@ -345,6 +372,7 @@ def check_output_dir(path: str | os.PathLike[str], option: str,
             f"{option} {path!r} holds the directory {subdirs[0]!r}; a run replaces its output "
             "directory whole, so give a directory of files only (a new one, or an earlier "
             "result directory)")
+    return path
 
 
 def refuse_link(path: str | os.PathLike[str], option: str,
@@ -375,8 +403,17 @@ def output_lock(path: str | os.PathLike[str], option: str) -> Iterator[None]:
     refuse_link(path, option)
     os.makedirs(path, exist_ok=True)
     lock = os.path.join(path, _LOCK_FILE)
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
     try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC,
+                     0o644)
+    except OSError as exc:
+        raise ParameterError(f"{option} {path!r}: its lock file {lock!r} cannot be opened "
+                             f"({exc.strerror}); remove it") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_nlink != 1:
+            raise ParameterError(f"{option} {path!r}: its lock file {lock!r} is not a plain file "
+                                 "of its own (a pipe, a device or a hard link); remove it")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -406,7 +443,9 @@ _TEMP_FILE = re.compile(r"\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?")
 
 
 @contextmanager
-def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> Iterator[str]:
+def staged_directory(path: str | os.PathLike[str], results: Sequence[str],
+                     own_dirs: Mapping[str, Callable[[str], None]] | None = None
+                     ) -> Iterator[str]:
     """Yield a fresh staging directory beside ``path``; on success it becomes ``path``.
 
     ``results`` are glob patterns of the files the command writes: those of a
@@ -414,6 +453,11 @@ def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> It
     other file there is carried over (hard link, else copy). The swap is one
     atomic exchange where the system has it (Linux renameat2), else two renames.
     On any exception the staging directory is removed and ``path`` is untouched.
+    After the swap the previous directory is emptied of what the run replaced
+    or copied; whatever else it holds (added while the run went on: folders,
+    pipes, files) is moved into the new one, never deleted. ``own_dirs``: the
+    command's own sub-directories and how to empty them of its files (what
+    stays is moved across too).
     """
     path = os.path.abspath(os.fspath(path))
     refuse_link(path, "output directory")
@@ -434,8 +478,42 @@ def staged_directory(path: str | os.PathLike[str], results: Sequence[str]) -> It
         _fsync_path(staging)
         _swap_in(staging, path)
         _fsync_path(parent)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)      # ours alone: results, links, copies
+        raise
+    if os.path.isdir(staging):          # the previous directory, swapped out
+        _retire(staging, path, results, own_dirs or {})
+
+
+def _retire(old: str, new: str, results: Sequence[str],
+            own_dirs: Mapping[str, Callable[[str], None]]) -> None:
+    """Remove from the previous output directory ``old`` what the run replaced
+    or copied into ``new``, move the rest into ``new``, then remove ``old``; if
+    anything could not be moved it is kept, renamed, with a note on stderr."""
+    for entry in os.scandir(old):
+        target = os.path.join(new, entry.name)
+        plain = entry.is_symlink() or entry.is_file(follow_symlinks=False)
+        if entry.name in own_dirs and entry.is_dir(follow_symlinks=False):
+            own_dirs[entry.name](entry.path)
+            try:
+                os.rmdir(entry.path)
+                continue
+            except OSError:             # something of the user's in it: moved across
+                pass
+        if entry.name == _LOCK_FILE or _TEMP_FILE.fullmatch(entry.name) or \
+                (plain and (os.path.lexists(target) or
+                            any(fnmatch.fnmatch(entry.name, pat) for pat in results))):
+            os.unlink(entry.path)       # replaced, or standing in ``new`` (link or copy)
+        elif not os.path.lexists(target):
+            os.rename(entry.path, target)
+    try:
+        os.rmdir(old)
+    except OSError:
+        kept = os.path.join(os.path.dirname(new),
+                            f".{os.path.basename(new)}.kept-{os.getpid()}")
+        os.rename(old, kept)
+        print(f"stepdamp: note: what the previous {new!r} held and the new one has a result "
+              f"of the same name for is kept in {kept!r}", file=sys.stderr)
 
 
 def _link_or_copy(src: str, dst: str) -> None:

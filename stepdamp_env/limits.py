@@ -16,14 +16,20 @@ class Limits:
     #: Nesting of arrays and objects in any JSON file read (the tool's own files
     #: nest at most 8 deep; Python's parser would recurse out past about 1000).
     json_depth: int = 64
-    #: Size of a JSON file read, bytes (a full board's runs are about 30 MB).
-    json_bytes: int = 1 << 30
+    #: Size of a JSON or CSV file read, bytes (a full board's runs are about 30 MB;
+    #: parsing may take 26 times the file in memory).
+    json_bytes: int = 256 * 1024 ** 2
+    #: Nesting of list files naming list files (``stepdamp motors``).
+    list_file_depth: int = 8
     #: Characters of a motor's name (printable).
     name_chars: int = 200
     #: Motors in a ``--motors`` file.
     custom_motors: int = 1000
     #: Memory of one trace, bytes (or a quarter of the machine's, if less).
     trace_bytes: int = 2 * 1024 ** 3
+    #: RK4 plant steps of one simulated run (PWM periods x substeps): about
+    #: half an hour of a core; 1e4 s at 20 kHz and one substep is 2e8.
+    plant_steps: int = 10 ** 10
 
 
 LIMITS = Limits()

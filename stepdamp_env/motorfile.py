@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from .limits import LIMITS
 from .params import (DRIVE_FIELDS, MOTOR_FIELDS, SERVO_FIELDS, DriveParams, MotorParams,
                      ParameterError, ServoParams, SystemParams, allowed)
 
@@ -255,6 +256,9 @@ def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescrip
     if not os.path.isfile(spec):
         get_preset(spec)        # the one-line error listing the presets
     real = os.path.realpath(spec)
+    if len(_within) >= LIMITS.list_file_depth:
+        raise ParameterError(f"motor file {spec!r} is list file {len(_within) + 1} deep; allowed "
+                             f"at most {LIMITS.list_file_depth} list files naming list files")
     if real in _within:
         raise ParameterError(f"motor file {spec!r} names itself (through "
                              f"{' -> '.join(map(repr, _within))}); a list file may name presets "
@@ -264,6 +268,9 @@ def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescrip
     if isinstance(data, dict) and isinstance(data.get("motors"), list):
         data = data["motors"]
     items = data if isinstance(data, list) else [data]
+    if len(items) > LIMITS.custom_motors:
+        raise ParameterError(f"motor file {spec!r} lists {len(items)} motors; allowed 1 to "
+                             f"{LIMITS.custom_motors}")
     out = []
     for k, item in enumerate(items):
         if isinstance(item, str):

@@ -621,6 +621,13 @@ def simulate(system: SystemParams | str | Mapping[str, Any], *,
     if trace:
         check_trace_memory(n_periods, trace_every, system.drive.pwm_hz)
     config = build_config(system, profile, settings, window_start_s=start)
+    substeps = int(config[K.CONFIG.SUBSTEPS])
+    if n_periods * substeps > LIMITS.plant_steps:
+        raise ParameterError(
+            f"duration_s={duration_s:g} s at {system.drive.pwm_hz:g} Hz with substeps={substeps} "
+            f"is {n_periods * substeps:.3g} plant steps (hours of a core); allowed at most "
+            f"{LIMITS.plant_steps:.3g}: at most {LIMITS.plant_steps / substeps / system.drive.pwm_hz:.6g}"
+            " s, or fewer substeps")
     state = initial_state(config)
     acc = new_accumulators()
     inputs = np.zeros(len(K.INPUT))

@@ -59,6 +59,7 @@ def _trajectory(policy, system, speed, steps=150, seed=3):
     return np.array([o for o, _ in result.trace]), result.trace[-1][1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
 @pytest.mark.parametrize("base,baseline,residual_action", [
     ("patent-ff", "patent-ff-identified", "harmonic"),
@@ -147,6 +148,7 @@ def test_hyperparams_files_parse():
         assert sp["env_kwargs"]["randomize"] is True
 
 
+@pytest.mark.slow
 def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     out = str(tmp_path / "run")
     log = train(Args(algo="sac", env=RESIDUAL_ENV_ID, seed=4, out=out, total_timesteps=3000,
@@ -279,6 +281,7 @@ def test_feedback_residual_is_the_same_in_training_scalar_wrapper_and_leaderboar
     assert np.array_equal(env.drive_state, state_training)
 
 
+@pytest.mark.slow
 def test_reference_agent_is_listed_and_beats_the_model_based_baselines():
     """The committed reference model (agents/reference/ppo-gain-selector.seed*) runs in the
     leaderboard by default under its name; on the quick protocol's open-loop suite it

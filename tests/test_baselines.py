@@ -51,6 +51,7 @@ def test_baseline_registry():
         make_baseline("magic")
 
 
+@pytest.mark.slow
 def test_ordering_on_the_patent_motor(patent_case):
     nominal, identified = patent_case
     know = _knowledge(nominal, nominal, identified)

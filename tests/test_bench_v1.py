@@ -174,6 +174,7 @@ def test_two_level_bootstrap_widens_with_motor_variance():
     assert hi2 - lo2 > 5 * (hi1 - lo1)
 
 
+@pytest.mark.slow
 def test_statistics_agree_with_rliable():
     """rliable (test-only dependency) on fixed data: the IQM equals it, the
     probability of improvement equals it (scores negated: rliable's higher is
@@ -252,6 +253,7 @@ def _cli(*args, cwd=None):
                           capture_output=True, text=True, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_leaderboard_on_my_motors_writes_the_v1_fields(tmp_path):
     """``--motors``: every policy on the user's motors, split custom; the JSON has
     the fields stepdamp-bench v1 promises and the runs are in the side file."""
@@ -310,6 +312,7 @@ def test_motors_option_errors_are_one_line(tmp_path):
     assert r.returncode == 2 and "--protocol v1" in r.stderr
 
 
+@pytest.mark.slow
 def test_v1_leaderboard_with_its_figures_and_report(tmp_path, capsys):
     from stepdamp_env.cli import main
 

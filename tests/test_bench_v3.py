@@ -259,6 +259,7 @@ def quick_board():
     return p, run_leaderboard(p, entries, progress=False)
 
 
+@pytest.mark.slow
 def test_quick_board_references_and_contract(quick_board):
     p, board = quick_board
     rows = board["entries"]
@@ -304,6 +305,7 @@ def test_patent_resonances_match_the_docstring():
         assert "0.672, 1.343 and" in " ".join(fh.read().split())
 
 
+@pytest.mark.slow
 def test_midband_band_depends_on_viscous_damping():
     from stepdamp_env.analysis import midband
 
@@ -373,6 +375,7 @@ def test_first_band_only_scan_finds_the_same_band():
             midband(s, (0.25, 30.0, 0.25)).unstable_rps
 
 
+@pytest.mark.slow
 def test_default_leaderboard_is_v3_with_its_figures_report_and_check(tmp_path, capsys):
     import json
 

@@ -365,3 +365,11 @@ def test_long_simulate_stops_within_a_second_of_a_signal(sig, status, startup_s)
     assert "Traceback" not in err, err
     if sig == signal.SIGINT:
         assert err.strip() == "stepdamp simulate: interrupted; earlier results are unchanged"
+
+
+def test_a_run_of_more_plant_steps_than_the_limit_is_refused_before_it_starts(capsys):
+    start = time.monotonic()
+    assert main(["simulate", "--speed", "2", "--duration", "10000", "--substeps", "1000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "plant steps" in err and "substeps" in err
+    assert time.monotonic() - start < 30

@@ -16,6 +16,9 @@ import pytest
 
 import cpu_variants as V
 
+# Every board here is computed again in subprocesses, some on emulated CPUs (minutes).
+pytestmark = pytest.mark.slow
+
 
 def test_the_quick_boards_here_are_the_stored_ones():
     got = V.quick_boards(workers=2)

@@ -174,6 +174,7 @@ def test_a_simulated_move_measures_the_move(capsys):
     assert out["window_start_s"] == 0.0 and out["rms_velocity_error_rad_s"] > 0.0
 
 
+@pytest.mark.slow
 def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
     # A short sweep first: a fresh clone compiles the kernel (many seconds), and the
     # interrupt below must land inside the sweep, not inside numba's compiler.
@@ -205,6 +206,7 @@ def test_ctrl_c_ends_with_one_line_and_status_130(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["warm"]
 
 
+@pytest.mark.slow
 def test_ctrl_c_twice_on_the_whole_process_group_neither_hangs_nor_prints_a_traceback(tmp_path):
     """A terminal's Ctrl-C reaches the workers too, and users press it twice: the
     second one used to land inside the pool's teardown and leave it waiting forever

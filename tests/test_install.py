@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from stepdamp_env.numba_cache import code_key
 
 
@@ -82,6 +84,7 @@ def test_a_child_process_computes_its_own_cache_dir(tmp_path):
         str(tmp_path / "xdg" / "stepdamp" / "numba" / code_key())
 
 
+@pytest.mark.slow
 def test_pytest_runs_from_any_directory(tmp_path):
     """The leaderboard tests once failed when pytest ran from outside the checkout."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -177,6 +177,7 @@ def quick_board():
     return run_leaderboard(quick_protocol(), names, workers=2, progress=False)
 
 
+@pytest.mark.slow
 def test_ladder_orderings_on_the_quick_protocol(quick_board):
     h = _headlines(quick_board, "open-loop")
     best = min(v for k, v in h.items() if k not in ("oracle-floor", "none"))

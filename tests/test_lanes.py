@@ -184,6 +184,7 @@ def test_resonant_terms_switched_on_between_calls():
         assert np.array_equal(_bits(x), _bits(y))
 
 
+@pytest.mark.slow
 def test_the_loops_over_lanes_are_vectorised():
     # Compiled afresh (cached code cannot be inspected): LLVM's optimised IR must
     # multiply vectors of doubles, in the control with and without the law and in

@@ -108,6 +108,7 @@ def tiny_board():
     return run_leaderboard(tiny_protocol(), TINY_POLICIES, workers=2, progress=False)
 
 
+@pytest.mark.slow
 def test_deterministic_and_independent_of_workers(tiny_board):
     again = run_leaderboard(tiny_protocol(), TINY_POLICIES, workers=2, progress=False)
     serial = run_leaderboard(tiny_protocol(), TINY_POLICIES, workers=1, progress=False)
@@ -159,6 +160,7 @@ def test_identified_baseline_runs():
     assert board["identification"][0]["model"]["Kd4"] > 0
 
 
+@pytest.mark.slow
 def test_cli_writes_leaderboard(tmp_path, capsys):
     out = tmp_path / "lb"
     rc = main(["leaderboard", "--protocol", "v0", "--quick", "--suite", "open-loop",

@@ -60,6 +60,7 @@ def _voltage_step(system, theta, ia, ib, period, speed_rps):
     return c, K.control_step(float(period), theta, ia, ib, cs, q, (0.0,) * len(K.INPUT))
 
 
+@pytest.mark.slow
 def test_voltage_law_is_the_winding_model_turned_to_the_next_period():
     # No current feedback: the voltages do not depend on the measured currents,
     # the PI integrators are left alone, and the vector is the model's
@@ -136,6 +137,7 @@ def test_rotor_mode_at_low_speed_is_the_holding_spring():
         assert lam == pytest.approx(want, rel=2e-3)
 
 
+@pytest.mark.slow
 def test_the_current_loop_removes_the_band_and_a_faster_winding_moves_it():
     for name in preset_names():
         system = get_preset(name)
@@ -166,6 +168,7 @@ def test_operating_point_balances_the_load():
     assert bridge_limit_rps(system) == pytest.approx(8.395, abs=0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", preset_names())
 def test_simulated_band_matches_the_eigenvalue_band_within_10_percent(name):
     # The test: undamped, 1-15 rev/s, the voltage-mode drive rips in a

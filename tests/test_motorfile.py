@@ -119,6 +119,7 @@ def test_assumed_lists_every_default_with_its_value():
     assert legacy.assumed["D"] == 0.001 and "J" not in legacy.assumed
 
 
+@pytest.mark.slow
 def test_example_file_and_motors_command(capsys):
     (d,) = describe_spec(EXAMPLE)
     assert d.system.name == "17hs4401-belt"
@@ -301,6 +302,7 @@ def test_drive_logs_of_the_example_motor_identify_back(tmp_path, capsys):
     assert got["phi2"] == pytest.approx(-0.7, abs=0.05)
 
 
+@pytest.mark.slow
 def test_an_entry_that_cannot_run_is_lost_with_its_reason(tmp_path, capsys):
     from stepdamp_env.bench.report import load_leaderboard, row_notes
 
@@ -329,6 +331,7 @@ def test_the_worked_example_prints_what_docs_motors_md_shows(capsys):
         assert line in doc, line
 
 
+@pytest.mark.slow
 def test_motors_warns_where_the_bus_cannot_push_the_current(tmp_path, capsys):
     path = tmp_path / "low.json"
     path.write_text(json.dumps({**SHEET, "bus_voltage_V": 2.0}))

@@ -88,6 +88,7 @@ def test_a_chosen_numba_cache_dir_keeps_its_mode(tmp_path):
     assert stat.S_IMODE(os.stat(leaf).st_mode) == 0o700
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["empty index", "cut index", "garbage data"])
 def test_a_damaged_cache_is_compiled_again(tmp_path, damage):
     env = _env(tmp_path)
@@ -113,6 +114,7 @@ def test_a_damaged_cache_is_compiled_again(tmp_path, damage):
     assert third.stdout == first.stdout and _note_lines(third.stderr) == []
 
 
+@pytest.mark.slow
 def test_an_unusable_cache_root_costs_only_the_compile(tmp_path):
     root = tmp_path / "a-file"            # makedirs fails under a file, even as root
     root.write_text("")

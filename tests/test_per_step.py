@@ -114,6 +114,7 @@ def test_v1_runner_pwm_trace_records_every_period_and_changes_nothing():
     assert np.allclose(np.diff(rows[:, K.TRACE.T]), period, rtol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["ars", "ppo", "ppo_lstm", "sac", "td3"])
 def test_zero_residual_reproduces_the_base_bit_for_bit(tmp_path, algo):
     """A fresh model of every algorithm acts exactly 0 and its leaderboard policy
@@ -187,6 +188,7 @@ def test_task_options_and_seeds_are_checked():
         train_seeds(Args(algo="ars", env="StepperDampResidual-v0"))
 
 
+@pytest.mark.slow
 def test_multi_seed_training_end_to_end_reloads_deterministically(tmp_path):
     """`--seeds 1-2` trains two ARS seeds into seed1/ and seed2/; each saved model
     reloads and evaluates the same twice; the two seeds differ."""

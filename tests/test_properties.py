@@ -199,6 +199,7 @@ def assert_system_valid(system: SystemParams) -> None:
 # ---------------------------------------------------------------------------
 # 1. One field at a time: validation never lets anything but ParameterError out
 # ---------------------------------------------------------------------------
+@pytest.mark.slow
 @_settings(N_FIELD_VALUES)
 @given(name=st.one_of(*[st.tuples(st.just(n), field_value(n)) for n in NUMERIC_FIELDS]),
        base=st.sampled_from(PRESETS), via_load=st.booleans())
@@ -248,6 +249,7 @@ _set_item = st.one_of(
 )
 
 
+@pytest.mark.slow
 @_settings(N_SET_OVERRIDES)
 @given(item=_set_item, base=st.sampled_from(PRESETS))
 def test_set_overrides_parse_to_numbers_or_refuse(item, base):
@@ -347,6 +349,7 @@ speeds = st.one_of(
         lambda t: t[0] * t[1]))
 
 
+@pytest.mark.slow
 @_settings(N_SIMULATE)
 @given(values=parameter_sets(), base=st.sampled_from(PRESETS),
        mode=st.sampled_from(["open-loop", "servo"]), damping=st.sampled_from(["none", "patent-ff"]),
@@ -584,6 +587,7 @@ def _steps_affordable(sampler, substeps: int, n_envs: int = 1) -> int:
     return ENV_BUDGET // (periods * substeps * n_envs)
 
 
+@pytest.mark.slow
 @_settings(N_SCALAR_ENV)
 @given(opts=env_options(scalar=True), seed=st.integers(0, 2 ** 32 - 1),
        n_steps=st.integers(1, 8), data=st.data())
@@ -638,6 +642,7 @@ def test_scalar_env_options_and_actions(opts, seed, n_steps, data):
         assert_metrics_finite(metrics)
 
 
+@pytest.mark.slow
 @_settings(N_VECTOR_ENV)
 @given(opts=env_options(scalar=False), n=st.integers(1, 4), seed=st.integers(0, 2 ** 32 - 1),
        max_steps=st.one_of(st.none(), st.integers(1, 4)),

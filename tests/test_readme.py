@@ -7,6 +7,8 @@ from __future__ import annotations
 import os
 import re
 
+import pytest
+
 from stepdamp_env.bench.report import load_leaderboard, render_ladder
 from stepdamp_env.env import ACTION_NAMES, observation_names
 
@@ -35,6 +37,7 @@ def test_action_table_lists_every_mode():
         assert f"| `{mode}`" in section and f"| {len(names)} |" in section
 
 
+@pytest.mark.slow
 def test_results_tables_are_generated_from_the_committed_leaderboards():
     import subprocess
     import sys

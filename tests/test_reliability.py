@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stepdamp_env import io as sio
-from stepdamp_env.bench.leaderboard import (RESUME_DIR, clear_resume_dir, identify_cached,
-                                            open_resume_dir, run_leaderboard)
+from stepdamp_env.bench.leaderboard import (RESUME_DIR, clear_resume_dir, finish_resume_dir,
+                                            identify_cached, open_resume_dir, run_leaderboard)
 from stepdamp_env.bench.motors import protocol_motors
 from stepdamp_env.bench.provenance import board_fingerprint
 from stepdamp_env.bench.protocols.v1 import quick_protocol_v1
@@ -360,6 +360,7 @@ def test_an_edited_or_incomplete_resume_batch_is_run_again(tmp_path, capsys):
     assert board_fingerprint(again) == board_fingerprint(whole)
 
 
+@pytest.mark.slow
 def test_report_refuses_an_edited_board_by_default(tmp_path, capsys):
     board = tmp_path / "b"
     shutil.copytree(V3_BOARD, board)
@@ -393,6 +394,7 @@ def test_a_damaged_runs_file_is_a_one_line_error(tmp_path, capsys, damage):
     _one_line_error(capsys, str(board))
 
 
+@pytest.mark.slow
 def test_published_boards_verify(capsys):
     from stepdamp_env.bench.report import load_leaderboard, verify_fingerprint
 
@@ -400,3 +402,127 @@ def test_published_boards_verify(capsys):
         directory = os.path.join(ROOT, "docs", "results", version)
         verify_fingerprint(load_leaderboard(directory), directory)
 
+
+
+# -- review findings: what a run finds in --out when it ends, odd files --------------------
+def test_what_is_added_to_out_while_a_run_goes_on_is_kept(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.json").write_text("{}")
+    resume = out / RESUME_DIR
+    open_resume_dir(str(resume))
+    (resume / BATCH).write_text("[]")
+    with sio.staged_directory(out, ["*.json"], own_dirs={RESUME_DIR: finish_resume_dir}) as stage:
+        (out / "notes").mkdir()                                     # while the run goes on
+        (out / "notes" / "a.txt").write_text("x")
+        (resume / "my.txt").write_text("y")
+        os.mkfifo(out / "pipe")
+        (out / "late.txt").write_text("z")
+        sio.write_json(os.path.join(stage, "new.json"), {})
+    assert sorted(os.listdir(out)) == [RESUME_DIR, "late.txt", "new.json", "notes", "pipe"]
+    assert os.listdir(resume) == ["my.txt"]                          # the batch and marker gone
+    assert (out / "notes" / "a.txt").read_text() == "x"
+    assert [n for n in os.listdir(tmp_path) if n != "out"] == []
+
+
+def test_a_finished_leaderboard_removes_its_resume_dir(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    open_resume_dir(str(out / RESUME_DIR))
+    (out / RESUME_DIR / BATCH).write_text("[]")
+    with sio.staged_directory(out, ["*.json"], own_dirs={RESUME_DIR: finish_resume_dir}):
+        pass
+    assert os.listdir(out) == []
+
+
+def test_out_through_a_link_and_dotdot_is_the_directory_the_system_means(tmp_path):
+    (tmp_path / "L" / "important").mkdir(parents=True)
+    (tmp_path / "L" / "important" / "data.txt").write_text("p")
+    (tmp_path / "A").mkdir()
+    (tmp_path / "A" / "f.txt").write_text("f")
+    os.symlink(tmp_path / "A" / "f.txt", tmp_path / "L" / "link")
+    real = sio.check_output_dir(str(tmp_path / "L" / "link" / ".."), "--out")
+    assert real == str(tmp_path / "A")                 # where the system goes, not L
+    with sio.staged_directory(real, ["*.json"]):
+        pass
+    assert (tmp_path / "L" / "important" / "data.txt").read_text() == "p"
+    assert os.listdir(tmp_path / "A") == ["f.txt"]
+    os.symlink(tmp_path / "A", tmp_path / "linkdir")
+    assert sio.check_output_dir(str(tmp_path / "linkdir") + "/.", "--out") == str(tmp_path / "A")
+
+
+def test_a_previous_result_left_aside_by_a_killed_swap_is_put_back(tmp_path):
+    aside = tmp_path / ".out.previous-999999999"
+    aside.mkdir()
+    (aside / "leaderboard.json").write_text("{}")
+    (aside / "user.txt").write_text("p")
+    assert sio.check_output_dir(str(tmp_path / "out"), "--out") == str(tmp_path / "out")
+    assert sorted(os.listdir(tmp_path / "out")) == ["leaderboard.json", "user.txt"]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "hard link", "directory"])
+def test_a_lock_file_that_is_not_a_plain_file_of_its_own_is_refused(tmp_path, kind):
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim"
+    victim.write_text("keep")
+    lock = out / ".stepdamp.lock"
+    if kind == "fifo":
+        os.mkfifo(lock)
+    elif kind == "hard link":
+        os.link(victim, lock)
+    else:
+        lock.mkdir()
+    with pytest.raises(ParameterError, match="lock file"):
+        with sio.output_lock(out, "--out"):
+            pass
+    assert victim.read_text() == "keep"
+
+
+@pytest.mark.parametrize("what", ["fifo", "/dev/zero"])
+def test_a_pipe_or_device_is_refused_not_read(tmp_path, what):
+    path = tmp_path / "x.json"
+    if what == "fifo":
+        os.mkfifo(path)
+    else:
+        os.symlink("/dev/zero", path)
+    with pytest.raises(ParameterError, match="not a regular file"):
+        sio.read_json(path, "motor file")
+    assert sio.read_json_or_none(path) is None
+    from stepdamp_env.drivelog import read_trace
+
+    with pytest.raises(ParameterError, match="not a regular file"):
+        read_trace(str(path))
+
+
+def test_an_integer_of_thousands_of_digits_is_a_one_line_error(tmp_path):
+    path = tmp_path / "m.json"
+    path.write_text('{"Km": ' + "9" * 5000 + "}")
+    with pytest.raises(ParameterError, match="not valid JSON"):
+        sio.read_json(path, "motor file")
+    assert sio.read_json_or_none(path) is None
+
+
+def test_a_board_without_its_fingerprint_or_protocol_is_refused(tmp_path, capsys):
+    board = tmp_path / "b"
+    shutil.copytree(V3_BOARD, board)
+    data = json.loads((board / "leaderboard.json").read_text())
+    del data["fingerprint"]
+    (board / "leaderboard.json").write_text(json.dumps(data))
+    assert main(["report", str(board)]) == 2
+    _one_line_error(capsys, "no fingerprint")
+    data["protocol"] = "x"
+    (board / "leaderboard.json").write_text(json.dumps(data))
+    assert main(["report", str(board), "--no-verify"]) == 2
+    _one_line_error(capsys, "not a leaderboard")
+
+
+def test_list_files_nest_and_list_within_bounds(tmp_path, capsys):
+    for k in range(LIMITS.list_file_depth + 1):
+        (tmp_path / f"l{k}.json").write_text(json.dumps([str(tmp_path / f"l{k + 1}.json")] * 2))
+    (tmp_path / f"l{LIMITS.list_file_depth + 1}.json").write_text('["patent"]')
+    assert main(["motors", str(tmp_path / "l0.json")]) == 2
+    _one_line_error(capsys, "list files naming list files")
+    (tmp_path / "many.json").write_text(json.dumps(["patent"] * (LIMITS.custom_motors + 1)))
+    assert main(["motors", str(tmp_path / "many.json")]) == 2
+    _one_line_error(capsys, "allowed 1 to")

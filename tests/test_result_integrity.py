@@ -100,6 +100,7 @@ def test_changing_any_byte_of_a_file_an_entry_stands_for_changes_its_key(tmp_pat
     assert source.fingerprint() != before              # in this process, read anew
 
 
+@pytest.mark.slow
 def test_the_key_is_the_same_in_another_process_and_follows_the_file(tmp_path):
     policy = _policy_file(tmp_path / ODD)
     spec = f"{policy}:NominalFeedforward"

@@ -66,6 +66,7 @@ def _spot_run(job):
     return result.record(motor.name, F.FULL_SPOT_SEED, speed, motor.speed_labels[speed_index])
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_v0_full_protocol_spot_runs_are_bit_identical():
     stored = _stored(F.FULL_FILE)

@@ -50,7 +50,8 @@ from .runner import (RUN_ERRORS, EpisodeResult, EpisodeSpec, could_not_run, run_
 
 __all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
            "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
-           "BATCH_RUNS", "RESUME_DIR", "open_resume_dir", "clear_resume_dir"]
+           "BATCH_RUNS", "RESUME_DIR", "open_resume_dir", "clear_resume_dir",
+           "finish_resume_dir"]
 
 # Runs of one entry, model and suite stepped together (and kept together on resume).
 BATCH_RUNS = 64
@@ -241,6 +242,9 @@ def open_resume_dir(resume_dir: str) -> None:
     tool did not make (no marker) only if it holds nothing but batch files."""
     hint = "stepdamp deletes files there: remove the link"
     refuse_link(resume_dir, "resume directory", hint)
+    if os.path.lexists(resume_dir) and not os.path.isdir(resume_dir):
+        raise ParameterError(f"resume directory {resume_dir!r} is a file; move it away (stepdamp "
+                             "keeps an interrupted run's batches there)")
     os.makedirs(resume_dir, exist_ok=True)
     marker = os.path.join(resume_dir, _RESUME_MARKER)
     if not os.path.lexists(marker):
@@ -266,6 +270,15 @@ def clear_resume_dir(resume_dir: str, keep_run: str | None = None) -> None:
                 os.remove(os.path.join(resume_dir, name))
             except OSError:
                 pass
+
+
+def finish_resume_dir(resume_dir: str) -> None:
+    """After a run's results are written: its batch files and the marker go
+    (the directory too, if nothing else is in it)."""
+    clear_resume_dir(resume_dir)
+    marker = os.path.join(resume_dir, _RESUME_MARKER)
+    if os.path.isfile(marker) and not os.path.islink(marker):
+        os.remove(marker)
 
 
 def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
@@ -297,6 +310,7 @@ def _resumed(path: str, batch: LeaderboardBatch, motors: Sequence[ProtocolMotor]
         return None
     for (i, seed, j), r in zip(batch.runs, records):
         if not (isinstance(r, dict) and _RECORD_KEYS <= r.keys()
+                and isinstance(r["metrics"], (dict, type(None)))
                 and r["motor"] == motors[i].name and r["seed"] == seed
                 and r["speed_rps"] == motors[i].speeds(batch.suite).speeds_rps[j]):
             print(f"stepdamp: note: resume batch {path!r} does not hold its runs; running "

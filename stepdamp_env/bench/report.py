@@ -523,9 +523,14 @@ def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
     """The board as :func:`~.leaderboard.run_leaderboard` returned it, read from
     ``leaderboard.json`` and its runs file."""
     board = read_json(os.path.join(directory, "leaderboard.json"), "board")
-    if not isinstance(board, dict) or not isinstance(board.get("entries"), list):
+    protocol = board.get("protocol") if isinstance(board, dict) else None
+    if not (isinstance(board, dict) and isinstance(board.get("entries"), list)
+            and all(isinstance(e, dict) for e in board["entries"])
+            and isinstance(protocol, dict) and isinstance(protocol.get("motors"), list)
+            and protocol["motors"] and all(isinstance(m, dict) for m in protocol["motors"])):
         raise ParameterError(f"board {os.path.join(directory, 'leaderboard.json')!r} is not a "
-                             "leaderboard (no list of entries)")
+                             "leaderboard (it needs a list of entries and a protocol with its "
+                             "motors)")
     runs_file = board.get("runs_file", GZIP_RUNS_FILE)
     if not isinstance(runs_file, str) or os.path.basename(runs_file) != runs_file:
         raise ParameterError(f"board {directory!r}: runs_file must be a file name beside it, "
@@ -549,7 +554,11 @@ def verify_fingerprint(board: Mapping[str, Any], directory: str) -> None:
     fingerprint it was written with (an edited or damaged file); boards written
     before fingerprints are taken as they are."""
     kept = board.get("fingerprint")
-    if kept is not None and board_fingerprint(board) != kept:
+    if kept is None:
+        raise ParameterError(f"board {directory!r} records no fingerprint, so its numbers "
+                             "cannot be checked (an edited board, or one of an early version); "
+                             "--no-verify to show it anyway")
+    if board_fingerprint(board) != kept:
         raise ParameterError(f"board {directory!r}: its numbers do not match its fingerprint "
                              f"{str(kept)[:16]}... (leaderboard.json or its runs file was edited "
                              "or damaged); run the board again, or --no-verify to show it anyway")

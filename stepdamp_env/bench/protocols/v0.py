@@ -244,4 +244,6 @@ def _motors(protocol: ProtocolV0) -> tuple[ProtocolMotor, ...]:
     return tuple(motors)
 
 
-PROTOCOL = {"version": "v0", "full": full_protocol, "quick": quick_protocol}
+PROTOCOL = {"version": "v0", "full": full_protocol, "quick": quick_protocol,
+            "about": "frozen, the first published numbers",
+            "quick_about": "the four presets, one seed"}

@@ -406,7 +406,9 @@ def quick_protocol_v1() -> ProtocolV1:
     return ProtocolV1(**QUICK_SETTINGS)
 
 
-PROTOCOL = {"version": "v1", "full": full_protocol_v1, "quick": quick_protocol_v1}
+PROTOCOL = {"version": "v1", "full": full_protocol_v1, "quick": quick_protocol_v1,
+            "about": "frozen; interpolation and extrapolation splits",
+            "quick_about": "8 motors, resonant speeds, two servo speeds, 0.1 s window"}
 
 
 def servo_grid(system: SystemParams, protocol: ProtocolV1) -> tuple[tuple[float, ...],

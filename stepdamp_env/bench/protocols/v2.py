@@ -72,7 +72,9 @@ def quick_protocol_v2() -> ProtocolV2:
     return ProtocolV2(**QUICK_SETTINGS, midband_factors=(0.3, 0.7))
 
 
-PROTOCOL = {"version": "v2", "full": full_protocol_v2, "quick": quick_protocol_v2}
+PROTOCOL = {"version": "v2", "full": full_protocol_v2, "quick": quick_protocol_v2,
+            "about": "frozen; v1 plus the voltage-mode drive's mid-band suite",
+            "quick_about": "v1's quick variant plus two mid-band speeds"}
 
 
 def midband_grid(system: SystemParams, protocol: ProtocolV2,

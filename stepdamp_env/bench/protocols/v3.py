@@ -602,4 +602,6 @@ def quick_protocol_v3() -> ProtocolV3:
                       servo_headline=2, midband_factors=(0.3, 0.7), dev_per_preset=1)
 
 
-PROTOCOL = {"version": "v3", "full": full_protocol_v3, "quick": quick_protocol_v3}
+PROTOCOL = {"version": "v3", "full": full_protocol_v3, "quick": quick_protocol_v3,
+            "about": "scored in dB with reference rows, a dev split for tuning",
+            "quick_about": "v2's quick motors and one dev motor per preset, 0.1 s window"}
