@@ -44,8 +44,11 @@ __all__ = ["LANES", "run_batch_lanes", "run_batch_law_lanes", "run_batch_lanes_p
 _jit = njit(cache=True, error_model="numpy")
 # The kernel's parameter tuples, inlined: a call in the loop over lanes (or the
 # reference count of an array view) stops LLVM from vectorising it.
-_plant_params = njit(error_model="numpy", inline="always")(plant_params.py_func)
-_controller_params = njit(error_model="numpy", inline="always")(controller_params.py_func)
+# getattr: with NUMBA_DISABLE_JIT (the benchmarks' interpreted reference) these are plain.
+_plant_params = njit(error_model="numpy", inline="always")(
+    getattr(plant_params, "py_func", plant_params))
+_controller_params = njit(error_model="numpy", inline="always")(
+    getattr(controller_params, "py_func", controller_params))
 
 #: Drives stepped together (a multiple of every vector width).
 LANES = 32
