@@ -494,11 +494,11 @@ def _retire(old: str, new: str, results: Sequence[str],
         target = os.path.join(new, entry.name)
         plain = entry.is_symlink() or entry.is_file(follow_symlinks=False)
         if entry.name in own_dirs and entry.is_dir(follow_symlinks=False):
-            own_dirs[entry.name](entry.path)
             try:
+                own_dirs[entry.name](entry.path)
                 os.rmdir(entry.path)
                 continue
-            except OSError:             # something of the user's in it: moved across
+            except (OSError, ValueError):   # something of the user's in it: moved across
                 pass
         if entry.name == _LOCK_FILE or _TEMP_FILE.fullmatch(entry.name) or \
                 (plain and (os.path.lexists(target) or

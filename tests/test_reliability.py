@@ -526,3 +526,14 @@ def test_list_files_nest_and_list_within_bounds(tmp_path, capsys):
     (tmp_path / "many.json").write_text(json.dumps(["patent"] * (LIMITS.custom_motors + 1)))
     assert main(["motors", str(tmp_path / "many.json")]) == 2
     _one_line_error(capsys, "allowed 1 to")
+
+
+def test_a_resume_dir_whose_marker_went_is_moved_across_not_emptied(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    open_resume_dir(str(out / RESUME_DIR))
+    with sio.staged_directory(out, ["*.json"], own_dirs={RESUME_DIR: finish_resume_dir}):
+        os.remove(out / RESUME_DIR / ".stepdamp-resume")             # while the run goes on
+        (out / RESUME_DIR / "mine.txt").write_text("m")
+    assert os.listdir(out / RESUME_DIR) == ["mine.txt"]
+    assert os.listdir(tmp_path) == ["out"]
