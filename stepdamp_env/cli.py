@@ -29,7 +29,7 @@ from .params import FeedforwardModel, ParameterError, load_system, parse_set_ove
 from .presets import preset_names
 from .simulation import (BASE_CONTROLLERS, DEFAULT_ACCEL_RPS2, MAX_DURATION_S, MIN_ACCEL_RPS2,
                          MODES, TRACE_ROW_BYTES, RunSettings, SpeedProfile, check_trace_memory,
-                         max_move_distance_rev, measuring_window, run_length_error, simulate)
+                         measuring_window, run_length_error, simulate)
 from .sweep import MAX_SPEED_RPS, MIN_SPEED_RPS, resolving_spacing
 
 __all__ = ["main"]
@@ -278,16 +278,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     start, length = measuring_window(system, profile, settings)
     if not start < MAX_DURATION_S or (args.duration is None
                                       and not start + length <= MAX_DURATION_S):
-        if args.move is not None:
-            settle = length - profile.duration_s()
-            d_max = max_move_distance_rev(args.speed, args.accel, MAX_DURATION_S - settle)
-            raise ParameterError(
-                f"--move {args.move:g}: a move of {profile.duration_s():.6g} s at --speed "
-                f"{args.speed:g} and --accel {args.accel:g}, past the {MAX_DURATION_S:g} s a run "
-                f"may last (--duration's cap, with {settle:.3g} s of settling); allowed "
-                f"{step_rev:g} <= |move| <= {d_max:.6g} rev")
         raise ParameterError(run_length_error(system, profile, settings, {
-            "speed_rps": "--speed", "accel_rps2": "--accel", "duration_s": "--duration"}))
+            "distance_rev": "--move", "speed_rps": "--speed", "accel_rps2": "--accel",
+            "duration_s": "--duration"}))
     if args.duration is not None and not args.duration > start:
         raise ParameterError(f"--duration {args.duration:g}: must end after the measuring "
                              f"window opens at {start:.6g} s (ramp + settle): allowed "
