@@ -33,14 +33,14 @@ Pieces:
 
 from __future__ import annotations
 
-import functools
 from typing import Any, Sequence
 
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvStepReturn,
                                                            VecEnvWrapper)
 
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
+from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
+                                       resolve_estimate)
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.params import ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
@@ -146,91 +146,16 @@ def make_training_env(motors: Sequence[str], envs_per_motor: int, seed: int,
     return env
 
 
-@functools.cache
-def _residual_ars():
-    from sb3_contrib import ARS
-
-    class ResidualARS(ARS):
-        """sb3-contrib's ARS, its policy from zero (``zero_policy``: the base controller)."""
-
-        def __init__(self, policy: Any = "LinearPolicy", env: Any = None, **kwargs: Any) -> None:
-            kwargs.setdefault("zero_policy", True)
-            if not kwargs["zero_policy"]:
-                raise ParameterError("zero_policy=False: a residual agent starts at zero")
-            super().__init__(policy, env, **kwargs)
-
-        def evaluate_candidates(self, candidate_weights: Any, callback: Any,
-                                async_eval: Any) -> Any:
-            # One block of episodes per update, whatever reset came before.
-            env = self.env
-            while env is not None and not isinstance(env, SameEpisodes):
-                env = getattr(env, "venv", None)
-            if env is not None:
-                env.start_block(self._n_updates)
-            return super().evaluate_candidates(candidate_weights, callback, async_eval)
-
-        def _trigger_callback(self, _locals: dict, _globals: dict, callback: Any,
-                              n_envs: int) -> None:
-            # evaluate_policy calls this once per drive and step: one timestep each
-            # (sb3-contrib adds n_envs per call, counting every step n_envs times).
-            self.num_timesteps += 1
-            callback.on_step()
-
-    return ResidualARS
-
-
-@functools.cache
-def _residual_recurrent_ppo():
-    import torch as th
-    from sb3_contrib import RecurrentPPO
-    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
-
-    from .residual import DEFAULT_LOG_STD_INIT
-
-    class ResidualLstmPolicy(RecurrentActorCriticPolicy):
-        """sb3-contrib's LSTM actor-critic with a zero ``action_net`` (its
-        deterministic action is 0, the base controller, whatever the LSTM's
-        state) and ``log_std_init`` -3 by default."""
-
-        def __init__(self, *args: Any, log_std_init: float = DEFAULT_LOG_STD_INIT,
-                     **kwargs: Any) -> None:
-            super().__init__(*args, log_std_init=log_std_init, **kwargs)
-
-        def _build(self, lr_schedule: Any) -> None:
-            super()._build(lr_schedule)
-            with th.no_grad():
-                self.action_net.weight.zero_()
-                self.action_net.bias.zero_()
-
-    class ResidualRecurrentPPO(RecurrentPPO):
-        """sb3-contrib's RecurrentPPO, ``policy="ResidualLstmPolicy"`` by default."""
-
-        policy_aliases = {**RecurrentPPO.policy_aliases, "ResidualLstmPolicy": ResidualLstmPolicy}
-
-        def __init__(self, policy: Any = "ResidualLstmPolicy", *args: Any, **kwargs: Any) -> None:
-            super().__init__(policy, *args, **kwargs)
-
-    return ResidualRecurrentPPO, ResidualLstmPolicy
-
-
 def __getattr__(name: str) -> Any:
-    # sb3-contrib and the SB3 algorithms load on first use.
-    if name == "ResidualARS":
-        return _residual_ars()
-    if name in ("ResidualRecurrentPPO", "ResidualLstmPolicy"):
-        return _residual_recurrent_ppo()[name == "ResidualLstmPolicy"]
-    if name in ("ALGOS", "POLICIES"):
-        from .residual import ALGOS as V0_ALGOS, POLICIES as V0_POLICIES
+    # The algorithms live in .algos (sb3-contrib loads on first use).
+    if name in ("ResidualARS", "ResidualRecurrentPPO", "ResidualLstmPolicy", "ALGOS", "POLICIES"):
+        from . import algos
 
-        rppo, lstm_policy = _residual_recurrent_ppo()
-        # ARS's models name their own policy class (linear or MLP).
-        if name == "ALGOS":
-            return {"ars": _residual_ars(), **V0_ALGOS, "ppo_lstm": rppo}
-        return {**V0_POLICIES, "ppo_lstm": lstm_policy}
+        return getattr(algos, name)
     raise AttributeError(name)
 
 
-class StepAgent:
+class StepAgent(RowPolicy):
     """A per-step agent as a leaderboard policy: it runs in ``StepperDamp-v1`` with
     the base controller ff-delay-comp on the drive's ``estimate`` model and acts
     every ``1/agent_hz`` s with the model's deterministic action. A recurrent
@@ -265,15 +190,8 @@ class StepAgent:
         return {"base_controller": "ff-delay-comp", **self.options,
                 "estimate": resolve_estimate(self.estimate, knowledge)}
 
-    def reset(self, context: PolicyContext) -> None:
-        # A recurrent policy's memory starts here, for the run of act().
-        self.reset_batch([context])
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        return self.act_batch(np.asarray(observation, dtype=np.float32)[None],
-                              np.zeros(1, dtype=np.int64))[0]
-
-    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy).
+    # The policy on rows (RowPolicy: a scalar run is row 0; a recurrent model's
+    # memory starts at reset_batch).
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         if self.network is not None:
             self._memory = self.network.initial_state(len(contexts))

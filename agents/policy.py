@@ -27,7 +27,9 @@ import numpy as np
 from stepdamp_env.bench.network import predict_rows
 from stepdamp_env.io import read_json
 from stepdamp_env.params import ParameterError
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, resolve_estimate
+from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
+                                       resolve_estimate)
+from stepdamp_env.bench.suites import suite_of
 
 __all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "trained_suites",
            "load_model", "clear_model_cache", "agent_config_path"]
@@ -85,9 +87,7 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
             merged[-1][1] = max(merged[-1][1], hi)
         else:
             merged.append([lo, hi])
-    suite = str(kwargs.get("mode", "open-loop"))
-    if drive == "voltage":              # the voltage-mode drive in open loop: v3's mid-band
-        suite = "mid-band" if suite == "open-loop" else ""
+    suite = suite_of(str(kwargs.get("mode", "open-loop")), drive)
     return tuple((suite, lo, hi) for lo, hi in merged) if suite else ()
 
 
@@ -111,7 +111,7 @@ def load_model(path: str) -> Any:
         return _MODELS[key]
     import torch
 
-    from .per_step import ALGOS, POLICIES
+    from .algos import ALGOS, POLICIES
 
     torch.set_num_threads(1)
     algo = load_agent_config(path)["algo"]
@@ -129,12 +129,12 @@ def clear_model_cache() -> None:
     _MODELS.clear()
 
 
-class ResidualAgent:
+class ResidualAgent(RowPolicy):
     """Policy: base controller (patent-ff, optionally ff-delay-comp's lead) plus
     the network's residual, deterministic."""
 
     def __init__(self, path: str, name: str | None = None) -> None:
-        from .residual import EpisodeConstants, RESIDUAL_ACTIONS
+        from .residual import RESIDUAL_ACTIONS
 
         self.path = os.path.abspath(path)
         self.config = load_agent_config(self.path)
@@ -153,25 +153,14 @@ class ResidualAgent:
         self.card = PolicyCard(sensors="encoder, currents (observation)", model=which,
                                learned=True, oracle=which == "exact",
                                trained_on=training_coverage(self.config))
-        self._constants = EpisodeConstants(1)
-        self._step = 0
-        self._gain = np.zeros(1)
-        self._sq = 0.0
 
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         which = self.config.get("estimate", "identified")
         return {"base_controller": "patent-ff", "action_mode": self.action_mode,
                 **self.env_extra, "estimate": resolve_estimate(which, knowledge)}
 
-    def reset(self, context: PolicyContext) -> None:
-        est = context.estimate if context.estimate is not None else context.knowledge.exact
-        self._constants.set(0, context.knowledge.nominal, est, context.mode, context.speed_rps,
-                            context.action_scale, self.base)
-        self._step, self._gain, self._sq = 0, np.zeros(1), 0.0
-
-    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): the
-    # same arithmetic as reset/act, row by row (all rows step together, so they
-    # share the step count).
+    # The policy on rows (RowPolicy: a scalar run is row 0; all rows step together,
+    # so they share the step count).
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         from .residual import EpisodeConstants
 
@@ -207,29 +196,3 @@ class ResidualAgent:
         return self._rows.env_action(current[:, None], self.residual_scale, "current",
                                      rows).astype(np.float32)
 
-    def residual(self, observation: np.ndarray) -> np.ndarray:
-        x = self._constants.augment(np.asarray(observation, dtype=np.float32)[None])
-        return np.asarray(predict_rows(self.model, x), dtype=np.float64)
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        if self.residual_action != "feedback":
-            a = self._constants.env_action(self.residual(observation), self.residual_scale,
-                                           self.residual_action)
-            return a[0].astype(np.float32)
-        from .residual import feedback_current
-
-        # The gain is chosen every hold_steps steps from the observation and the RMS
-        # velocity feature of the observations since the last choice (as in training).
-        x = self._constants.augment(np.asarray(observation, dtype=np.float32)[None])
-        vel = float(x[0, len(observation)])
-        if self._step > 0:
-            self._sq += vel * vel
-        if self._step % self.hold_steps == 0:
-            rms = math.sqrt(self._sq / self.hold_steps) if self._step > 0 else 0.0
-            r = predict_rows(self.model, np.append(x[0], np.float32(rms)).astype(np.float32))
-            self._gain = np.asarray(r, dtype=np.float64).reshape(1)
-            self._sq = 0.0
-        self._step += 1
-        current = feedback_current(self._gain, np.array([vel]), self.feedback_gain)
-        a = self._constants.env_action(current[:, None], self.residual_scale, "current")
-        return a[0].astype(np.float32)

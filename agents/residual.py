@@ -78,13 +78,8 @@ from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
-import torch as th
 from gymnasium import spaces
-from stable_baselines3 import PPO, SAC, TD3
-from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
-from stable_baselines3.sac.policies import SACPolicy
-from stable_baselines3.td3.policies import TD3Policy
 
 from stepdamp_baselines.harmonic import harmonic_actions, phasors, torque_paths
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
@@ -93,6 +88,9 @@ from stepdamp_env.env import (DEFAULT_EPISODE_STEPS, ENV_ID, OBS, StepperDampEnv
 from stepdamp_env.params import FeedforwardModel, SystemParams
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env
 
+from .algos import V0_ALGOS as ALGOS, V0_POLICIES as POLICIES
+from .algos import (ResidualPPO, ResidualPPOPolicy, ResidualSAC, ResidualSACPolicy, ResidualTD3,
+                    ResidualTD3Policy, register_policy_aliases)
 from .task import RESIDUAL_ENV_ID, task_kwargs
 
 __all__ = ["BASES", "RESIDUAL_ACTIONS", "N_FEATURES", "context_features", "velocity_feature_gain",
@@ -107,7 +105,6 @@ BASES = ("patent-ff", "ff-delay-comp")
 RESIDUAL_ACTIONS = {"harmonic": "harmonic", "current": "harmonic+current",
                     "feedback": "harmonic+current"}
 N_FEATURES = 13
-DEFAULT_LOG_STD_INIT = -3.0
 # The velocity feature's unit: this fraction of wn*full_step (wn: the nominal
 # rotor's natural frequency on its holding-current spring). A settled ripple of
 # a few hundredths of rad/s is then of order 1 on every preset.
@@ -196,105 +193,6 @@ def feedback_current(gain: np.ndarray, velocity_feature: np.ndarray, feedback_ga
     ``clip(feedback_gain * gain * velocity_feature, -1, 1)``."""
     return np.clip(feedback_gain * np.asarray(gain, dtype=np.float64)
                    * np.asarray(velocity_feature, dtype=np.float64), -1.0, 1.0)
-
-
-# ---------------------------------------------------------------------------
-# Policies whose deterministic residual is exactly zero at initialisation
-# ---------------------------------------------------------------------------
-def _zero_linear(layer: th.nn.Module, bias: float = 0.0) -> None:
-    with th.no_grad():
-        layer.weight.zero_()
-        layer.bias.fill_(bias)
-
-
-class ResidualSACPolicy(SACPolicy):
-    """SAC policy with zeroed ``mu`` (action 0) and ``log_std`` (std exp(log_std_init))."""
-
-    def __init__(self, *args: Any, log_std_init: float = DEFAULT_LOG_STD_INIT, **kwargs: Any):
-        self._residual_log_std_init = log_std_init
-        kwargs.setdefault("log_std_init", log_std_init)   # only used by gSDE
-        super().__init__(*args, **kwargs)
-
-    def _build(self, lr_schedule) -> None:
-        super()._build(lr_schedule)
-        _zero_linear(self.actor.mu)
-        if isinstance(self.actor.log_std, th.nn.Linear):
-            _zero_linear(self.actor.log_std, self._residual_log_std_init)
-
-
-class ResidualTD3Policy(TD3Policy):
-    """TD3 policy whose actor's last ``Linear`` (and its target's) is zero."""
-
-    def _build(self, lr_schedule) -> None:
-        super()._build(lr_schedule)
-        for actor in (self.actor, self.actor_target):
-            last = [m for m in actor.mu if isinstance(m, th.nn.Linear)][-1]
-            _zero_linear(last)
-
-
-class ResidualPPOPolicy(ActorCriticPolicy):
-    """PPO policy with a zero ``action_net`` and ``log_std_init`` = -3 by default."""
-
-    def __init__(self, *args: Any, log_std_init: float = DEFAULT_LOG_STD_INIT, **kwargs: Any):
-        super().__init__(*args, log_std_init=log_std_init, **kwargs)
-
-    def _build(self, lr_schedule) -> None:
-        super()._build(lr_schedule)
-        _zero_linear(self.action_net)
-
-
-def register_policy_aliases() -> None:
-    """``policy="ResidualMlpPolicy"`` for SAC, TD3 and PPO (and their subclasses here)."""
-    SAC.policy_aliases["ResidualMlpPolicy"] = ResidualSACPolicy
-    TD3.policy_aliases["ResidualMlpPolicy"] = ResidualTD3Policy
-    PPO.policy_aliases["ResidualMlpPolicy"] = ResidualPPOPolicy
-
-
-class _ZeroWarmup:
-    """Mixin: the warm-up collects zero (or small Gaussian) residuals, not uniform ones."""
-
-    warmup_noise_std: float = 0.0
-
-    def __init__(self, policy: Any = "ResidualMlpPolicy", *args: Any,
-                 warmup_noise_std: float = 0.0, **kwargs: Any):
-        self.warmup_noise_std = float(warmup_noise_std)
-        super().__init__(policy, *args, **kwargs)
-
-    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
-        if self.num_timesteps < learning_starts:
-            shape = (n_envs, *self.action_space.shape)
-            if self.warmup_noise_std > 0.0:
-                a = np.clip(self.warmup_noise_std * np.random.standard_normal(shape), -1, 1)
-            else:
-                a = np.zeros(shape)
-            a = a.astype(np.float32)
-            return a, a.copy()
-        return super()._sample_action(learning_starts, action_noise, n_envs)
-
-
-class ResidualSAC(_ZeroWarmup, SAC):
-    """SAC with zero-residual warm-up (``policy="ResidualMlpPolicy"`` by default)."""
-
-    policy_aliases = {**SAC.policy_aliases, "ResidualMlpPolicy": ResidualSACPolicy}
-
-
-class ResidualTD3(_ZeroWarmup, TD3):
-    """TD3 with zero-residual warm-up (``policy="ResidualMlpPolicy"`` by default)."""
-
-    policy_aliases = {**TD3.policy_aliases, "ResidualMlpPolicy": ResidualTD3Policy}
-
-
-class ResidualPPO(PPO):
-    """PPO with ``policy="ResidualMlpPolicy"`` by default (on-policy: no warm-up)."""
-
-    policy_aliases = {**PPO.policy_aliases, "ResidualMlpPolicy": ResidualPPOPolicy}
-
-    def __init__(self, policy: Any = "ResidualMlpPolicy", *args: Any, **kwargs: Any):
-        super().__init__(policy, *args, **kwargs)
-
-
-ALGOS = {"sac": ResidualSAC, "td3": ResidualTD3, "ppo": ResidualPPO}
-POLICIES = {"sac": ResidualSACPolicy, "td3": ResidualTD3Policy, "ppo": ResidualPPOPolicy}
 
 
 # ---------------------------------------------------------------------------

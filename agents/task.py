@@ -22,6 +22,7 @@ import copy
 from typing import Any
 
 from stepdamp_env.bench.protocol import POLICY_OPTIONS_V1
+from stepdamp_env.bench.suites import SUITES_BY_NAME
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
 
@@ -83,16 +84,9 @@ REFERENCE_TASK: dict[str, Any] = {
 }
 
 #: What ``stepdamp train --suite`` sets on top of the task for each stepdamp-bench v3
-#: suite: the servo loop, or the voltage-mode drive, and speeds drawn uniformly over
-#: the dev split's headline speeds (servo 0.168-0.545 rev/s, mid-band 1.58-10.79)
-#: widened by x0.8 and x1.2 (open loop: the reference task's own draw, which
-#: covers its resonances). Chosen on the dev split, never on a scored one.
-SUITE_TASKS: dict[str, dict[str, Any]] = {
-    "open-loop": {},
-    "servo": {"mode": "servo", "speed_range_rps": [0.13, 0.65], "resonance_prob": 0.0},
-    "mid-band": {"mode": "open-loop", "speed_range_rps": [1.25, 13.0], "resonance_prob": 0.0,
-                 "overrides": {"drive_mode": "voltage"}},
-}
+#: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`).
+SUITE_TASKS: dict[str, dict[str, Any]] = {name: dict(s.training_task)
+                                          for name, s in SUITES_BY_NAME.items()}
 
 
 def suite_task(env_kwargs: dict[str, Any], suite: str) -> dict[str, Any]:

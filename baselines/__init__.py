@@ -30,9 +30,13 @@
 
 Every baseline implements the policy contract of :mod:`stepdamp_env.bench.policy`.
 :func:`register_policies` (the ``stepdamp.policies`` entry point ``baselines``)
-puts them into the leaderboard's registry. A new baseline: a class in this
-package, a line in ``BASELINE_NAMES`` and :func:`make_baseline`.
+puts them into the leaderboard's registry. A new baseline: its class in a module
+of this package, one row in :data:`BASELINES` (name, factory, description; the
+row's place is the board's order) and one in the table above (a test checks
+both agree); docs/architecture.md, "Adding a baseline".
 """
+
+from typing import Callable
 
 from stepdamp_env.bench.policy import Policy, ZeroAction, reference_policy
 from stepdamp_env.bench.protocol import REFERENCE_POLICY
@@ -45,67 +49,61 @@ from .learning import CalibratedTable, RepetitiveControl
 
 __all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
            "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "TunedGainPair",
-           "OracleFloor",
-           "PrivilegedBound", "BASELINE_NAMES",
-           "make_baseline", "register_policies"]
+           "OracleFloor", "PrivilegedBound", "BASELINES", "BASELINE_NAMES", "make_baseline",
+           "register_policies"]
 
-BASELINE_NAMES = (REFERENCE_POLICY, "patent-ff-oracle", "patent-ff-identified",
-                  "ff-delay-comp", "adaptive-ff", "velocity-feedback", "sensorless-damping",
-                  "calibrated-table", "repetitive-control", "tuned-constant-gain",
-                  "tuned-gain-pair", "oracle-floor", "privileged-bound")
-
-_DESCRIPTIONS = {
-    "patent-ff-oracle": "patent feedforward, exact model (oracle)",
-    "patent-ff-identified": "patent feedforward, identified model",
-    "ff-delay-comp": "identified feedforward with drive-model delay compensation",
-    "adaptive-ff": "identified feedforward corrected online (Kalman ripple tracker)",
-    "velocity-feedback": "ff-delay-comp plus velocity-feedback damping (encoder)",
-    "sensorless-damping": "ff-delay-comp plus back-EMF damping (no encoder)",
-    "calibrated-table": "feedforward table calibrated on a rig (golden-section search)",
-    "repetitive-control": "feedforward learned online per electrical period (encoder)",
-    "tuned-constant-gain": "ff-delay-comp plus v1's damping law at a constant gain tuned on "
-                           "training motors",
-    "tuned-gain-pair": "ff-delay-comp plus v1's damping law at a constant (kv, kp) per suite "
-                       "tuned on v3's dev split",
-    "oracle-floor": "exact cancellation and true-state feedback (oracle floor)",
-    "privileged-bound": "oracle-floor's law tuned per suite on v3's dev split (privileged)",
-}
-
-_CLASSES = {"velocity-feedback": VelocityFeedback, "sensorless-damping": SensorlessDamping,
-            "calibrated-table": CalibratedTable, "repetitive-control": RepetitiveControl,
-            "tuned-constant-gain": TunedConstantGain, "tuned-gain-pair": TunedGainPair,
-            "oracle-floor": OracleFloor,
-            "privileged-bound": PrivilegedBound}
+#: Every baseline but the reference (registered by stepdamp_env.bench), in the
+#: registry's order: (name, a zero-argument factory, one-line description).
+BASELINES: tuple[tuple[str, Callable[[], Policy], str], ...] = (
+    ("patent-ff-oracle", lambda: ZeroAction("patent-ff-oracle", estimate="exact"),
+     "patent feedforward, exact model (oracle)"),
+    ("patent-ff-identified", lambda: ZeroAction("patent-ff-identified", estimate="identified"),
+     "patent feedforward, identified model"),
+    ("ff-delay-comp", DelayCompensatedFF,
+     "identified feedforward with drive-model delay compensation"),
+    ("adaptive-ff", AdaptiveFF,
+     "identified feedforward corrected online (Kalman ripple tracker)"),
+    ("velocity-feedback", VelocityFeedback,
+     "ff-delay-comp plus velocity-feedback damping (encoder)"),
+    ("sensorless-damping", SensorlessDamping,
+     "ff-delay-comp plus back-EMF damping (no encoder)"),
+    ("calibrated-table", CalibratedTable,
+     "feedforward table calibrated on a rig (golden-section search)"),
+    ("repetitive-control", RepetitiveControl,
+     "feedforward learned online per electrical period (encoder)"),
+    ("tuned-constant-gain", TunedConstantGain,
+     "ff-delay-comp plus v1's damping law at a constant gain tuned on training motors"),
+    ("tuned-gain-pair", TunedGainPair,
+     "ff-delay-comp plus v1's damping law at a constant (kv, kp) per suite tuned on v3's "
+     "dev split"),
+    ("oracle-floor", OracleFloor, "exact cancellation and true-state feedback (oracle floor)"),
+    ("privileged-bound", PrivilegedBound,
+     "oracle-floor's law tuned per suite on v3's dev split (privileged)"),
+)
+BASELINE_NAMES = (REFERENCE_POLICY, *(name for name, _, _ in BASELINES))
+_MAKE = {name: make for name, make, _ in BASELINES}
 
 
 def make_baseline(name: str) -> Policy:
     """A fresh baseline policy by name (one of ``BASELINE_NAMES``)."""
     if name == REFERENCE_POLICY:
         return reference_policy()
-    if name == "patent-ff-oracle":
-        return ZeroAction("patent-ff-oracle", estimate="exact")
-    if name == "patent-ff-identified":
-        return ZeroAction("patent-ff-identified", estimate="identified")
-    if name == "ff-delay-comp":
-        return DelayCompensatedFF()
-    if name == "adaptive-ff":
-        return AdaptiveFF()
-    if name in _CLASSES:
-        return _CLASSES[name]()
-    raise ValueError(f"unknown baseline {name!r}; choose one of {list(BASELINE_NAMES)}")
+    if name not in _MAKE:
+        raise ValueError(f"unknown baseline {name!r}; choose one of {list(BASELINE_NAMES)}")
+    return _MAKE[name]()
 
 
-def _factory(name: str):
+def _factory(name: str) -> Callable[[], Policy]:
     def make() -> Policy:
         return make_baseline(name)
     make.__qualname__ = f"make_baseline[{name}]"
     return make
 
 
-_FACTORIES = {name: _factory(name) for name in BASELINE_NAMES if name != REFERENCE_POLICY}
+_FACTORIES = {name: _factory(name) for name, _, _ in BASELINES}
 
 
 def register_policies() -> None:
     """Register every baseline with the leaderboard (idempotent)."""
-    for name, make in _FACTORIES.items():
-        register_policy(name, make, kind="baseline", description=_DESCRIPTIONS.get(name, ""))
+    for name, _, description in BASELINES:
+        register_policy(name, _FACTORIES[name], kind="baseline", description=description)

@@ -23,7 +23,8 @@ import numpy as np
 from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
-                                       estimate_model)
+                                       RowPolicy, estimate_model)
+from stepdamp_env.bench.suites import suite_of
 from stepdamp_env.env import EnvOptionsV1, TaskV1
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.env.registration import ENV_ID_V1
@@ -109,9 +110,8 @@ class _FeedbackOnFF(DelayCompensatedFF):
         g = torque_paths(system, context.mode, context.speed_rps, model)
         return harmonic_actions(base / g, base, context.action_scale)
 
-    # Batched runs (stepdamp_env.bench.policy.BatchPolicy): each row is reset as a
-    # scalar run is and its settings gathered; act_batch repeats act's arithmetic
-    # element-wise (float64, then the same float32 rounding of the current).
+    # The law on rows (RowPolicy: a scalar run is row 0): each row configured and its
+    # settings gathered; element-wise float64, then the float32 rounding of the current.
     _ROW_SETTINGS: tuple[str, ...] = ()
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
@@ -130,12 +130,22 @@ class _FeedbackOnFF(DelayCompensatedFF):
     def row_calibration_s(self, row: int) -> float:
         return 0.0
 
-    def _start(self, context: PolicyContext, system: SystemParams) -> None:
+    def __init__(self, name: str, zeta_add: float, filter_hz: float = 0.0,
+                 estimate: str = "identified") -> None:
+        super().__init__(estimate)
+        self.name = name
+        self.zeta_add = float(zeta_add)
+        self.filter_hz = float(filter_hz)
+
+    def _start(self, context: PolicyContext, system: SystemParams) -> float:
+        """The run's feedforward, scales and full step; returns the natural
+        frequency of ``system`` (rad/s)."""
         self._action = np.zeros(7, dtype=np.float32)
         self._action[:6] = self._feedforward(context, system)
         self._w_ref = 2.0 * math.pi * abs(context.speed_rps)
         self._to_action = 1.0 / context.current_scale_a
         self._full_step = system.motor.full_step_rad
+        return system.natural_frequency()
 
 
 class VelocityFeedback(_FeedbackOnFF):
@@ -169,15 +179,11 @@ class VelocityFeedback(_FeedbackOnFF):
 
     def __init__(self, zeta_add: float = DEFAULT_ZETA_ADD,
                  filter_hz: float = DEFAULT_FILTER_HZ) -> None:
-        super().__init__()
-        self.name = "velocity-feedback"
-        self.zeta_add = float(zeta_add)
-        self.filter_hz = float(filter_hz)
+        super().__init__("velocity-feedback", zeta_add, filter_hz)
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal
-        self._start(context, nominal)
-        wn = nominal.natural_frequency()
+        wn = self._start(context, nominal)
         dt_a = 1.0 / context.agent_hz
         self._hp_alpha = 1.0 - fm.exp(-wn / 5.0 * dt_a)
         self._beta = 1.0 - fm.exp(-2.0 * math.pi * self.filter_hz * dt_a)
@@ -186,21 +192,6 @@ class VelocityFeedback(_FeedbackOnFF):
         target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
         self.gains = design_gains(target, velocity_filter(nominal, wn) * lp,
                                   hp * lp / complex(0.0, wn))
-        self._lp = None
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        e_w = float(observation[OBS.velocity_error]) * self._w_ref
-        e_theta = float(observation[OBS.position_error]) * self._full_step
-        if self._lp is None:
-            self._lp, self._fw, self._fp = e_theta, e_w, 0.0
-        self._lp += self._hp_alpha * (e_theta - self._lp)
-        # Both signals through the same low-pass: less of the encoder's
-        # quantisation noise reaches the current (its phase is in the design).
-        self._fw += self._beta * (e_w - self._fw)
-        self._fp += self._beta * (e_theta - self._lp - self._fp)
-        a, b = self.gains
-        self._action[6] = np.clip((a * self._fw + b * self._fp) * self._to_action, -1.0, 1.0)
-        return self._action
 
     _ROW_SETTINGS = ("_hp_alpha", "_beta")
 
@@ -254,15 +245,11 @@ class SensorlessDamping(_FeedbackOnFF):
 
     def __init__(self, zeta_add: float = DEFAULT_SENSORLESS_ZETA_ADD,
                  filter_hz: float = DEFAULT_SENSORLESS_FILTER_HZ) -> None:
-        super().__init__()
-        self.name = "sensorless-damping"
-        self.zeta_add = float(zeta_add)
-        self.filter_hz = float(filter_hz)
+        super().__init__("sensorless-damping", zeta_add, filter_hz)
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal
-        self._start(context, nominal)
-        wn = nominal.natural_frequency()
+        wn = self._start(context, nominal)
         dt = 1.0 / nominal.drive.pwm_hz
         alpha = 1.0 - fm.exp(-2.0 * math.pi * nominal.servo.velocity_cutoff_hz * dt)
         dt_a = 1.0 / context.agent_hz
@@ -273,19 +260,6 @@ class SensorlessDamping(_FeedbackOnFF):
         diff = est * (1.0 - fm.cexp(-1j * wn * dt_a))
         target = _law_target(nominal, context.mode, context.agent_hz, self.zeta_add, wn)
         self.gains = design_gains(target, est, diff)
-        self._prev = None
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        raw = float(observation[OBS.velocity_error]) * self._w_ref
-        if self._prev is None:
-            self._prev = self._fw = raw
-        # A further low-pass against the current sensors' noise (in the design).
-        self._fw += self._beta * (raw - self._fw)
-        e_w, prev = self._fw, self._prev
-        self._prev = e_w
-        a, b = self.gains
-        self._action[6] = np.clip((a * e_w + b * (e_w - prev)) * self._to_action, -1.0, 1.0)
-        return self._action
 
     _ROW_SETTINGS = ("_beta",)
 
@@ -324,26 +298,22 @@ class OracleFloor(_FeedbackOnFF):
     privileged = True
 
     def __init__(self, zeta_add: float = ORACLE_ZETA_ADD) -> None:
-        super().__init__(estimate="exact")
-        self.name = "oracle-floor"
-        self.zeta_add = float(zeta_add)
+        super().__init__("oracle-floor", zeta_add, estimate="exact")
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         plant = context.knowledge.plant
         if plant is None:
             raise ValueError("oracle-floor needs MotorKnowledge.plant (the true plant)")
-        self._start(context, plant)
+        wn = self._start(context, plant)
         names = observation_names("harmonic+current", privileged=True)
         self._i_w = names.index("true_velocity_error")
         self._i_theta = names.index("true_position_error")
-        wn = plant.natural_frequency()
         dt_a = 1.0 / context.agent_hz
         self._hp_alpha = 1.0 - fm.exp(-wn / 5.0 * dt_a)
         hp = 1.0 - _lowpass(wn, self._hp_alpha, dt_a)
         zeta = self._zeta(context)
         target = _law_target(plant, context.mode, context.agent_hz, zeta, wn)
         self.gains = design_gains(target, complex(1.0, 0.0), hp / complex(0.0, wn))
-        self._lp = None
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """Not exportable: an oracle (see :mod:`stepdamp_env.bench.firmware`)."""
@@ -353,17 +323,6 @@ class OracleFloor(_FeedbackOnFF):
     def _zeta(self, context: PolicyContext) -> float:
         """The added damping ratio of this run: ``zeta_add`` in open loop, 0 in servo."""
         return self.zeta_add if context.mode == "open-loop" else 0.0
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        e_w = float(observation[self._i_w]) * self._w_ref
-        e_theta = float(observation[self._i_theta]) * self._full_step
-        if self._lp is None:
-            self._lp = e_theta
-        self._lp += self._hp_alpha * (e_theta - self._lp)
-        a, b = self.gains
-        self._action[6] = np.clip((a * e_w + b * (e_theta - self._lp)) * self._to_action,
-                                  -1.0, 1.0)
-        return self._action
 
     _ROW_SETTINGS = ("_hp_alpha", "_i_w", "_i_theta")
 
@@ -405,8 +364,8 @@ class PrivilegedBound(OracleFloor):
     docs/results/v3/bound_tuning.txt). The
     feedforward is the exact model sent through the true plant's current path
     (``delay-comp``, oracle-floor's), the exact model uncompensated
-    (``patent``), or none. The suite is read from the run: servo from the
-    mode, mid-band from the plant's voltage-mode drive. Settings:
+    (``patent``), or none. The suite is the run's (``PolicyContext.suite``;
+    ``env_options``, before the run, reads it from the plant's drive). Settings:
     ``PRIVILEGED_SETTINGS``, (zeta_add, agent_hz, feedforward) per suite.
     """
 
@@ -425,32 +384,32 @@ class PrivilegedBound(OracleFloor):
             raise ValueError("settings: open-loop and servo must share agent_hz and "
                              "whether there is a feedforward")
 
-    @staticmethod
-    def _suite(knowledge: MotorKnowledge, mode: str) -> str:
-        plant = knowledge.plant
-        if plant is not None and plant.drive.drive_mode == "voltage":
-            return "mid-band"
-        return mode
-
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         out = super().env_options(knowledge)
         # The mode is not known here: open loop and servo share their rate and base.
-        zeta, hz, ff = self.settings[self._suite(knowledge, "open-loop")]
+        plant = knowledge.plant if knowledge.plant is not None else knowledge.nominal
+        zeta, hz, ff = self.settings[suite_of("open-loop", plant.drive.drive_mode)]
         out["agent_hz"] = hz
         if ff == "none":
             out["base_controller"] = "none"
         return out
 
-    def reset(self, context: PolicyContext) -> None:
-        super().reset(context)
-        if self.settings[self._suite(context.knowledge, context.mode)][2] != "delay-comp":
+    def configure(self, context: PolicyContext) -> None:
+        super().configure(context)
+        if self._run_settings(context)[2] != "delay-comp":
             self._action[:6] = 0.0          # the base's own feedforward, or none
 
     def _zeta(self, context: PolicyContext) -> float:
-        return self.settings[self._suite(context.knowledge, context.mode)][0]
+        return self._run_settings(context)[0]
+
+    def _run_settings(self, context: PolicyContext) -> tuple[float, float, str]:
+        if context.suite not in self.settings:
+            raise ParameterError(f"{self.name}: no settings for suite {context.suite!r} (tuned "
+                                 f"for {sorted(self.settings)})")
+        return self.settings[context.suite]
 
 
-class TunedConstantGain:
+class TunedConstantGain(RowPolicy):
     """``tuned-constant-gain``: StepperDamp-v1's damping law on ``ff-delay-comp``
     at one constant gain, what the per-step agents must beat to have learned
     more than a number.
@@ -481,12 +440,6 @@ class TunedConstantGain:
     def env_options(self, knowledge: MotorKnowledge) -> dict[str, Any]:
         return {"base_controller": "ff-delay-comp", "estimate": knowledge.identified,
                 "action_mode": "damping-gains", "agent_hz": 100.0}
-
-    def reset(self, context: PolicyContext) -> None:
-        pass
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        return self._action
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """The law this entry runs in ``context`` (:mod:`stepdamp_env.bench.firmware`):

@@ -39,8 +39,8 @@ DEV_GAIN_PAIRS: Mapping[str, tuple[float, float]] = MappingProxyType({
 
 
 class TunedGainPair:
-    """The damping law at a constant (``kv``, ``kp``) per suite (the suite from the
-    drive: a voltage-mode drive is v3's mid-band, else the run's mode), gains
+    """The damping law at a constant (``kv``, ``kp``) per suite (the run's
+    ``PolicyContext.suite``), gains
     normalised as in :data:`DEV_GAIN_PAIRS`. Senses the encoder (velocity
     estimate, position error) and currents; model: nominal (law units),
     identified (feedforward)."""
@@ -65,8 +65,7 @@ class TunedGainPair:
     env_options = TunedConstantGain.env_options
 
     def reset(self, context: PolicyContext) -> None:
-        voltage = context.knowledge.nominal.drive.drive_mode == "voltage"
-        suite = "mid-band" if voltage else context.mode
+        suite = context.suite
         if suite not in self.pairs:
             raise ParameterError(f"{self.name}: no gains for suite {suite!r} (tuned for "
                                  f"{sorted(self.pairs)})")

@@ -17,14 +17,14 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
-from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, estimate_model,
-                                       resolve_estimate)
+from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, RowPolicy,
+                                       estimate_model, resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.fixedmath import cmul, random_walk_kalman_update
-from stepdamp_env.params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
+from stepdamp_env.params import DETENT_HARMONICS, ParameterError
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
-__all__ = ["DelayCompensatedFF", "AdaptiveFF", "HARMONICS", "phasors", "torque_paths",
+__all__ = ["DelayCompensatedFF", "AdaptiveFF", "OnlineTable", "HARMONICS", "phasors", "torque_paths",
            "harmonic_actions", "harmonic_action_rows", "gather_rows"]
 
 HARMONICS = DETENT_HARMONICS
@@ -32,12 +32,12 @@ HARMONICS = DETENT_HARMONICS
 
 def gather_rows(policy: Any, contexts: Sequence[PolicyContext],
                 get: Callable[[], dict[str, Any]]) -> dict[str, np.ndarray]:
-    """A batched policy's per-row settings: ``policy`` is reset for each context
-    (its own scalar ``reset``) and what ``get()`` reads of it then is stacked,
+    """A batched policy's per-row settings: ``policy`` is configured for each
+    context (its ``configure``) and what ``get()`` reads of it then is stacked,
     one row per context."""
     rows: dict[str, list[np.ndarray]] = {}
     for context in contexts:
-        policy.reset(context)
+        policy.configure(context)
         for k, v in get().items():
             rows.setdefault(k, []).append(np.array(v, copy=True))
     return {k: np.stack(v) for k, v in rows.items()}
@@ -72,7 +72,7 @@ def _applied(action: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
     return base + scale * (action[0::2].astype(float) + 1j * action[1::2].astype(float))
 
 
-class _HarmonicResidual:
+class _HarmonicResidual(RowPolicy):
     """Shared by the harmonic policies: harmonic actions on the patent feedforward
     with the model named by ``self.estimate``."""
 
@@ -96,21 +96,18 @@ class DelayCompensatedFF(_HarmonicResidual):
         self.estimate = estimate
         self._action = np.zeros(6, dtype=np.float32)
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         model = estimate_model(self.estimate, context.knowledge)
         base = phasors(model)
         g = torque_paths(context.knowledge.nominal, context.mode, context.speed_rps, model)
         self._action = harmonic_actions(base / g, base, context.action_scale)
-
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        return self._action
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """The harmonic table this entry applies in ``context``'s run
         (:mod:`stepdamp_env.bench.firmware`): the patent feedforward's coefficients
         plus its constant harmonic action as the env applies it (rounded to
         float32, clipped to [-1, 1], times the action scale), over the model's Km."""
-        if type(self).act is not DelayCompensatedFF.act:
+        if type(self).act_batch is not DelayCompensatedFF.act_batch:
             raise ParameterError(f"entry {self.name!r} cannot be exported: its harmonic "
                                  "table changes while it runs (it learns on line); a firmware "
                                  "table is fixed")
@@ -127,8 +124,8 @@ class DelayCompensatedFF(_HarmonicResidual):
             f"{self.name}: {what}, as the benchmark applies it: its harmonic action on the "
             "patent feedforward, rounded to float32 and clipped to [-1, 1]."))
 
-    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): each
-    # row is reset as a scalar run is, and its (constant) action kept.
+    # The law on rows (RowPolicy: a scalar run is row 0): each row configured, its
+    # (constant) action kept.
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         self._rows = gather_rows(self, contexts, lambda: {
             "_action": self._action, "calibration_s": float(getattr(self, "calibration_s", 0.0))})
@@ -140,7 +137,26 @@ class DelayCompensatedFF(_HarmonicResidual):
         return float(self._rows["calibration_s"][row])
 
 
-class AdaptiveFF(_HarmonicResidual):
+class OnlineTable:
+    """What the harmonic policies that learn their table on line share: each step
+    the rows past their start (the row setting named by ``LIVE_FROM``, in agent
+    steps) update their table (``_update_rows``); the action is the rows' table."""
+
+    LIVE_FROM: str
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        self._rows_step += 1
+        r = self._rows
+        live = self._rows_step > r[self.LIVE_FROM][rows]
+        if live.any():
+            self._update_rows(observations[live], rows[live])
+        return r["_action"][rows]
+
+    def _update_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
+        raise NotImplementedError
+
+
+class AdaptiveFF(OnlineTable, _HarmonicResidual):
     """``adaptive-ff``: cancels what is left of the detent ripple, online.
 
     Two parts, per harmonic h = 1, 2, 4 at h*Nr*speed:
@@ -200,7 +216,7 @@ class AdaptiveFF(_HarmonicResidual):
                              "table on line (Kalman filter on the velocity error); export "
                              "ff-delay-comp, the table it starts from")
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         system = context.knowledge.nominal
         model = estimate_model(self.estimate, context.knowledge)
         self._base = phasors(model)
@@ -218,52 +234,17 @@ class AdaptiveFF(_HarmonicResidual):
         self._p = np.eye(6) * ((0.1 * w + 1.0) * (0.1 * w + 1.0))
         self._q = self.ripple_drift_rad_s * self.ripple_drift_rad_s
         self._r = self.noise_rad_s * self.noise_rad_s
-        self._row = np.zeros((1, 6))
         self._action = harmonic_actions(self._base / g, self._base, self._scale)
         self._applied = _applied(self._action, self._base, self._scale)
         self._initial = self._applied.copy()
         self._start_step = int(round((context.ramp_s + self.start_s) * context.agent_hz))
         self._adapt_step = self._start_step + int(round(self.probe_s * context.agent_hz))
-        self._reference_power = np.zeros(3)
-        self._active = np.ones(3, dtype=bool)
-        self._step = 0
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        self._step += 1
-        if self._step <= self._start_step:
-            return self._action
-        row = self._row
-        row[0, 0::2] = observation[HARMONIC_SIN]      # sin x, sin 2x, sin 4x
-        row[0, 1::2] = observation[HARMONIC_COS]      # cos x, cos 2x, cos 4x
-        x, p = self._x[None], self._p[None]           # views: updated in place
-        random_walk_kalman_update(x, p, row, np.array(
-            [float(observation[OBS.velocity_error]) * self._w_ref]), self._q, self._r)
-        ripple = self._x[0::2] + 1j * self._x[1::2]
-        power = self._x[0::2] * self._x[0::2] + self._x[1::2] * self._x[1::2]
-        variance = self._p[0::2, 0::2].diagonal() + self._p[1::2, 1::2].diagonal()
-        if self._step <= self._adapt_step:          # probing the unadapted ripple
-            self._reference_power = power
-            return self._action
-        diverged = self._active & (power > self.guard_ratio * self._reference_power
-                                   + 4.0 * variance)
-        if diverged.any():
-            self._active &= ~diverged
-            self._applied = np.where(diverged, self._initial, self._applied)
-        # Only a ripple clearly above the estimate's noise (2 sigma) is
-        # corrected, and in proportion to how clearly, so a ripple buried in
-        # encoder noise does not walk the feedforward around.
-        weight = self._active * np.clip(1.0 - 4.0 * variance / np.maximum(power, 1e-300),
-                                        0.0, 1.0)
-        target = self._applied + self.step_gain * weight * cmul(ripple, self._inverse_path)
-        self._action = harmonic_actions(target, self._base, self._scale)
-        self._applied = _applied(self._action, self._base, self._scale)
-        return self._action
-
-    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
-    # arithmetic on a stack of rows, the filter the same function as act's
-    # (tests/test_scale.py checks the result bit for bit against the scalar runs).
+    # The law on rows (RowPolicy: a scalar run is row 0); the filter is
+    # fixedmath.random_walk_kalman_update, the same arithmetic for one row and many.
     _ROW_SETTINGS = ("_base", "_inverse_path", "_w_ref", "_scale", "_action", "_applied",
                      "_initial", "_start_step", "_adapt_step")
+    LIVE_FROM = "_start_step"
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         self._rows = gather_rows(self, contexts, lambda: {
@@ -274,15 +255,7 @@ class AdaptiveFF(_HarmonicResidual):
         self._rows_kf = (self._q, self._r)
         self._rows_step = 0
 
-    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        self._rows_step += 1
-        r = self._rows
-        live = self._rows_step > r["_start_step"][rows]
-        if live.any():
-            self._adapt_rows(observations[live], rows[live])
-        return r["_action"][rows]
-
-    def _adapt_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
+    def _update_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
         r = self._rows
         q, noise = self._rows_kf
         h = np.zeros((len(idx), 6))

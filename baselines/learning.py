@@ -18,7 +18,7 @@ from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
-from .harmonic import (DelayCompensatedFF, gather_rows, harmonic_action_rows,
+from .harmonic import (DelayCompensatedFF, OnlineTable, gather_rows, harmonic_action_rows,
                        harmonic_actions)
 
 __all__ = ["CalibratedTable", "RepetitiveControl", "golden_section"]
@@ -99,7 +99,7 @@ class CalibratedTable(DelayCompensatedFF):
         self.window_s = float(window_s)
         self.calibration_s = 0.0
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         knowledge = context.knowledge
         rig = knowledge.rig
         if rig is None:
@@ -151,7 +151,7 @@ class CalibratedTable(DelayCompensatedFF):
         return fm.cmul(table, paths), seconds
 
 
-class RepetitiveControl(DelayCompensatedFF):
+class RepetitiveControl(OnlineTable, DelayCompensatedFF):
     """``repetitive-control``: learns the periodic correction online, from the encoder.
 
     Source idea: repetitive control / iterative learning control of periodic
@@ -196,7 +196,7 @@ class RepetitiveControl(DelayCompensatedFF):
         self.leak = float(leak)
         self.min_samples = float(min_samples)
 
-    def reset(self, context: PolicyContext) -> None:
+    def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal
         model = estimate_model(self.estimate, context.knowledge)
         self._base = phasors(model)
@@ -228,54 +228,13 @@ class RepetitiveControl(DelayCompensatedFF):
         self._scale = context.action_scale
         self._action = harmonic_actions(self._start, self._base, self._scale)
         self._wait = int(round(context.ramp_s * context.agent_hz))
-        self._step = 0
-        self._angle = None
-        self._turned = 0.0
-        self._sums = np.zeros(3, dtype=complex)
-        self._count = 0
-        self._reference = None
-        self._active = np.ones(3, dtype=bool)
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        self._step += 1
-        if self._step <= self._wait:
-            return self._action
-        s = observation[HARMONIC_SIN].astype(float)
-        c = observation[HARMONIC_COS].astype(float)
-        e = float(observation[OBS.velocity_error]) * self._w_ref
-        angle = fm.atan2(s[0], c[0])
-        if self._angle is not None:
-            self._turned += (angle - self._angle + math.pi) % (2.0 * math.pi) - math.pi
-        self._angle = angle
-        self._sums += e * (s + 1j * c)
-        self._count += 1
-        if abs(self._turned) >= 2.0 * math.pi:          # one electrical period done
-            ripple = 2.0 * self._sums / self._count
-            size = _magnitude(ripple)
-            # A model whose phase is off by more than 90 degrees (near a shifted
-            # resonance) makes learning diverge: a harmonic whose ripple grows
-            # past guard_ratio times the least seen goes back to its start and
-            # stops learning.
-            self._reference = size if self._reference is None else \
-                np.minimum(self._reference, size)
-            diverged = self._active & (size > self.guard_ratio * self._reference)
-            self._active &= ~diverged
-            self._table = np.where(diverged, self._start, self._table)
-            self._table = (self._start + self.leak * (self._table - self._start)
-                           + self._active * fm.cmul(self._learn, ripple))
-            self._action = harmonic_actions(self._table, self._base, self._scale)
-            self._table = self._base + self._scale * (
-                self._action[0::2].astype(float) + 1j * self._action[1::2].astype(float))
-            self._turned -= math.copysign(2.0 * math.pi, self._turned)
-            self._sums[:] = 0.0
-            self._count = 0
-        return self._action
-
-    # The batched runner's interface (stepdamp_env.bench.policy.BatchPolicy): act's
-    # arithmetic on a stack of rows; the angles go through fixedmath.atan2 and Python's %
+    # The law on rows (RowPolicy: a scalar run is row 0); the angles go through
+    # fixedmath.atan2 and Python's %
     # row by row (numpy's SIMD arctan2 differs from libm's in the last bit).
     _ROW_SETTINGS = ("_base", "_start", "_learn", "_w_ref", "_scale", "_action", "_table",
                      "_wait")
+    LIVE_FROM = "_wait"
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         self._rows = gather_rows(self, contexts,
@@ -290,15 +249,7 @@ class RepetitiveControl(DelayCompensatedFF):
     def row_calibration_s(self, row: int) -> float:
         return 0.0
 
-    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        self._rows_step += 1
-        r = self._rows
-        live = self._rows_step > r["_wait"][rows]
-        if live.any():
-            self._learn_rows(observations[live], rows[live])
-        return r["_action"][rows]
-
-    def _learn_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
+    def _update_rows(self, observations: np.ndarray, idx: np.ndarray) -> None:
         r = self._rows
         s = observations[:, HARMONIC_SIN].astype(float)
         c = observations[:, HARMONIC_COS].astype(float)

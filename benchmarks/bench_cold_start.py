@@ -23,7 +23,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-WARM_UP = ("import sys, time; from stepdamp_env.params import load_system; "
+WARM_UP = ("import sys, time; from stepdamp_env.motorfile import load_system; "
            "from stepdamp_env.bench.leaderboard import warm_up; "
            "print(warm_up(load_system('patent'), workers=int(sys.argv[1])))")
 

@@ -22,7 +22,7 @@ def measure(sim_seconds: float, repeats: int, speed_rps: float, motor: str) -> d
     import numpy as np
 
     from stepdamp_env import kernel as K
-    from stepdamp_env.params import load_system
+    from stepdamp_env.motorfile import load_system
     from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config,
                                          initial_state, new_accumulators, run_periods_chunked)
 

@@ -37,7 +37,7 @@ VARIANTS = ("plain", "noise", "law+noise")
 def batch(drives: int, variant: str):
     """(configs, states, accumulators, inputs, laws or None) of one variant."""
     from stepdamp_env import kernel as K
-    from stepdamp_env.params import load_system
+    from stepdamp_env.motorfile import load_system
     from stepdamp_env.presets import preset_names
     from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
                                          new_accumulators)
@@ -112,26 +112,22 @@ def coverage() -> dict:
 
     counts: collections.Counter = collections.Counter()
     sizes: collections.Counter = collections.Counter()
-    plain, law = K.run_batch, K.run_batch_law
+    step = K.step_batch
 
     def count(c, n, kind):
         sizes[len(c)] += 1
         for row in c:
             counts[kind, bool(lanes.in_lanes(row, int(row[K.CONFIG.SUBSTEPS])))] += n
 
-    def run_batch(c, s, a, u, n):
-        count(c, n, "plain")
-        return plain(c, s, a, u, n)
+    def counted(c, s, a, u, lw, n):
+        count(c, n, "plain" if lw is None else "law")
+        return step(c, s, a, u, lw, n)
 
-    def run_batch_law(c, s, a, u, lw, n):
-        count(c, n, "law")
-        return law(c, s, a, u, lw, n)
-
-    K.run_batch, K.run_batch_law = run_batch, run_batch_law
+    K.step_batch = counted
     try:
         run_leaderboard(quick_protocol_v3(), workers=1, progress=False)
     finally:
-        K.run_batch, K.run_batch_law = plain, law
+        K.step_batch = step
     total = sum(counts.values())
     drives = sum(k * v for k, v in sizes.items())
     return {"in_lanes": sum(v for (_, inside), v in counts.items() if inside) / total,

@@ -56,12 +56,12 @@ def kernel_timed(fn):
 
 
 def install() -> None:
-    from stepdamp_env import fixedmath, kernel
+    from stepdamp_env import fixednet, kernel
     from stepdamp_env.bench import leaderboard, rig, runner
 
-    for name in ("run_periods", "run_periods_law", "run_batch", "run_batch_law"):
+    for name in ("run_periods", "run_periods_law", "step_batch", "step_batch_parallel"):
         setattr(kernel, name, kernel_timed(getattr(kernel, name)))
-    fixedmath.mlp_forward = timed("policy forward (mlp_forward)", fixedmath.mlp_forward)
+    fixednet.mlp_forward = timed("policy forward (mlp_forward)", fixednet.mlp_forward)
     leaderboard.identify = timed("identification", leaderboard.identify)
     leaderboard.protocol_motors = timed("motors", leaderboard.protocol_motors)
     leaderboard.warm_up = timed("warm-up", leaderboard.warm_up)

@@ -4,7 +4,7 @@ stepdamp-bench v3 board on the dev split (never a scored split).
 Each variant is a directory of ``stepdamp train --seeds`` runs (``seed<K>/``);
 the leaderboard runs each directory as one entry pooling its seeds::
 
-    stepdamp train --algo ars --seeds 1-3 --out runs/abl/history0 --set "env_kwargs={history: 0}"
+    stepdamp train --algo ars --seeds 1-3 --out runs/abl/history0 --hyperparam "env_kwargs={history: 0}"
     ...
     stepdamp leaderboard --split dev --suite open-loop \\
         --entries ff-delay-comp tuned-constant-gain --policy runs/abl/* --out results/ablations

@@ -34,6 +34,10 @@ validation, wherever the mistake is elsewhere. The whole audit takes a few
 minutes on 2 cores. Temporary files live in a ``tempfile.mkdtemp()`` directory
 (also the working directory during the run) that is removed at the end.
 
+``--glossary`` checks docs/cli.md's glossary (one flag, one meaning) against
+the parser, and that each renamed flag is refused with one line naming its new
+name; the full audit runs that check first.
+
 Output: one line per case that is not clean (argv with the temporary directory
 shown as ``$TMP``, class, first 200 characters of the message or the
 exception), the wall time of any case over 5 s, then the summary line
@@ -147,7 +151,7 @@ def make_files(tmp: str) -> dict[str, str]:
 
 def window_start() -> float:
     """Start of the measuring window of ``simulate --speed 0.5`` with the defaults."""
-    from stepdamp_env.params import load_system
+    from stepdamp_env.motorfile import load_system
     from stepdamp_env.simulation import (DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile,
                                          measuring_window)
 
@@ -209,8 +213,8 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     def train(label: str, *extra: str, **over: object) -> None:
         base = [("--algo", "ppo"), ("--total-timesteps", "8"), ("--eval-freq", "0"),
                 ("--checkpoint-freq", "0"), ("--no-progress", True),
-                ("--no-tensorboard", True), ("--motors", "patent"),
-                ("--envs-per-motor", "1"), ("--out", out())]
+                ("--no-tensorboard", True), ("--presets", "patent"),
+                ("--envs-per-preset", "1"), ("--out", out())]
         add(label, *_argv("train", base, over, extra))
 
     # --- top level --------------------------------------------------------
@@ -343,7 +347,7 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     ident("--method not a choice", **{"--method": "lsq"})
     ident("--method empty", **{"--method": ""})
     for v in ("-1", "nan", "inf", "1.5", str(2 ** 53), HUGE_INT, "abc"):
-        ident(f"--seed {v!r}", "--seed", v)
+        ident(f"--noise-seed {v!r}", "--noise-seed", v)
     ident("--motor unknown preset", "--motor", "nosuch")
     ident("--motor empty file", "--motor", f["m_empty"])
     ident("--motor JSON list", "--motor", f["m_list"])
@@ -409,26 +413,26 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     for v in ("-1", "1000", HUGE_INT, "nan"):
         train(f"--seed {v!r}", "--seed", v)
     for v in ("0", "-1"):
-        train(f"--envs-per-motor {v!r}", **{"--envs-per-motor": v})
+        train(f"--envs-per-preset {v!r}", **{"--envs-per-preset": v})
     train("--eval-freq -1", **{"--eval-freq": "-1"})
     train("--checkpoint-freq -1", **{"--checkpoint-freq": "-1"})
     train("--val-seed -1", "--val-seed", "-1", **{"--eval-freq": "1000"})
     train("--val-motors-per-preset -1", "--val-motors-per-preset", "-1",
           **{"--eval-freq": "1000"})
-    train("--motors unknown preset", **{"--motors": "nosuch"})
-    train("--motors empty name", **{"--motors": ""})
+    train("--presets unknown preset", **{"--presets": "nosuch"})
+    train("--presets empty name", **{"--presets": ""})
     train("--hyperparams missing file", "--hyperparams", os.path.join(tmp, "hyper", "missing.yml"))
     train("--hyperparams empty file", "--hyperparams", f["h_empty"])
     train("--hyperparams invalid YAML", "--hyperparams", f["h_bad"])
     train("--hyperparams without the StepperDamp-v0 entry", "--hyperparams", f["h_nokey"])
     train("--hyperparams a YAML list", "--hyperparams", f["h_list"])
     train("--hyperparams a directory", "--hyperparams", f["dir"])
-    train("--set missing '='", "--set", "learning_rate")
-    train("--set unknown hyperparameter", "--set", "no_such_kwarg=1")
-    train("--set learning_rate=nan", "--set", "learning_rate=nan")
-    train("--set learning_rate=abc", "--set", "learning_rate=abc")
-    train("--set n_epochs=-1", "--set", "n_epochs=-1")
-    train("--set batch_size=0", "--set", "batch_size=0")
+    train("--hyperparam missing '='", "--hyperparam", "learning_rate")
+    train("--hyperparam unknown hyperparameter", "--hyperparam", "no_such_kwarg=1")
+    train("--hyperparam learning_rate=nan", "--hyperparam", "learning_rate=nan")
+    train("--hyperparam learning_rate=abc", "--hyperparam", "learning_rate=abc")
+    train("--hyperparam n_epochs=-1", "--hyperparam", "n_epochs=-1")
+    train("--hyperparam batch_size=0", "--hyperparam", "batch_size=0")
     train("--out an existing file", **{"--out": f["file"]})
     train("--out under /proc", **{"--out": "/proc/stepdamp-audit/out"})
     train("--out under a file", **{"--out": os.path.join(f["file"], "out")})
@@ -582,12 +586,99 @@ def _one_line(text: str) -> str:
     return " | ".join(ln.strip() for ln in text.strip().splitlines() if ln.strip())
 
 
+def parser_flags() -> tuple[dict[str, set[str]], dict[tuple[str, str], str]]:
+    """Every command's options: flag -> commands, and the renamed ones, (command,
+    old flag) -> None (their help is suppressed; the error names the new flag)."""
+    from stepdamp_env.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    flags: dict[str, set[str]] = {}
+    hidden: dict[tuple[str, str], str] = {}
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            for flag in action.option_strings:
+                if flag in ("-h", "--help"):
+                    continue
+                if action.help == argparse.SUPPRESS:
+                    hidden[(name, flag)] = ""
+                else:
+                    flags.setdefault(flag, set()).add(name)
+    return flags, hidden
+
+
+def _table(text: str, heading: str) -> list[list[str]]:
+    """The rows of the first Markdown table after ``heading``, cells stripped of `."""
+    rows, seen = [], False
+    for line in text[text.index(heading):].splitlines()[1:]:
+        if line.startswith("|"):
+            seen = True
+            cells = [c.strip().strip("`") for c in line.strip().strip("|").split("|")]
+            if not set(cells[0]) <= set("-") and cells[0] not in ("flag", "command"):
+                rows.append(cells)
+        elif seen:
+            break
+    return rows
+
+
+def glossary_problems(path: str = os.path.join(REPO, "docs", "cli.md")) -> list[str]:
+    """What differs between the glossary of docs/cli.md and the parser: a flag
+    not listed, listed twice or with other commands, a meaning given two flags,
+    a renamed flag that is not refused with one line naming its new name."""
+    from stepdamp_env.cli import main as cli_main
+
+    text = open(path, encoding="utf-8").read()
+    listed = _table(text, "## Glossary: one flag, one meaning")
+    renamed = _table(text, "Renamed in ")
+    flags, hidden = parser_flags()
+    problems = []
+    names = [r[0] for r in listed]
+    meanings = [r[1] for r in listed]
+    problems += [f"{f}: listed twice" for f in sorted({n for n in names if names.count(n) > 1})]
+    problems += [f"meaning {m!r}: given to two flags"
+                 for m in sorted({m for m in meanings if meanings.count(m) > 1})]
+    for flag, _, commands in listed:
+        have = flags.get(flag)
+        if have is None:
+            problems.append(f"{flag}: in the glossary, in no command")
+        elif set(c.strip() for c in commands.split(",")) != have:
+            problems.append(f"{flag}: the glossary says {commands}; the parser has "
+                            f"{', '.join(sorted(have))}")
+    problems += [f"{f}: not in the glossary ({', '.join(sorted(c))})"
+                 for f, c in sorted(flags.items()) if f not in names]
+    table = {(c, old): new for c, old, new in renamed}
+    problems += [f"{c} {old}: hidden, not in the renamed table" for c, old in sorted(hidden)
+                 if (c, old) not in table]
+    for (command, old), new in sorted(table.items()):
+        if (command, old) not in hidden:
+            problems.append(f"{command} {old}: in the renamed table, not in the parser")
+            continue
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                status = cli_main([command, old, "1"])
+            except SystemExit as exc:
+                status = exc.code
+        last = err.getvalue().strip().splitlines()[-1:]
+        if status != 2 or not last or f"{old} was renamed to {new}" not in last[0]:
+            problems.append(f"{command} {old}: exit {status}, {last} (expected one line "
+                            f"naming {new})")
+    return problems
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--list", action="store_true", help="print the cases, run nothing")
+    parser.add_argument("--glossary", action="store_true",
+                        help="check docs/cli.md's glossary against the parser, run nothing else")
     parser.add_argument("--verbose", action="store_true",
                         help="print every case with its message")
     opts = parser.parse_args(argv)
+    problems = glossary_problems()
+    for p in problems:
+        print(f"glossary  {p}")
+    if opts.glossary:
+        print(f"cli glossary: {len(problems)} problems")
+        return 1 if problems else 0
 
     tmp = tempfile.mkdtemp(prefix="stepdamp-audit-")
     here = os.getcwd()
@@ -628,7 +719,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cli mistakes: {len(cases)} cases, {counts['clean']} clean, "
               f"{counts['traceback']} tracebacks, {counts['exit0']} exit 0, "
               f"{counts['other']} other")
-        return 0 if counts["clean"] == len(cases) else 1
+        return 0 if counts["clean"] == len(cases) and not problems else 1
     finally:
         os.chdir(here)
         shutil.rmtree(tmp, ignore_errors=True)

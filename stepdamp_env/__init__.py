@@ -6,8 +6,8 @@ from .numba_cache import use_user_cache_dir
 # never into the installed package (an uninstall could not remove it).
 use_user_cache_dir()
 
-from .params import (FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams,
-                     SystemParams, load_system, predicted_resonances)
+from .params import FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams, SystemParams, predicted_resonances
+from .motorfile import load_system
 from .presets import PRESETS, get_preset, preset_names
 from .simulation import RunMetrics, RunResult, RunSettings, SpeedProfile, simulate
 from .env import (StepperDampEnv, StepperDampV1Env, StepperDampV1VectorEnv, StepperDampVectorEnv,

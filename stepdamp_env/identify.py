@@ -39,7 +39,8 @@ import numpy as np
 
 from . import fixedmath as fm
 from . import kernel as K
-from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams, load_system
+from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
+from .motorfile import load_system
 from .response import servo_loop
 from .simulation import RunSettings, SpeedProfile, build_config, initial_state, new_accumulators
 

@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from .errors import ParameterError
 from .limits import LIMITS
 
 __all__ = ["atomic_path", "write_json", "write_text", "write_npz", "check_writable",
@@ -133,8 +134,6 @@ def _json_depth(text: str) -> int:
 def parse_json(text: str, label: str) -> Any:
     """``json.loads(text)``; invalid JSON, nesting deeper than ``LIMITS.json_depth``
     or a non-finite number is a one-line ``ParameterError`` naming ``label``."""
-    from .params import ParameterError
-
     depth = _json_depth(text)
     if depth > LIMITS.json_depth:
         raise ParameterError(f"{label} nests {depth} levels deep; allowed at most "
@@ -151,8 +150,6 @@ def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -
     given, e.g. ``lzma.open``); an unreadable, truncated, oversized, too deeply
     nested or invalid file is a one-line ``ParameterError`` naming ``label`` and
     the file. Every JSON file the tool reads goes through here."""
-    from .params import ParameterError
-
     where = f"{label} {os.fspath(path)!r}"
     check_regular_file(path, where)
     try:
@@ -179,8 +176,6 @@ def read_json(path: str | os.PathLike[str], label: str, *, opener: Any = None) -
 def check_regular_file(path: str | os.PathLike[str], where: str) -> None:
     """A one-line ``ParameterError`` unless ``path`` is a regular file (after
     links): a FIFO would block a read for ever, a device never end it."""
-    from .params import ParameterError
-
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
@@ -196,8 +191,6 @@ def check_regular_file(path: str | os.PathLike[str], where: str) -> None:
 def read_json_or_none(path: str | os.PathLike[str]) -> Any:
     """The JSON in ``path``, or None if it is missing, unreadable or refused by
     :func:`read_json` (a cache entry: computed again)."""
-    from .params import ParameterError
-
     try:
         return read_json(path, "cache entry")
     except ParameterError:
@@ -324,8 +317,6 @@ def write_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
 def check_writable(path: str | os.PathLike[str], option: str, *, directory: bool) -> None:
     """Before any work: make sure ``path`` (a directory, or a file's directory) can
     be written, else a one-line ``ParameterError`` naming ``option``."""
-    from .params import ParameterError
-
     path = os.fspath(path)
     target = path if directory else (os.path.dirname(os.path.abspath(path)) or ".")
     if not directory and os.path.isdir(path):
@@ -353,8 +344,6 @@ def check_output_dir(path: str | os.PathLike[str], option: str,
     directory as the system resolves it (``a/link/..`` is where ``link``
     points, not ``a``), which every later step must use; a previous result
     directory a killed run left aside is put back first."""
-    from .params import ParameterError
-
     refuse_link(path, option)
     path = os.path.realpath(os.fspath(path))
     parent, name = os.path.split(path)
@@ -380,8 +369,6 @@ def refuse_link(path: str | os.PathLike[str], option: str,
     """A one-line ``ParameterError`` if ``path`` is a symbolic link: what the tool
     deletes or replaces is never reached through one (it would act on what the
     link points to)."""
-    from .params import ParameterError
-
     path = os.fspath(path).rstrip(os.sep) or os.fspath(path)
     if os.path.islink(path):
         raise ParameterError(f"{option} {path!r} is a symbolic link (to {os.readlink(path)!r}); "
@@ -397,8 +384,6 @@ def output_lock(path: str | os.PathLike[str], option: str) -> Iterator[None]:
     (made if needed) while a run writes it; a second run on the same directory
     gets a one-line ``ParameterError`` naming the process that holds it. The
     lock file lives inside ``path`` and goes with the directory it locked."""
-    from .params import ParameterError
-
     path = os.fspath(path)
     refuse_link(path, option)
     os.makedirs(path, exist_ok=True)

@@ -35,10 +35,10 @@ from .kernel import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, MODE, PLANT, PROFILE,
                      constant_speed_command, controller_params, current_loop, driving_torque_sc,
                      feedforward_torque, harmonics, law_feedback, motor_derivative_sc, park_sc,
                      plant_params, quantise, resonant_phasor, rk4_combine, rk4_step_stuck, run_periods,
-                     run_periods_law, uniform_pair)
+                     run_periods_law, uniform_pair, without_law)
 
-__all__ = ["LANES", "run_batch_lanes", "run_batch_law_lanes", "run_batch_lanes_parallel",
-           "run_batch_law_lanes_parallel", "in_lanes", "control_lanes", "plant_lanes", "workspace_size",
+__all__ = ["LANES", "step_lanes", "step_lanes_parallel", "run_batch_lanes",
+           "run_batch_law_lanes", "run_batch_lanes_parallel", "run_batch_law_lanes_parallel", "in_lanes", "control_lanes", "plant_lanes", "workspace_size",
            "simd_by_default"]
 
 _jit = njit(cache=True, error_model="numpy")
@@ -309,8 +309,15 @@ def _load(w, first, rows, block, m):
 
 
 @_jit
-def _run(configs, states, accs, inputs, laws, n_periods):
-    """run_batch_lanes and run_batch_law_lanes; ``laws`` None (pruned) or the laws."""
+def step_lanes(configs, states, accs, inputs, laws, n_periods):
+    """:func:`kernel.step_batch`, LANES drives at a time; the same bits. ``laws`` None
+    (no damping law; pruned when compiled) or each drive's LAW row.
+
+    A drive whose substep count is not that of the first drive of its group of
+    LANES, or that is not of the lanes' variant, runs through the kernel for the
+    whole call. Returns the number of drive-periods the kernel ran (those, and
+    the periods run again).
+    """
     n = LANES
     w = np.zeros(ROW.ROWS * n)
     law = None if laws is None else w
@@ -403,50 +410,31 @@ def _run(configs, states, accs, inputs, laws, n_periods):
     return again
 
 
-@_jit
-def run_batch_lanes(configs, states, accs, inputs, n_periods):
-    """:func:`kernel.run_batch`, LANES drives at a time; the same bits.
-
-    A drive whose substep count is not that of the first drive of its group of
-    LANES, or that is not of the lanes' variant, runs through the kernel for the
-    whole call. Returns the number of drive-periods the kernel ran (those, and
-    the periods run again).
-    """
-    return _run(configs, states, accs, inputs, None, n_periods)
-
-
-@_jit
-def run_batch_law_lanes(configs, states, accs, inputs, laws, n_periods):
-    """:func:`kernel.run_batch_law`, LANES drives at a time; the same bits."""
-    return _run(configs, states, accs, inputs, laws, n_periods)
-
-
-# Parallel twins: groups of LANES drives on numba's threads (numba.set_num_threads in
+# The parallel twin: groups of LANES drives on numba's threads (numba.set_num_threads in
 # the calling thread), each group with its own workspace; the bits do not depend
 # on the number of threads.
 _jit_parallel = njit(cache=True, error_model="numpy", parallel=True)
 
 
 @_jit_parallel
-def run_batch_lanes_parallel(configs, states, accs, inputs, n_periods):
-    """:func:`run_batch_lanes`, the groups of lanes spread over numba's threads."""
+def step_lanes_parallel(configs, states, accs, inputs, laws, n_periods):
+    """:func:`step_lanes`, the groups of lanes spread over numba's threads."""
     groups = (configs.shape[0] + LANES - 1) // LANES
     again = np.zeros(groups, dtype=np.int64)
     for g in prange(groups):
         lo = g * LANES
         hi = min(lo + LANES, configs.shape[0])
-        again[g] = _run(configs[lo:hi], states[lo:hi], accs[lo:hi], inputs[lo:hi], None, n_periods)
+        if laws is None:
+            again[g] = step_lanes(configs[lo:hi], states[lo:hi], accs[lo:hi], inputs[lo:hi],
+                                  None, n_periods)
+        else:
+            again[g] = step_lanes(configs[lo:hi], states[lo:hi], accs[lo:hi], inputs[lo:hi],
+                                  laws[lo:hi], n_periods)
     return again.sum()
 
 
-@_jit_parallel
-def run_batch_law_lanes_parallel(configs, states, accs, inputs, laws, n_periods):
-    """:func:`run_batch_law_lanes`, the groups of lanes spread over numba's threads."""
-    groups = (configs.shape[0] + LANES - 1) // LANES
-    again = np.zeros(groups, dtype=np.int64)
-    for g in prange(groups):
-        lo = g * LANES
-        hi = min(lo + LANES, configs.shape[0])
-        again[g] = _run(configs[lo:hi], states[lo:hi], accs[lo:hi], inputs[lo:hi], laws[lo:hi],
-                        n_periods)
-    return again.sum()
+# The entry points by their names before 0.18: the law's are the steps themselves.
+run_batch_lanes = without_law(step_lanes)
+run_batch_lanes_parallel = without_law(step_lanes_parallel)
+run_batch_law_lanes = step_lanes
+run_batch_law_lanes_parallel = step_lanes_parallel

@@ -29,20 +29,31 @@ the motor (mechanical damping ratio 0.02), Fs is 1 % of the holding torque, and
 the servo gains are derived from J (a triple pole at 2*pi*velocity_cutoff_hz/5,
 :meth:`stepdamp_env.params.SystemParams.servo_gains`), never a preset's.
 Giving a datasheet key and a model field for one quantity is an error.
+
+This module is where systems are loaded: :func:`load_system` (a preset name, a
+motor file or a mapping), :func:`system_from_mapping` and ``--set``'s
+:func:`parse_set_overrides`; :mod:`stepdamp_env.params` holds the validated
+data alone.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
+from .errors import ParameterError, show_value
+from .io import read_json
 from .limits import LIMITS
-from .params import (DRIVE_FIELDS, MOTOR_FIELDS, SERVO_FIELDS, DriveParams, MotorParams,
-                     ParameterError, ServoParams, SystemParams, allowed)
+from .params import (ALL_FIELDS, DRIVE_FIELDS, INTEGER_FIELDS, META_KEYS, MOTOR_FIELDS,
+                     SERVO_FIELDS, TEXT_FIELDS, DriveParams, MotorParams, ServoParams,
+                     SystemParams, allowed)
+from .presets import PRESETS, get_preset
 
-__all__ = ["DATASHEET_KEYS", "DATASHEET_DEFAULTS", "is_datasheet", "datasheet_fields",
+__all__ = ["load_system", "system_from_mapping", "read_json_file", "parse_set_overrides",
+           "DATASHEET_KEYS", "DATASHEET_DEFAULTS", "is_datasheet", "datasheet_fields",
            "MotorDescription", "describe", "describe_spec", "DETENT_SPLIT", "DAMPING_RATIO", "FRICTION_FRACTION",
            "DETENT_FRACTION"]
 
@@ -213,9 +224,31 @@ class MotorDescription:
     source: str
 
 
+def system_from_mapping(values: Mapping[str, Any]) -> SystemParams:
+    """The system of a motor mapping (a motor file's object): model fields over the
+    preset named by ``"base"`` (``"patent"`` if absent), or datasheet keys over
+    the documented defaults (:data:`DATASHEET_DEFAULTS`)."""
+    unknown = sorted(set(values) - set(ALL_FIELDS) - set(META_KEYS) - set(DATASHEET_KEYS))
+    if unknown:
+        raise ParameterError(
+            f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)}, datasheet keys "
+            f"{list(DATASHEET_KEYS)} and metadata keys {list(META_KEYS)}")
+    if is_datasheet(values):
+        flat = datasheet_fields(values)
+        drive = {**dataclasses.asdict(DriveParams()),
+                 **{k: flat[k] for k in DRIVE_FIELDS if k in flat}}
+        servo = {**dataclasses.asdict(ServoParams()),
+                 **{k: flat[k] for k in SERVO_FIELDS if k in flat}}
+        return SystemParams(MotorParams(**{k: flat[k] for k in MOTOR_FIELDS}),
+                            DriveParams(**drive), ServoParams(**servo),
+                            name=str(values.get("name", "custom")))
+    base = get_preset(str(values.get("base", "patent")))
+    return SystemParams.from_dict({k: v for k, v in values.items() if k != "base"}, base=base)
+
+
 def describe(values: Mapping[str, Any]) -> MotorDescription:
     """The system of a motor mapping and the values it did not give."""
-    system = SystemParams.from_dict(values)
+    system = system_from_mapping(values)
     if is_datasheet(values):
         assumed = dict(_resolve(values).assumed)
         drive_defaults = dataclasses.asdict(DriveParams())
@@ -246,11 +279,6 @@ def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescrip
     """The motors a preset name or a motor file names: one for a preset or a
     motor object, one per item for a list file (``--motors``'s format; an item
     may name another file, but no file may name itself, even through others)."""
-    import os
-
-    from .params import read_json_file
-    from .presets import PRESETS, get_preset
-
     if spec in PRESETS:
         return [MotorDescription(get_preset(spec), {}, f"preset {spec}")]
     if not os.path.isfile(spec):
@@ -287,4 +315,70 @@ def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescrip
         except ParameterError as exc:
             raise ParameterError(f"motor file {spec!r}" + (f", motor {k}" if len(items) > 1
                                                           else "") + f": {exc}") from None
+    return out
+
+
+def read_json_file(path: str, label: str) -> Any:
+    """The JSON in ``path``; invalid JSON or an unreadable file is a one-line
+    ``ParameterError`` naming it as ``label`` (e.g. "motor file", "--motors")."""
+    return read_json(path, label)
+
+
+def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
+                overrides: Mapping[str, Any] | None = None) -> SystemParams:
+    """Resolve a preset name, a motor JSON file or a mapping to a SystemParams.
+
+    A JSON file (or mapping) holds any of the flat field names; the others come
+    from the preset named by its optional ``"base"`` key (``"patent"`` if absent).
+    ``overrides`` (flat field names, e.g. from ``--set``) are applied last.
+    """
+    if isinstance(spec, SystemParams):
+        system = spec
+    elif isinstance(spec, Mapping):
+        system = system_from_mapping(spec)
+    else:
+        if not isinstance(spec, (str, os.PathLike)):
+            raise ParameterError(f"motor must be a preset name, a motor .json file, a mapping "
+                                 f"or SystemParams, got {type(spec).__name__} {show_value(spec)}")
+        text = os.fspath(spec)
+        if text.endswith(".json") or os.path.sep in text or os.path.isfile(text):
+            if os.path.isdir(text):
+                raise ParameterError(f"motor file {text!r} is a directory")
+            if not os.path.isfile(text):
+                raise ParameterError(f"motor file {text!r} does not exist")
+            values = read_json_file(text, "motor file")
+            if not isinstance(values, dict):
+                raise ParameterError(f"motor file {text!r} must hold a JSON object")
+            values.setdefault("name", os.path.splitext(os.path.basename(text))[0])
+            system = system_from_mapping(values)
+        else:
+            system = get_preset(text)
+    if overrides:
+        system = system.replace(**overrides)
+    return system
+
+
+def parse_set_overrides(items: Iterable[str]) -> dict[str, float | str]:
+    """Parse ``FIELD=VALUE`` strings (``--set``) into a dict of numbers (text for
+    ``drive_mode``)."""
+    out: dict[str, float | str] = {}
+    for item in items:
+        name, sep, raw = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ParameterError(f"--set expects FIELD=VALUE, got {item!r}")
+        if name not in ALL_FIELDS:
+            raise ParameterError(f"--set: unknown parameter {name!r}; allowed: "
+                                 f"{list(ALL_FIELDS)}")
+        if name in TEXT_FIELDS:
+            text = raw.strip()
+            DriveParams.__dataclass_fields__[name].metadata["allowed"].check(f"--set {name}",
+                                                                             text)
+            out[name] = text
+            continue
+        try:
+            value = float(raw)
+        except ValueError:
+            raise ParameterError(f"--set {name}: {raw!r} is not a number") from None
+        out[name] = int(value) if value.is_integer() and name in INTEGER_FIELDS else value
     return out

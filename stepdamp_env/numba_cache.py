@@ -3,7 +3,7 @@ one sub-directory per version of this package's code.
 
 numba re-checks a cached function against its own source file only (modified
 time and size), not against the files it calls into: ``env/compiled.py``
-inlines ``kernel.py``, so a changed kernel would leave its compiled steps
+inlines the kernel (``kernel/``), so a changed kernel would leave its compiled steps
 stale. The sub-directory is named by a hash of every Python source of the
 package and the numba and llvmlite versions (:func:`code_key`), so changed
 code never meets an old cache.

@@ -6,7 +6,8 @@ construction: a bad value raises ``ValueError`` naming the field and its allowed
 range, which sits beside the field as its metadata (:func:`allowed`). The flat
 field names below are the public vocabulary of the API, of motor JSON files and
 of ``stepdamp ... --set FIELD=VALUE``. The named presets are in
-:mod:`stepdamp_env.presets` (re-exported here).
+:mod:`stepdamp_env.presets`; motor files, datasheets and ``--set`` are read by
+:mod:`stepdamp_env.motorfile`.
 
 Motor (eqs. 1-4 and 9 of US 7,733,051, as corrected in docs/model.md):
     R, L, Km, Nr, J, D, Kd1, Kd2, Kd4, phi1, phi2, Fs, load_torque
@@ -38,13 +39,13 @@ import dataclasses
 import functools
 import math
 import numbers
-import os
 from dataclasses import dataclass, field, fields
-from typing import Any, Iterable, Mapping, NamedTuple
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
 from . import fixedmath as fm
+from .errors import ParameterError, show_value
 from .limits import LIMITS
 
 __all__ = [
@@ -57,12 +58,6 @@ __all__ = [
     "SystemParams",
     "FeedforwardModel",
     "ParameterError",
-    "PRESETS",
-    "preset_names",
-    "get_preset",
-    "load_system",
-    "read_json_file",
-    "parse_set_overrides",
     "predicted_resonances",
     "DETENT_HARMONICS",
     "RK4_STABLE_RADIUS",
@@ -71,6 +66,13 @@ __all__ = [
     "required_substeps",
     "RESONANCE_HARMONICS",
     "check_name",
+    "ALL_FIELDS",
+    "MOTOR_FIELDS",
+    "DRIVE_FIELDS",
+    "SERVO_FIELDS",
+    "INTEGER_FIELDS",
+    "TEXT_FIELDS",
+    "META_KEYS",
 ]
 
 
@@ -87,10 +89,6 @@ class ServoGains(NamedTuple):
     kp_vel: float       #: N*m*s/rad
     kp_pos: float       #: N*m/rad
     ki_pos: float       #: N*m/(rad*s)
-
-
-class ParameterError(ValueError):
-    """A parameter is outside its allowed range or unknown."""
 
 
 _INF = math.inf
@@ -110,10 +108,10 @@ class Allowed:
         """Raise ``ParameterError`` naming ``name`` and this range if ``value`` is outside."""
         # numbers.Real admits numpy scalars; bool is a number only by accident.
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-            raise ParameterError(f"{name} must be a number, got {_show(value)}")
+            raise ParameterError(f"{name} must be a number, got {show_value(value)}")
         lo_b = "(" if self.low_open else "["
         hi_b = ")" if self.high_open else "]"
-        outside = (f"{name}={_show(value)} is outside its allowed range "
+        outside = (f"{name}={show_value(value)} is outside its allowed range "
                    f"{lo_b}{self.low}, {self.high}{hi_b}")
         try:
             # As a Python float: a float32 -2*pi must not compare in float32 arithmetic.
@@ -121,9 +119,9 @@ class Allowed:
         except OverflowError:
             raise ParameterError(outside) from None
         if not math.isfinite(number):
-            raise ParameterError(f"{name} must be finite, got {_show(value)}")
+            raise ParameterError(f"{name} must be finite, got {show_value(value)}")
         if self.integer and number != int(value):
-            raise ParameterError(f"{name} must be an integer, got {_show(value)}")
+            raise ParameterError(f"{name} must be an integer, got {show_value(value)}")
         lo_ok = number > self.low if self.low_open else number >= self.low
         hi_ok = number < self.high if self.high_open else number <= self.high
         if not (lo_ok and hi_ok):
@@ -140,18 +138,7 @@ class OneOf:
     def check(self, name: str, value: Any) -> None:
         """Raise ``ParameterError`` naming ``name`` and the choices if ``value`` is not one."""
         if not isinstance(value, str) or value not in self.choices:
-            raise ParameterError(f"{name}={_show(value)} is not one of {list(self.choices)}")
-
-
-def _show(value: Any) -> str:
-    """A value for a one-line message (a 300-digit integer in short)."""
-    text = repr(value)
-    if len(text) <= 40:
-        return text
-    try:
-        return f"{float(value):.6g}"
-    except (OverflowError, TypeError, ValueError):
-        return text[:37] + "..."
+            raise ParameterError(f"{name}={show_value(value)} is not one of {list(self.choices)}")
 
 
 def allowed(low: float, high: float, *, low_open: bool = False, high_open: bool = False,
@@ -303,7 +290,7 @@ MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
 DRIVE_FIELDS = tuple(f.name for f in fields(DriveParams))
 SERVO_FIELDS = tuple(f.name for f in fields(ServoParams))
 ALL_FIELDS = MOTOR_FIELDS + DRIVE_FIELDS + SERVO_FIELDS
-_INTEGER_FIELDS = frozenset(f.name for cls in (MotorParams, DriveParams, ServoParams)
+INTEGER_FIELDS = frozenset(f.name for cls in (MotorParams, DriveParams, ServoParams)
                             for f in fields(cls) if f.metadata["allowed"].integer)
 #: The fields whose value is text, not a number.
 TEXT_FIELDS = ("drive_mode",)
@@ -320,7 +307,7 @@ def check_name(name: Any, label: str = "name") -> str:
         raise ParameterError(f"{label} must be text, got {type(name).__name__}")
     if not 1 <= len(name) <= LIMITS.name_chars or not name.isprintable():
         # Only the start of the name into the message (_show shortens it anyway).
-        raise ParameterError(f"{label}={_show(name[:60])} ({len(name)} characters) is outside "
+        raise ParameterError(f"{label}={show_value(name[:60])} ({len(name)} characters) is outside "
                              f"its allowed range: 1 to {LIMITS.name_chars} printable characters "
                              "(no line breaks or tabs)")
     return name
@@ -392,39 +379,37 @@ class SystemParams:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any], base: "SystemParams | None" = None
                   ) -> "SystemParams":
-        """Build from a flat mapping; missing fields come from ``base``.
+        """Build from a flat mapping of model fields (and metadata keys); missing
+        fields come from ``base``. Without ``base`` every motor field without a
+        default must be given (the drive's and servo's come from their defaults).
 
-        A mapping with datasheet keys (``holding_torque_Nm``, ...) is converted
-        by :mod:`stepdamp_env.motorfile` and starts from its documented
-        defaults instead of a preset."""
-        from .motorfile import DATASHEET_KEYS, datasheet_fields, is_datasheet  # lazy: imports us
-        unknown = sorted(set(values) - set(ALL_FIELDS) - set(META_KEYS) - set(DATASHEET_KEYS))
+        A mapping that names a preset as ``"base"`` or gives datasheet values
+        is a motor file's: :func:`stepdamp_env.motorfile.load_system` reads it."""
+        meta = set(META_KEYS) - {"base"}
+        unknown = sorted(set(values) - set(ALL_FIELDS) - meta)
         if unknown:
             raise ParameterError(
-                f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)}, datasheet keys "
-                f"{list(DATASHEET_KEYS)} and metadata keys {list(META_KEYS)}")
-        if is_datasheet(values):
-            if base is not None:
-                raise ParameterError("datasheet keys apply to a motor file, not to a change of "
-                                     f"an existing system; give model fields {list(ALL_FIELDS)}")
-            flat = datasheet_fields(values)
-            drive = {**dataclasses.asdict(DriveParams()),
-                     **{k: flat[k] for k in DRIVE_FIELDS if k in flat}}
-            servo = {**dataclasses.asdict(ServoParams()),
-                     **{k: flat[k] for k in SERVO_FIELDS if k in flat}}
-            return cls(MotorParams(**{k: flat[k] for k in MOTOR_FIELDS}), DriveParams(**drive),
-                       ServoParams(**servo), name=str(values.get("name", "custom")))
+                f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)} and metadata keys "
+                f"{sorted(meta)} (a preset base or datasheet keys: load_system)")
         if base is None:
-            from .presets import get_preset   # lazy: presets.py imports this module
-            base = get_preset(str(values.get("base", "patent")))
-        motor = {**dataclasses.asdict(base.motor),
-                 **{k: values[k] for k in MOTOR_FIELDS if k in values}}
-        drive = {**dataclasses.asdict(base.drive),
-                 **{k: values[k] for k in DRIVE_FIELDS if k in values}}
-        servo = {**dataclasses.asdict(base.servo),
-                 **{k: values[k] for k in SERVO_FIELDS if k in values}}
-        return cls(MotorParams(**motor), DriveParams(**drive), ServoParams(**servo),
-                   name=str(values.get("name", base.name)))
+            missing = [f.name for f in fields(MotorParams) if f.name not in values
+                       and f.default is dataclasses.MISSING]
+            if missing:
+                raise ParameterError(f"motor field(s) {missing} missing; give base= or load the "
+                                     "mapping with load_system (a preset base for the rest)")
+            base_fields: dict[str, Any] = {}
+            name = "custom"
+        else:
+            base_fields = {**dataclasses.asdict(base.motor), **dataclasses.asdict(base.drive),
+                           **dataclasses.asdict(base.servo)}
+            name = base.name
+
+        def part(cls_: type, names: tuple[str, ...]) -> Any:
+            return cls_(**{k: values[k] if k in values else base_fields[k] for k in names
+                           if k in values or k in base_fields})
+
+        return cls(part(MotorParams, MOTOR_FIELDS), part(DriveParams, DRIVE_FIELDS),
+                   part(ServoParams, SERVO_FIELDS), name=str(values.get("name", name)))
 
     def replace(self, **overrides: Any) -> "SystemParams":
         """Copy with some flat fields changed (validated like construction)."""
@@ -612,72 +597,3 @@ class FeedforwardModel:
         return (self.Kd1 * fm.cos(self.phi1), self.Kd1 * fm.sin(self.phi1),
                 self.Kd2 * fm.cos(self.phi2), self.Kd2 * fm.sin(self.phi2),
                 self.Kd4, 0.0)
-
-
-def read_json_file(path: str, label: str) -> Any:
-    """The JSON in ``path``; invalid JSON or an unreadable file is a one-line
-    ``ParameterError`` naming it as ``label`` (e.g. "motor file", "--motors")."""
-    from .io import read_json
-
-    return read_json(path, label)
-
-
-def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
-                overrides: Mapping[str, Any] | None = None) -> SystemParams:
-    """Resolve a preset name, a motor JSON file or a mapping to a SystemParams.
-
-    A JSON file (or mapping) holds any of the flat field names; the others come
-    from the preset named by its optional ``"base"`` key (``"patent"`` if absent).
-    ``overrides`` (flat field names, e.g. from ``--set``) are applied last.
-    """
-    if isinstance(spec, SystemParams):
-        system = spec
-    elif isinstance(spec, Mapping):
-        system = SystemParams.from_dict(spec)
-    else:
-        if not isinstance(spec, (str, os.PathLike)):
-            raise ParameterError(f"motor must be a preset name, a motor .json file, a mapping "
-                                 f"or SystemParams, got {type(spec).__name__} {_show(spec)}")
-        text = os.fspath(spec)
-        if text.endswith(".json") or os.path.sep in text or os.path.isfile(text):
-            if os.path.isdir(text):
-                raise ParameterError(f"motor file {text!r} is a directory")
-            if not os.path.isfile(text):
-                raise ParameterError(f"motor file {text!r} does not exist")
-            values = read_json_file(text, "motor file")
-            if not isinstance(values, dict):
-                raise ParameterError(f"motor file {text!r} must hold a JSON object")
-            values.setdefault("name", os.path.splitext(os.path.basename(text))[0])
-            system = SystemParams.from_dict(values)
-        else:
-            from .presets import get_preset   # lazy: presets.py imports this module
-            system = get_preset(text)
-    if overrides:
-        system = system.replace(**overrides)
-    return system
-
-
-def parse_set_overrides(items: Iterable[str]) -> dict[str, float | str]:
-    """Parse ``FIELD=VALUE`` strings (``--set``) into a dict of numbers (text for
-    ``drive_mode``)."""
-    out: dict[str, float | str] = {}
-    for item in items:
-        name, sep, raw = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise ParameterError(f"--set expects FIELD=VALUE, got {item!r}")
-        if name not in ALL_FIELDS:
-            raise ParameterError(f"--set: unknown parameter {name!r}; allowed: "
-                                 f"{list(ALL_FIELDS)}")
-        if name in TEXT_FIELDS:
-            text = raw.strip()
-            DriveParams.__dataclass_fields__[name].metadata["allowed"].check(f"--set {name}",
-                                                                             text)
-            out[name] = text
-            continue
-        try:
-            value = float(raw)
-        except ValueError:
-            raise ParameterError(f"--set {name}: {raw!r} is not a number") from None
-        out[name] = int(value) if value.is_integer() and name in _INTEGER_FIELDS else value
-    return out

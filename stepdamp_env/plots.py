@@ -13,6 +13,7 @@ from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 from .sweep import SweepResult
 
 __all__ = ["POLICY_COLOURS", "POLICY_MARKERS", "BASE_CONTROLLER_STYLES", "finish_ripple_axes",
+           "finish_trace_axes",
            "legend_outside", "mark_resonances", "plot_sweep", "plot_velocity_error_traces",
            "pyplot", "save_figure", "trace_speeds"]
 
@@ -62,6 +63,14 @@ def finish_ripple_axes(ax, title: str) -> None:
     ax.set_title(title, pad=14)
     ax.grid(True, which="both", alpha=0.3)
     legend_outside(ax)
+
+
+def finish_trace_axes(ax, ylabel: str, title: str) -> None:
+    """Label, title, grid and legend of one speed's velocity-error trace."""
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.set_title(title, fontsize=8, loc="left")
+    ax.grid(True, alpha=0.3)
+    legend_outside(ax, fontsize=7)
 
 
 def mark_resonances(ax, resonances) -> None:
@@ -129,10 +138,7 @@ def plot_velocity_error_traces(system: SystemParams, settings: RunSettings | Seq
             colour = BASE_CONTROLLER_STYLES.get(rs.base_controller, (None, ""))[0]
             ax.plot(t * 1e3, err, lw=0.6, color=colour,
                     label=f"{rs.base_controller}: RMS {res.metrics.rms_velocity_error_rad_s:.3g} rad/s")
-        ax.set_ylabel("rad/s", fontsize=8)
-        ax.set_title(f"{v:.3g} rev/s", fontsize=8, loc="left")
-        ax.grid(True, alpha=0.3)
-        legend_outside(ax, fontsize=7)
+        finish_trace_axes(ax, "rad/s", f"{v:.3g} rev/s")
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
     fig.suptitle(title or f"Velocity error w_cmd - w: {system.name}, {runs[0].mode}",
                  fontsize=10)

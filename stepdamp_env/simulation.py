@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
-from dataclasses import InitVar, asdict, dataclass, field
+from dataclasses import InitVar, dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
@@ -19,34 +19,17 @@ from . import fixedmath as fm
 from . import kernel as K
 from .estimators import kalman_velocity_gains
 from .limits import LIMITS
+from .metrics import (RunMetrics, merge_accumulator_rows, merge_accumulators,
+                      metrics_from_accumulators, new_accumulators)
+from .motorfile import load_system
 from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, SystemParams,
-                     fastest_plant_mode, load_system, required_substeps)
+                     fastest_plant_mode, required_substeps)
 
-__all__ = [
-    "check_converged",
-    "MODES",
-    "BASE_CONTROLLERS",
-    "DEFAULT_ACCEL_RPS2",
-    "MIN_ACCEL_RPS2",
-    "MAX_DURATION_S",
-    "max_move_distance_rev",
-    "trace_memory_limit",
-    "check_trace_memory",
-    "run_length_error",
-    "run_periods_chunked",
-    "SpeedProfile",
-    "RunSettings",
-    "RunMetrics",
-    "RunResult",
-    "build_config",
-    "check_integrable",
-    "initial_state",
-    "new_accumulators",
-    "metrics_from_accumulators",
-    "merge_accumulators",
-    "merge_accumulator_rows",
-    "simulate",
-]
+__all__ = ["check_converged", "MODES", "BASE_CONTROLLERS", "DEFAULT_ACCEL_RPS2", "MIN_ACCEL_RPS2",
+           "MAX_DURATION_S", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
+           "run_length_error", "run_periods_chunked", "SpeedProfile", "RunSettings", "RunMetrics",
+           "RunResult", "build_config", "check_integrable", "initial_state", "new_accumulators",
+           "metrics_from_accumulators", "merge_accumulators", "merge_accumulator_rows", "simulate"]
 
 MODES = {"open-loop": K.MODE.OPEN_LOOP, "servo": K.MODE.SERVO}
 DRIVE_MODE_CODES = {"current": K.DRIVE.CURRENT, "voltage": K.DRIVE.VOLTAGE}
@@ -370,101 +353,6 @@ def initial_state(config: np.ndarray, theta0: float = 0.0) -> np.ndarray:
         s[K.STATE.IA_PREV] = config[K.CONFIG.HOLD]
         s[K.STATE.ID_MEAS] = config[K.CONFIG.HOLD]
     return s
-
-
-_SUMS = (K.ACC.COUNT, K.ACC.SUM_E, K.ACC.SUM_E2, K.ACC.SUM_IFF2, K.ACC.H1_S, K.ACC.H1_C, K.ACC.H2_S, K.ACC.H2_C,
-         K.ACC.H4_S, K.ACC.H4_C, K.ACC.SUM_E2_ALL, K.ACC.COUNT_ALL, K.ACC.SUM_IFF2_ALL)
-
-
-def merge_accumulators(total: np.ndarray, part: np.ndarray) -> None:
-    """Fold the sums of a later stretch ``part`` into ``total`` (in place).
-
-    Sums add, extremes combine; the lock-in sums add because their phase is
-    timed from the window start, not from the stretch.
-    """
-    if part[K.ACC.COUNT] > 0:
-        if total[K.ACC.COUNT] > 0:
-            total[K.ACC.MIN_E] = min(total[K.ACC.MIN_E], part[K.ACC.MIN_E])
-            total[K.ACC.MAX_E] = max(total[K.ACC.MAX_E], part[K.ACC.MAX_E])
-        else:
-            total[K.ACC.MIN_E] = part[K.ACC.MIN_E]
-            total[K.ACC.MAX_E] = part[K.ACC.MAX_E]
-    for i in _SUMS:
-        total[i] += part[i]
-    total[K.ACC.MAX_LAG] = max(total[K.ACC.MAX_LAG], part[K.ACC.MAX_LAG])
-    total[K.ACC.MAX_CURRENT] = max(total[K.ACC.MAX_CURRENT], part[K.ACC.MAX_CURRENT])
-
-
-def merge_accumulator_rows(total: np.ndarray, part: np.ndarray) -> None:
-    """:func:`merge_accumulators` row by row over (n, N_ACC) arrays, compiled
-    (:func:`stepdamp_env.kernel.merge_rows`), the same arithmetic."""
-    K.merge_rows(total, part)
-
-
-def new_accumulators(n: int | None = None) -> np.ndarray:
-    """Zeroed metric sums for one drive, or an (n, N_ACC) batch."""
-    return np.zeros(len(K.ACC) if n is None else (n, len(K.ACC)))
-
-
-@dataclass(frozen=True)
-class RunMetrics:
-    """Metrics of one run over its measuring window (SI units).
-
-    Velocity error is w_cmd - w (rad/s) sampled once per PWM period.
-    """
-
-    speed_rps: float
-    rms_velocity_error_rad_s: float
-    p2p_velocity_error_rad_s: float
-    rms_velocity_error_norm: float      # divided by the command speed (rad/s)
-    p2p_velocity_error_norm: float
-    mean_velocity_error_rad_s: float
-    max_position_lag_rad: float         # over the whole run
-    max_position_lag_steps: float       # in full steps
-    step_loss: bool                     # lag past one full step
-    rms_injected_current_a: float       # feedforward plus residual q current
-    harmonic_amplitude_rad_s: dict[int, float]  # error amplitude at h*Nr*speed
-    peak_phase_current_a: float
-
-    def to_dict(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["harmonic_amplitude_rad_s"] = {str(h): v for h, v in
-                                           self.harmonic_amplitude_rad_s.items()}
-        return out
-
-
-def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
-                              speed_rps: float) -> RunMetrics:
-    """Turn the kernel's sums into :class:`RunMetrics` (the ``*_norm`` metrics,
-    relative to the command speed, are NaN for a command at rest)."""
-    n = acc[K.ACC.COUNT]
-    if n <= 0:
-        raise ParameterError("the measuring window holds no sample: the run ended before it "
-                         "opened (raise duration_s or lower settle_s)")
-    rms = math.sqrt(acc[K.ACC.SUM_E2] / n)
-    p2p = acc[K.ACC.MAX_E] - acc[K.ACC.MIN_E]
-    w_cmd = TWO_PI * abs(speed_rps)
-    norm = w_cmd if w_cmd > 0 else math.nan
-    amps = {}
-    for h, (i_s, i_c) in ((1, (K.ACC.H1_S, K.ACC.H1_C)), (2, (K.ACC.H2_S, K.ACC.H2_C)),
-                          (4, (K.ACC.H4_S, K.ACC.H4_C))):
-        amps[h] = 2.0 / n * fm.hypot(acc[i_s], acc[i_c])
-    step = system.motor.full_step_rad
-    lag = float(acc[K.ACC.MAX_LAG])
-    return RunMetrics(
-        speed_rps=float(speed_rps),
-        rms_velocity_error_rad_s=rms,
-        p2p_velocity_error_rad_s=float(p2p),
-        rms_velocity_error_norm=rms / norm,
-        p2p_velocity_error_norm=float(p2p) / norm,
-        mean_velocity_error_rad_s=float(acc[K.ACC.SUM_E] / n),
-        max_position_lag_rad=lag,
-        max_position_lag_steps=lag / step,
-        step_loss=bool(lag > step),
-        rms_injected_current_a=math.sqrt(acc[K.ACC.SUM_IFF2] / n),
-        harmonic_amplitude_rad_s=amps,
-        peak_phase_current_a=float(acc[K.ACC.MAX_CURRENT]),
-    )
 
 
 @dataclass

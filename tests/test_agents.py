@@ -214,7 +214,7 @@ def test_cli_train_parses():
     from stepdamp_env.cli import build_parser
 
     ns = build_parser().parse_args(["train", "--algo", "td3", "--total-timesteps", "10",
-                                    "--set", "learning_starts=5"])
+                                    "--hyperparam", "learning_starts=5"])
     assert ns.algo == "td3" and ns.total_timesteps == 10 and ns.extra == ["learning_starts=5"]
 
 

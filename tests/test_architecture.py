@@ -4,6 +4,8 @@
 * Only the CLI, the composition root, imports the baselines and the agents.
 * No module imports another module's private (``_name``) objects, and no code
   reads another object's private attributes (``x._name`` with x not self/cls).
+* No import circles, even through an import inside a function (only
+  ``if TYPE_CHECKING:`` imports, which never run, are left out).
 """
 
 from __future__ import annotations
@@ -19,12 +21,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FLOORS = {
     "stepdamp_env.version": 0, "stepdamp_env.params": 0, "stepdamp_env.presets": 0,
     "stepdamp_env.io": 0, "stepdamp_env.parallel": 0, "stepdamp_env.kernel": 0,
-    "stepdamp_env.limits": 0,
+    "stepdamp_env.limits": 0, "stepdamp_env.errors": 0,
     "stepdamp_env.lanes": 0,
     "stepdamp_env.estimators": 0, "stepdamp_env.numba_cache": 0, "stepdamp_env.fixedmath": 0,
-    "stepdamp_env.simulation": 1, "stepdamp_env.response": 1,
+    "stepdamp_env.fixednet": 0,
+    "stepdamp_env.simulation": 1, "stepdamp_env.response": 1, "stepdamp_env.metrics": 1,
     "stepdamp_env.identify": 2, "stepdamp_env.sweep": 2, "stepdamp_env.plots": 2,
-    "stepdamp_env.analysis": 2, "stepdamp_env.drivelog": 2,
+    "stepdamp_env.analysis": 2, "stepdamp_env.drivelog": 2, "stepdamp_env.logfit": 2,
     "stepdamp_env": 3,                       # the package root exports the env floor
     "stepdamp_env.env": 3, "stepdamp_env.sb3": 3, "stepdamp_env.fields": 0,
     "stepdamp_env.motorfile": 0,
@@ -106,7 +109,8 @@ def test_floors_only_look_down(module):
 
 def test_only_the_cli_imports_baselines_and_agents():
     for module, path in MODULES.items():
-        if not module.startswith("stepdamp_env") or module == "stepdamp_env.cli":
+        if not module.startswith("stepdamp_env") or module == "stepdamp_env.cli" \
+                or module.startswith("stepdamp_env.cli."):
             continue
         for target, _, line in _imports(module, path):
             assert not target.startswith(("stepdamp_baselines", "stepdamp_agents")), \
@@ -212,3 +216,67 @@ def test_installed_import_names_do_not_clash():
         text = fh.read()
     assert '"baselines*"' not in text and '"agents*"' not in text
     assert importlib.util.find_spec("stepdamp_baselines.harmonic") is not None
+
+
+def _run_time_imports(module: str, path: str) -> set[str]:
+    """The project modules ``module`` imports when it runs (at the top or in a
+    function), without those under ``if TYPE_CHECKING:``."""
+    tree = ast.parse(open(path, encoding="utf-8").read())
+    typing_only = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+                   and "TYPE_CHECKING" in ast.unparse(node.test)
+                   for stmt in node.body for n in ast.walk(stmt)}
+    lines = {n.lineno for n in ast.walk(tree)
+             if isinstance(n, (ast.Import, ast.ImportFrom)) and id(n) not in typing_only}
+    return {t for t, _, line in _imports(module, path) if line in lines and t in MODULES
+            and t != module}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected parts of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            part = []
+            while True:
+                w = stack.pop()
+                part.append(w)
+                if w == v:
+                    break
+            if len(part) > 1:
+                found.append(sorted(part))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_cycle_finder_finds_a_circle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_circles():
+    graph = {m: _run_time_imports(m, p) for m, p in MODULES.items()}
+    assert _cycles(graph) == []
+
+
+MAX_MODULE_LINES = 600
+
+
+def test_no_module_is_over_600_lines():
+    over = sorted(f"{m} ({n})" for m, p in MODULES.items()
+                  if (n := sum(1 for _ in open(p, encoding="utf-8"))) > MAX_MODULE_LINES)
+    assert over == [], f"over {MAX_MODULE_LINES} lines: {over}"

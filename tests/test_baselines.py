@@ -113,20 +113,16 @@ def test_current_path_model_matches_the_simulated_loop(still, fc):
 
 
 def test_tuned_gain_pair_acts_with_its_suites_pair_and_refuses_bad_gains():
-    """kv and kp per suite (the mid-band from the drive's voltage mode), the
-    resonant gains 0; gains outside [-1, 1] are a one-line error."""
+    """kv and kp per suite (the run's ``PolicyContext.suite``), the resonant gains
+    0; gains outside [-1, 1] are a one-line error."""
     from types import SimpleNamespace
 
     from stepdamp_baselines import TunedGainPair
     from stepdamp_baselines.gain_pair import DEV_GAIN_PAIRS
-    from stepdamp_env.presets import get_preset
 
     policy = TunedGainPair()
-    for mode, drive, suite in (("open-loop", "current", "open-loop"),
-                               ("servo", "current", "servo"),
-                               ("open-loop", "voltage", "mid-band")):
-        nominal = get_preset("patent").replace(drive_mode=drive)
-        policy.reset(SimpleNamespace(knowledge=SimpleNamespace(nominal=nominal), mode=mode))
+    for suite in ("open-loop", "servo", "mid-band"):
+        policy.reset(SimpleNamespace(suite=suite))
         action = policy.act(np.zeros(3, dtype=np.float32))
         assert action.dtype == np.float32 and action.shape == (8,)
         assert tuple(action[:2]) == tuple(np.float32(g) for g in DEV_GAIN_PAIRS[suite])

@@ -63,7 +63,7 @@ def test_grids_are_kept_per_motor_settings_and_code(tmp_path, monkeypatch):
     """A kept grid is exactly the computed one; other settings are not served it."""
     import os
 
-    from stepdamp_env.bench.protocols.v3 import grids_cached
+    from stepdamp_env.bench.grid_cache import grids_cached
 
     monkeypatch.setenv("STEPDAMP_CACHE_DIR", "off")
     p = ProtocolV3(splits=("dev",), **SMALL)

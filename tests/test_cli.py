@@ -113,3 +113,47 @@ def test_unwritable_output_is_refused_before_any_work(argv, capsys):
     assert time.perf_counter() - t0 < 5.0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not writable" in err[0] and ("--out" in err[0] or "--trace" in err[0])
+
+
+# -- one flag, one meaning (docs/cli.md's glossary) ---------------------------------------
+def _audit():
+    import importlib.util
+
+    path = os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts", "audit_cli.py")
+    spec = importlib.util.spec_from_file_location("audit_cli", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_flag_has_one_meaning_in_the_glossary():
+    assert _audit().glossary_problems() == []
+
+
+def test_the_glossary_check_finds_a_missing_flag_and_a_shared_meaning(tmp_path):
+    audit = _audit()
+    doc = os.path.join(os.path.dirname(os.path.dirname(__file__)), "docs", "cli.md")
+    text = open(doc, encoding="utf-8").read()
+    edited = tmp_path / "cli.md"
+    edited.write_text(text.replace("| `--workers` | worker processes | sweep, leaderboard |\n", "")
+                      .replace("| `--full` | the whole LEADERBOARD.md table |",
+                               "| `--full` | no progress bars |")
+                      .replace("| sweep | `--damping` | `--entries` |",
+                               "| sweep | `--damping` | `--policy` |"))
+    problems = audit.glossary_problems(str(edited))
+    assert "--workers: not in the glossary (leaderboard, sweep)" in problems
+    assert "meaning 'no progress bars': given to two flags" in problems
+    assert any(p.startswith("sweep --damping: exit 2") for p in problems)
+
+
+@pytest.mark.parametrize("argv, new", [
+    (["identify", "--seed", "3", "--out", "x"], "--noise-seed"),
+    (["sweep", "--damping", "none", "--out", "x"], "--entries"),
+    (["train", "--set", "learning_rate=1"], "--hyperparam"),
+    (["train", "--motors", "patent"], "--presets")])
+def test_a_renamed_flag_is_refused_with_one_line_naming_the_new_one(argv, new, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(f"{argv[1]} was renamed to {new} in 0.18.0")

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from stepdamp_env.drivelog import (MAX_RESIDUAL_FRACTION, MIN_ELECTRICAL_PERIODS, TRACE_COLUMNS,
-                                   identify_from_logs, identify_from_tables, read_trace,
-                                   trace_table, write_trace)
+from stepdamp_env.drivelog import TRACE_COLUMNS, read_trace, trace_table, write_trace
+from stepdamp_env.logfit import (MAX_RESIDUAL_FRACTION, MIN_ELECTRICAL_PERIODS,
+                                 identify_from_logs, identify_from_tables)
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate

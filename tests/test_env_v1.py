@@ -16,7 +16,8 @@ import stepdamp_env  # noqa: F401  (registers the envs)
 from stepdamp_env import kernel as K
 from stepdamp_env.env import (ENV_ID_V1, EnvOptionsV1, MotorUnits, StepperDampEnv,
                               StepperDampV1Env, StepperDampV1VectorEnv, observation_names_v1)
-from stepdamp_env.params import ParameterError, load_system
+from stepdamp_env.params import ParameterError
+from stepdamp_env.motorfile import load_system
 from stepdamp_env.response import current_path, velocity_filter
 from stepdamp_env.simulation import RunSettings, SpeedProfile, build_config, initial_state
 

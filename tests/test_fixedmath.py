@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from stepdamp_env import fixedmath as fm
+from stepdamp_env import fixednet as fn
 
 
 def _ulps(a, b) -> np.ndarray:
@@ -141,15 +142,15 @@ def test_mlp_forward_is_the_network_and_independent_of_the_batch():
     sizes = np.array([5, 8, 8, 3])
     ws = [RNG.normal(size=(8, 5)), RNG.normal(size=(8, 8)), RNG.normal(size=(3, 8))]
     bs = [RNG.normal(size=8), RNG.normal(size=8), RNG.normal(size=3)]
-    acts = np.array([fm.ACTIVATION.TANH, fm.ACTIVATION.RELU, fm.ACTIVATION.IDENTITY])
+    acts = np.array([fn.ACTIVATION.TANH, fn.ACTIVATION.RELU, fn.ACTIVATION.IDENTITY])
     x = RNG.normal(size=(9, 5)).astype(np.float32)
-    got = fm.mlp_forward(x, np.concatenate([w.ravel() for w in ws]), np.concatenate(bs),
+    got = fn.mlp_forward(x, np.concatenate([w.ravel() for w in ws]), np.concatenate(bs),
                          sizes, acts)
     h = np.tanh(x.astype(float) @ ws[0].T + bs[0])
     h = np.maximum(h @ ws[1].T + bs[1], 0.0)
     want = h @ ws[2].T + bs[2]
     assert np.allclose(got, want, rtol=1e-13, atol=1e-13)
-    one = np.concatenate([fm.mlp_forward(x[k:k + 1], np.concatenate([w.ravel() for w in ws]),
+    one = np.concatenate([fn.mlp_forward(x[k:k + 1], np.concatenate([w.ravel() for w in ws]),
                                          np.concatenate(bs), sizes, acts) for k in range(9)])
     assert np.array_equal(got, one)
 
@@ -172,7 +173,7 @@ def test_lstm_step_is_the_lstm_cell_and_keeps_each_runs_memory():
                       np.tanh(z[2 * hidden:3 * hidden]), 1 / (1 + np.exp(-z[3 * hidden:])))
         want_c[r] = f * c[r] + i * g
         want_h[r] = o * np.tanh(want_c[r])
-    fm.lstm_step(x, rows, h, c, w_ih.ravel(), w_hh.ravel(), bias)
+    fn.lstm_step(x, rows, h, c, w_ih.ravel(), w_hh.ravel(), bias)
     assert np.allclose(h, want_h, rtol=1e-13, atol=1e-15)
     assert np.allclose(c, want_c, rtol=1e-13, atol=1e-15)
     assert np.array_equal(h[1], want_h[1]) and np.array_equal(c[1], want_c[1])

@@ -21,8 +21,8 @@ import stepdamp_env  # noqa: F401  (registers the env)
 from stepdamp_env import io as sio
 from stepdamp_env.cli import main
 from stepdamp_env.env import EpisodeGuard, StepperDampEnv
-from stepdamp_env.params import (ParameterError, current_loop_radius, fastest_plant_mode,
-                                 load_system, required_substeps)
+from stepdamp_env.params import ParameterError, current_loop_radius, fastest_plant_mode, required_substeps
+from stepdamp_env.motorfile import load_system
 from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings, SpeedProfile, measuring_window, simulate
 

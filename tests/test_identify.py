@@ -10,7 +10,8 @@ import pytest
 
 from stepdamp_env.cli import main
 from stepdamp_env.identify import effort_response, identify
-from stepdamp_env.params import FeedforwardModel, load_system
+from stepdamp_env.params import FeedforwardModel
+from stepdamp_env.motorfile import load_system
 from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import RunSettings, simulate
 

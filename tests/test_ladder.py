@@ -132,8 +132,9 @@ def test_repetitive_control_converges_on_a_pure_periodic_disturbance():
     obs = np.zeros(len(OBS) + 6, dtype=np.float32)
     steps = int(40 * ctx.agent_hz / (nr * ctx.speed_rps))
     first = None
+    action = rc._action.copy()
     for k in range(rc._wait + steps):
-        applied = rc._base + ctx.action_scale * (rc._action[0::2] + 1j * rc._action[1::2])
+        applied = rc._base + ctx.action_scale * (action[0::2] + 1j * action[1::2])
         x = 2.0 * math.pi * nr * ctx.speed_rps * k / ctx.agent_hz
         hx = np.array([h * x for h in DETENT_HARMONICS])
         ripple = p * (detent - applied)
@@ -141,12 +142,12 @@ def test_repetitive_control_converges_on_a_pure_periodic_disturbance():
         obs[OBS.velocity_error] = e / rc._w_ref
         obs[HARMONIC_SIN] = np.sin(hx)
         obs[HARMONIC_COS] = np.cos(hx)
-        rc.act(obs)
+        action = rc.act(obs)
         if first is None and k > rc._wait:
             first = np.abs(detent - applied)
     learned = rc._learn != 0
-    final = np.abs(detent - (rc._base + ctx.action_scale * (rc._action[0::2]
-                                                            + 1j * rc._action[1::2])))
+    final = np.abs(detent - (rc._base + ctx.action_scale * (action[0::2]
+                                                            + 1j * action[1::2])))
     assert learned.any()
     assert np.all(final[learned] < 0.05 * first[learned])
 

@@ -18,7 +18,7 @@ import pytest
 from stepdamp_env import fixedmath as fm
 from stepdamp_env import kernel as K
 from stepdamp_env import lanes
-from stepdamp_env.params import load_system
+from stepdamp_env.motorfile import load_system
 from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, initial_state,
                                      new_accumulators)
 

@@ -257,7 +257,7 @@ def test_warm_up_marks_this_code_version_compiled(tmp_path, monkeypatch, capsys)
     cache; without it (a cold cache) it says it is compiling, on stderr."""
     from stepdamp_env import numba_cache
     from stepdamp_env.bench.leaderboard import warm_up
-    from stepdamp_env.params import load_system
+    from stepdamp_env.motorfile import load_system
 
     marker = os.path.join(numba_cache.user_cache_dir(), "compiled")
     if os.path.exists(marker):

@@ -13,7 +13,8 @@ import pytest
 from stepdamp_env import kernel as K
 from stepdamp_env.analysis import (HIGH_RIPPLE, bridge_gain, bridge_limit_rps, measured_band,
                                    midband, operating_point, rotor_damping, undamped_ripple)
-from stepdamp_env.params import ParameterError, SystemParams, load_system, parse_set_overrides
+from stepdamp_env.params import ParameterError, SystemParams
+from stepdamp_env.motorfile import load_system, parse_set_overrides
 from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import RunSettings, SpeedProfile, build_config, initial_state
 

@@ -16,7 +16,8 @@ from stepdamp_env.analysis import bridge_limit_rps, rotor_damping
 from stepdamp_env.cli import main
 from stepdamp_env.motorfile import (DAMPING_RATIO, DETENT_FRACTION, DETENT_SPLIT,
                                     FRICTION_FRACTION, describe, describe_spec)
-from stepdamp_env.params import ParameterError, SystemParams, load_system
+from stepdamp_env.params import ParameterError
+from stepdamp_env.motorfile import load_system, system_from_mapping
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXAMPLE = os.path.join(ROOT, "docs", "motors", "17hs4401.json")
@@ -28,7 +29,7 @@ SHEET = {"step_angle_deg": 1.8, "rated_current_A": 1.7, "holding_torque_Nm": 0.4
 
 
 def test_datasheet_conversion_formulas():
-    s = SystemParams.from_dict(SHEET)
+    s = system_from_mapping(SHEET)
     m, d = s.motor, s.drive
     assert m.Nr == 50
     assert d.holding_current == pytest.approx(math.sqrt(2) * 1.7, rel=1e-15)
@@ -42,18 +43,18 @@ def test_datasheet_conversion_formulas():
     stiffness = 0.40 * 50                           # N*m/rad: Km * I * Nr
     assert m.D / (2 * math.sqrt(stiffness * m.J)) == pytest.approx(DAMPING_RATIO)
     assert m.Fs == pytest.approx(FRICTION_FRACTION * 0.40)
-    assert SystemParams.from_dict({**SHEET, "step_angle_deg": 0.9}).motor.Nr == 100
+    assert system_from_mapping({**SHEET, "step_angle_deg": 0.9}).motor.Nr == 100
 
 
 def test_holding_current_given_keeps_km_from_the_rated_current():
-    s = SystemParams.from_dict({**SHEET, "holding_current": 2.0})
+    s = system_from_mapping({**SHEET, "holding_current": 2.0})
     assert s.drive.holding_current == 2.0
     assert s.motor.Km == pytest.approx(0.40 / (math.sqrt(2) * 1.7))
 
 
 @pytest.mark.parametrize("load", [0.0, 2.7e-5, 2e-4])
 def test_resonances_follow_the_holding_torque_stiffness(load):
-    s = SystemParams.from_dict({**SHEET, "load_inertia_kgm2": load})
+    s = system_from_mapping({**SHEET, "load_inertia_kgm2": load})
     j = 5.4e-6 + load
     for h, v in s.predicted_resonances_rps().items():
         assert v == pytest.approx(math.sqrt(50 * 0.40 / j) / (2 * math.pi * h * 50), rel=1e-12)
@@ -65,8 +66,8 @@ def test_resonances_follow_the_holding_torque_stiffness(load):
 
 
 def test_servo_gains_follow_the_motor():
-    light = SystemParams.from_dict({**SHEET, "load_inertia_kgm2": 0.0})
-    heavy = SystemParams.from_dict({**SHEET, "load_inertia_kgm2": 2e-4})
+    light = system_from_mapping({**SHEET, "load_inertia_kgm2": 0.0})
+    heavy = system_from_mapping({**SHEET, "load_inertia_kgm2": 2e-4})
     ws = 2 * math.pi * 100.0 / 5
     for s in (light, heavy):
         kv, kp, ki = s.servo_gains()
@@ -90,7 +91,7 @@ def test_servo_gains_follow_the_motor():
 ])
 def test_bad_datasheet_files_are_one_line_errors(extra, words):
     with pytest.raises(ParameterError) as err:
-        SystemParams.from_dict({**SHEET, **extra})
+        system_from_mapping({**SHEET, **extra})
     assert words in str(err.value) and "\n" not in str(err.value)
 
 
@@ -98,9 +99,9 @@ def test_missing_quantities_are_named():
     sheet = {k: v for k, v in SHEET.items() if k != "phase_inductance_H"}
     with pytest.raises(ParameterError, match="phase_inductance_H .or the model field L. is "
                                              "missing"):
-        SystemParams.from_dict(sheet)
+        system_from_mapping(sheet)
     with pytest.raises(ParameterError, match="rated_current_A"):
-        SystemParams.from_dict({k: v for k, v in SHEET.items() if k != "rated_current_A"})
+        system_from_mapping({k: v for k, v in SHEET.items() if k != "rated_current_A"})
 
 
 def test_assumed_lists_every_default_with_its_value():
@@ -243,7 +244,7 @@ def test_prominent_peaks_find_humps():
 
 def test_sweep_any_entry(tmp_path, capsys):
     out = tmp_path / "sw"
-    assert main(["sweep", "--motor", EXAMPLE, "--damping", "none", "tuned-constant-gain",
+    assert main(["sweep", "--motor", EXAMPLE, "--entries", "none", "tuned-constant-gain",
                  "--speeds", "0.55:0.7:0.05", "--out", str(out), "--no-progress",
                  "--workers", "1"]) == 0
     text = capsys.readouterr().out
@@ -253,8 +254,8 @@ def test_sweep_any_entry(tmp_path, capsys):
     assert none["entry"] == "none" and len(none["rms_velocity_error_rad_s"]) == 4
     # Damping the h=4 resonance (0.625 rev/s) by a lot: the entry is really run.
     assert max(tcg["rms_velocity_error_rad_s"]) < 0.2 * max(none["rms_velocity_error_rad_s"])
-    assert main(["sweep", "--damping", "no-such-entry", "--out", str(tmp_path / "x")]) == 2
-    assert "--damping: unknown ['no-such-entry']" in capsys.readouterr().err
+    assert main(["sweep", "--entries", "no-such-entry", "--out", str(tmp_path / "x")]) == 2
+    assert "--entries: unknown ['no-such-entry']" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("speeds, words", [
@@ -349,5 +350,5 @@ def test_motors_warns_where_the_bus_cannot_push_the_current(tmp_path, capsys):
 ])
 def test_model_fields_in_a_datasheet_file_are_checked_first(extra, words):
     with pytest.raises(ParameterError) as err:
-        SystemParams.from_dict({**SHEET, **extra})
+        system_from_mapping({**SHEET, **extra})
     assert words in str(err.value)

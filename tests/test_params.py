@@ -7,9 +7,8 @@ import math
 
 import pytest
 
-from stepdamp_env.params import (ALL_FIELDS, DriveParams, FeedforwardModel, MotorParams,
-                                 ParameterError, SystemParams, delayed_loop_gain, load_system,
-                                 parse_set_overrides, predicted_resonances)
+from stepdamp_env.params import ALL_FIELDS, DriveParams, FeedforwardModel, MotorParams, ParameterError, SystemParams, delayed_loop_gain, predicted_resonances
+from stepdamp_env.motorfile import load_system, parse_set_overrides
 from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 

@@ -11,7 +11,8 @@ import pytest
 
 from stepdamp_env.bench import MotorKnowledge, run_episode
 from stepdamp_env.env import StepperDampV1Env
-from stepdamp_env.params import FeedforwardModel, ParameterError, load_system
+from stepdamp_env.params import FeedforwardModel, ParameterError
+from stepdamp_env.motorfile import load_system
 
 pytest.importorskip("sb3_contrib")
 

@@ -31,9 +31,8 @@ from hypothesis import HealthCheck, Phase, event, given, note, settings
 from hypothesis import strategies as st
 
 from stepdamp_env.env import StepperDampEnv, StepperDampVectorEnv
-from stepdamp_env.params import (ALL_FIELDS, DriveParams, FeedforwardModel, MotorParams,
-                                 ParameterError, ServoParams, SystemParams, load_system,
-                                 parse_set_overrides, required_substeps, TEXT_FIELDS)
+from stepdamp_env.params import ALL_FIELDS, DriveParams, FeedforwardModel, MotorParams, ParameterError, ServoParams, SystemParams, required_substeps, TEXT_FIELDS
+from stepdamp_env.motorfile import load_system, parse_set_overrides
 from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import RunSettings, SpeedProfile, simulate
 

@@ -13,7 +13,7 @@ import pytest
 ray = pytest.importorskip("ray")
 
 from stepdamp_env.bench import protocol_motors, quick_protocol_v1, run_leaderboard  # noqa: E402
-from stepdamp_env.params import load_system  # noqa: E402
+from stepdamp_env.motorfile import load_system  # noqa: E402
 from stepdamp_env.ray_backend import ray_map  # noqa: E402
 from stepdamp_env.simulation import RunSettings  # noqa: E402
 from stepdamp_env.sweep import run_sweep  # noqa: E402

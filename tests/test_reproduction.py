@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from stepdamp_env.params import load_system
+from stepdamp_env.motorfile import load_system
 from stepdamp_env.presets import preset_names
 from stepdamp_env.simulation import RunSettings, simulate
 from stepdamp_env.sweep import find_resonance_peaks, run_sweep

@@ -141,7 +141,7 @@ def test_batch_refuses_envs_of_two_layouts():
 
 
 def test_predict_rows_is_sb3_predict_to_float32_and_the_same_for_any_batch():
-    """The learned entries are evaluated by the fixed-order network (fixedmath.mlp_forward):
+    """The learned entries are evaluated by the fixed-order network (fixednet.mlp_forward):
     it agrees with SB3's torch predict to float32 rounding, and its rows do not
     depend on how they are batched."""
     from stepdamp_agents.policy import load_model
@@ -304,7 +304,7 @@ def test_batched_filters_equal_scalar_filters_over_long_synthetic_runs(name, spe
 def test_runs_of_two_layouts_go_in_two_batches(name, specs):
     """A motor with another PWM rate (another number of periods per step) runs in
     a batch of its own, and every run still equals its scalar run."""
-    from stepdamp_env.params import load_system
+    from stepdamp_env.motorfile import load_system
 
     protocol, by_suite = specs
     rows = by_suite["open-loop"][:3]

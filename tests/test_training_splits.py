@@ -84,7 +84,7 @@ def test_suite_and_dev_selection_need_the_per_step_env():
 
 
 def test_suite_settings_given_with_set_are_refused():
-    with pytest.raises(ParameterError, match=r"--set env_kwargs \['mode'\]: --suite servo"):
+    with pytest.raises(ParameterError, match=r"--hyperparam env_kwargs \['mode'\]: --suite servo"):
         train(Args(algo="ars", suite="servo", out="unused",
                    extra={"env_kwargs": {"mode": "open-loop"}}))
 

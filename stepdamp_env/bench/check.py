@@ -17,7 +17,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..motorfile import system_from_mapping
+from ..params import FeedforwardModel, ParameterError
 from .leaderboard import LeaderboardJob, identify_motor, run_cells
 from .motors import ProtocolMotor, protocol_motors
 from .protocols import protocol_for
@@ -45,7 +46,7 @@ def protocol_of_board(board: Mapping[str, Any]) -> Any:
             protocol = protocol.with_suites(tuple(recorded.get("suites", ())))
         if tuple(recorded.get("splits", ())) == ("custom",):
             protocol = protocol.with_custom_motors(
-                [SystemParams.from_dict(m["parameters"]) for m in board["protocol"]["motors"]])
+                [system_from_mapping(m["parameters"]) for m in board["protocol"]["motors"]])
         if _same(protocol.to_dict(), recorded):
             return protocol
     raise ParameterError(f"the board's protocol (version {version!r}) is none of the built-in "

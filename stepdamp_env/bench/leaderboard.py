@@ -17,47 +17,36 @@ import dataclasses
 import hashlib
 import json
 import os
-import re
 import sys
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-import numpy as np
-
 from ..env.options import EnvOptions
-from ..env.engine import StepperDampBatch
-from ..env.scalar import StepperDampEnv
-from ..env.v1 import StepperDampV1Env
-from ..estimators import kalman_velocity_gains
-from .. import fixedmath as fm
-from .. import numba_cache
 from ..identify import identify
-from ..io import (cache_dir, read_checked_json, refuse_link, write_checked_json,
-                  write_text)
+from ..io import cache_dir, read_checked_json, write_checked_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..presets import get_preset
-from ..simulation import RunSettings, SpeedProfile, simulate
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
-from .rig import CalibrationRig
 from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
 from .provenance import board_fingerprint, code_fingerprint, environment, package_versions
 from .registry import PolicySource, default_policy_names, registered_policies, resolve_policy
+from .resume import (RESUME_DIR, clear_resume_dir, finish_resume_dir, open_resume_dir,
+                     resume_paths, resumed_batch)
+from .rig import CalibrationRig
 from .runner import (RUN_ERRORS, EpisodeResult, EpisodeSpec, could_not_run, run_episode,
                      run_episodes)
+from .warmup import warm_up
 
-__all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells", "package_versions",
-           "protocol_knowledge", "identify_cached", "identify_motor", "code_fingerprint",
-           "BATCH_RUNS", "RESUME_DIR", "open_resume_dir", "clear_resume_dir",
-           "finish_resume_dir"]
+__all__ = ["LeaderboardJob", "LeaderboardBatch", "run_leaderboard", "run_cells",
+           "package_versions", "protocol_knowledge", "identify_cached", "identify_motor",
+           "code_fingerprint", "BATCH_RUNS", "RESUME_DIR", "open_resume_dir", "clear_resume_dir",
+           "finish_resume_dir", "warm_up"]
 
 # Runs of one entry, model and suite stepped together (and kept together on resume).
 BATCH_RUNS = 64
-# The directory inside a leaderboard's output directory that holds the finished
-# batches of a run in progress (gone once the run has written its results).
-RESUME_DIR = ".resume"
 
 
 @dataclass(frozen=True)
@@ -206,7 +195,8 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
             return run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
                                mode=mode, speed_rps=e.speed_rps, seed=e.seed,
                                accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
-                               settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit())
+                               settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit(),
+                               suite=batch.suite)
         except RUN_ERRORS as exc:
             return could_not_run(exc)
 
@@ -217,7 +207,7 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
             results = run_episodes(lambda: _make(batch.spec, batch.training_seed), specs,
                                    mode=mode, accel_rps2=protocol.accel_rps2,
                                    window_s=protocol.window_s,
-                                   lag_limit_steps=protocol.lag_limit())
+                                   lag_limit_steps=protocol.lag_limit(), suite=batch.suite)
         except RUN_ERRORS:
             # An entry that cannot run on one motor stops its batch: each run alone
             # then says which could not (the others give the batch's numbers).
@@ -230,95 +220,6 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
     return records
 
 
-# What the tool writes in a resume directory: the marker, batch files
-# (<run>-<batch>.json) and write_json's temporary files of them. Nothing else
-# there is ever deleted.
-_RESUME_MARKER = ".stepdamp-resume"
-_RESUME_FILE = re.compile(r"\.?[0-9a-f]{16}-[0-9a-f]{24}(\.json|\.[a-z0-9_]{8}\.tmp\.json)")
-
-
-def open_resume_dir(resume_dir: str) -> None:
-    """Make (or adopt) the resume directory: never a link, and a directory the
-    tool did not make (no marker) only if it holds nothing but batch files."""
-    hint = "stepdamp deletes files there: remove the link"
-    refuse_link(resume_dir, "resume directory", hint)
-    if os.path.lexists(resume_dir) and not os.path.isdir(resume_dir):
-        raise ParameterError(f"resume directory {resume_dir!r} is a file; move it away (stepdamp "
-                             "keeps an interrupted run's batches there)")
-    os.makedirs(resume_dir, exist_ok=True)
-    marker = os.path.join(resume_dir, _RESUME_MARKER)
-    if not os.path.lexists(marker):
-        foreign = sorted(n for n in os.listdir(resume_dir) if not _RESUME_FILE.fullmatch(n))
-        if foreign:
-            raise ParameterError(
-                f"resume directory {resume_dir!r} holds {foreign[0]!r}, which stepdamp did not "
-                "write; move it away (the directory keeps an interrupted run's batches)")
-        write_text(marker, "batches of an interrupted stepdamp leaderboard run\n")
-    refuse_link(marker, "resume directory marker", hint)
-
-
-def clear_resume_dir(resume_dir: str, keep_run: str | None = None) -> None:
-    """Remove the batch files in ``resume_dir`` (those of run ``keep_run`` kept);
-    only files the tool wrote (:data:`_RESUME_FILE`), never through a link."""
-    if not os.path.lexists(resume_dir):
-        return
-    open_resume_dir(resume_dir)
-    for name in os.listdir(resume_dir):
-        if _RESUME_FILE.fullmatch(name) and \
-                (keep_run is None or not name.lstrip(".").startswith(keep_run + "-")):
-            try:
-                os.remove(os.path.join(resume_dir, name))
-            except OSError:
-                pass
-
-
-def finish_resume_dir(resume_dir: str) -> None:
-    """After a run's results are written: its batch files and the marker go
-    (the directory too, if nothing else is in it)."""
-    clear_resume_dir(resume_dir)
-    marker = os.path.join(resume_dir, _RESUME_MARKER)
-    if os.path.isfile(marker) and not os.path.islink(marker):
-        os.remove(marker)
-
-
-def _resume_paths(resume_dir: str, batches: Sequence[LeaderboardBatch], header: dict[str, Any]
-                  ) -> list[str]:
-    """One file per batch, named by the run's header and the batch; files of other
-    runs (another protocol, policy, model file or package version) are removed."""
-    run = hashlib.sha256(json.dumps(header, sort_keys=True, default=str).encode()
-                         ).hexdigest()[:16]
-    open_resume_dir(resume_dir)
-    clear_resume_dir(resume_dir, keep_run=run)
-    return [os.path.join(resume_dir, f"{run}-" + hashlib.sha256(
-        repr((b.spec, b.suite, b.training_seed, b.runs)).encode()).hexdigest()[:24] + ".json")
-        for b in batches]
-
-
-# The keys of every run record (EpisodeResult.record), checked on a resumed batch.
-_RECORD_KEYS = frozenset(("motor", "seed", "speed_rps", "speed_label", "terminated",
-                          "termination", "failed", "steps", "window_start_s", "window_s",
-                          "metrics", "calibration_s", "simulated_s"))
-
-
-def _resumed(path: str, batch: LeaderboardBatch, motors: Sequence[ProtocolMotor]
-             ) -> list[dict[str, Any]] | None:
-    """A kept batch's records if they are whole, match their checksum and are the
-    batch's very runs (motor, seed, speed); else None (run again)."""
-    key = os.path.basename(path)[:-len(".json")]
-    records = read_checked_json(path, key, "resume batch")
-    if not isinstance(records, list) or len(records) != len(batch.runs):
-        return None
-    for (i, seed, j), r in zip(batch.runs, records):
-        if not (isinstance(r, dict) and _RECORD_KEYS <= r.keys()
-                and isinstance(r["metrics"], (dict, type(None)))
-                and r["motor"] == motors[i].name and r["seed"] == seed
-                and r["speed_rps"] == motors[i].speeds(batch.suite).speeds_rps[j]):
-            print(f"stepdamp: note: resume batch {path!r} does not hold its runs; running "
-                  "them again", file=sys.stderr)
-            return None
-    return records
-
-
 def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardModel | None,
                        protocol: Protocol) -> MotorKnowledge:
     """What the drive of a protocol run knows (the oracle-only fields included:
@@ -327,89 +228,6 @@ def protocol_knowledge(motor: ProtocolMotor, seed: int, identified: FeedforwardM
                           exact=FeedforwardModel.from_motor(motor.system.motor),
                           plant=motor.system,
                           rig=CalibrationRig(motor.system, seed, protocol.accel_rps2))
-
-
-def _warm_plain(system: SystemParams) -> None:
-    """The kernel's plain loop (simulation, StepperDamp-v0, v1's harmonic actions),
-    and the small compiled helpers of identification, estimators and statistics."""
-    simulate(system, settings=RunSettings(settle_s=0.0, window_s=0.001), trace=True,
-             profile=SpeedProfile(speed_rps=0.5, accel_rps2=1000.0))
-    env = StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0)
-    env.reset(seed=0)
-    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
-    env.run_metrics()
-    _warm_batch(StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0))
-    _warm_batch(StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
-                                 action_mode="harmonic"))
-    fm.lstsq(np.eye(3), np.ones(3))
-    fm.atan2(1.0, 1.0)
-    fm.dot(np.ones(3), np.ones(3))
-    fm.weighted_rows(np.eye(3), np.ones(3))
-    fm.exp_array(np.zeros(3))
-    fm.random_walk_kalman_update(np.zeros((1, 2)), np.eye(2)[None].copy(), np.ones((1, 2)),
-                                 np.zeros(1), 1e-4, 0.09)
-    kalman_velocity_gains(5e-5, 2.0 * np.pi / 4000.0, 1e4)
-    # The learned entries' network, with the argument types bench.network passes.
-    fm.mlp_forward(np.zeros((1, 1), np.float32), np.ones(1), np.zeros(1),
-                   np.array([1, 1], np.int64), np.zeros(1, np.int64))
-
-
-def _warm_law(system: SystemParams) -> None:
-    """The kernel's loop with the damping law (StepperDamp-v1's default actions)."""
-    _warm_batch(StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0))
-    env = StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
-                           render_mode="rgb_array")
-    env.reset(seed=0)
-    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
-
-
-def _warm_batch(env: StepperDampEnv | StepperDampV1Env) -> None:
-    env.reset(seed=0)
-    batch = StepperDampBatch([env])
-    batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
-
-
-#: The warm-up in two parts that share no kernel loop (without and with the
-#: damping law: each inlines the whole drive; small helpers compile in both).
-_WARM_PARTS = (_warm_plain, _warm_law)
-
-
-def _warm_part(job: tuple[int, SystemParams]) -> None:
-    numba_cache.call_with_frame_room(_WARM_PARTS[job[0]], job[1])
-
-
-def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> float:
-    """Load the compiled kernel, env steps and fits once, before forking, so that
-    the workers inherit them instead of each loading the numba cache again.
-    Where this version's numba cache is cold, the parts compile in ``workers``
-    processes first (they share no compiled code), with a line on stderr if
-    ``progress``. Returns the seconds spent."""
-    start = time.perf_counter()
-    where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
-    marker = os.path.join(where, "compiled") if where else None
-    cold = marker is None or not os.path.exists(marker)
-    if cold and progress:
-        print(f"compiling the simulation kernels for this version of the code, once "
-              f"({min(workers, len(_WARM_PARTS))} process(es); under a minute)...",
-              file=sys.stderr, flush=True)
-    if cold and workers > 1:
-        try:
-            pool_map(_warm_part, [(k, system) for k in range(len(_WARM_PARTS))],
-                     min(workers, len(_WARM_PARTS)), min_jobs=2)
-        except Exception:       # noqa: BLE001 - a part failed: compiled here below
-            pass
-    for k in range(len(_WARM_PARTS)):
-        _warm_part((k, system))
-    if cold and marker is not None:
-        try:
-            with open(marker, "w", encoding="utf-8") as fh:
-                fh.write("compiled\n")
-        except OSError:
-            pass
-        if progress:
-            print(f"compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr,
-                  flush=True)
-    return time.perf_counter() - start
 
 
 def _probe(knowledge: MotorKnowledge) -> MotorKnowledge:
@@ -600,8 +418,8 @@ def _run_batches(protocol: Protocol, motors: Sequence[ProtocolMotor],
                   "policies": {spec: src.fingerprint(
                       exclude=(os.path.dirname(os.path.abspath(resume_dir)),))
                       for spec, src in sources.items()}}
-        paths = list(_resume_paths(resume_dir, batches, header))
-    done: list[Any] = [_resumed(p, b, motors) if p is not None else None
+        paths = list(resume_paths(resume_dir, batches, header))
+    done: list[Any] = [resumed_batch(p, b, motors) if p is not None else None
                        for p, b in zip(paths, batches)]
     todo = [k for k, d in enumerate(done) if d is None]
     if len(todo) < len(batches):

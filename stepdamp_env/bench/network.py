@@ -4,7 +4,7 @@ torch picks its matrix kernels by instruction set and batch shape, so a
 network's last bits depend on the CPU. :func:`predict_rows` evaluates an SB3
 policy's deterministic action through :class:`PolicyNetwork` instead: its
 ``nn.Linear`` layers and activations, read through public modules, run by
-:func:`stepdamp_env.fixedmath.mlp_forward` (every sum in input order in
+:func:`stepdamp_env.fixednet.mlp_forward` (every sum in input order in
 float64, one row at a time whatever the batch). Used by every learned entry
 and by bare SB3 models on the leaderboard; :class:`RecurrentNetwork` does the
 same for sb3-contrib's LSTM policies (RecurrentPPO), whose memory the caller
@@ -27,7 +27,7 @@ __all__ = ["PolicyNetwork", "policy_network", "predict_rows", "RecurrentNetwork"
 
 class PolicyNetwork:
     """The deterministic action network of an SB3 policy, evaluated by
-    :func:`stepdamp_env.fixedmath.mlp_forward`: the same bits on every CPU and for
+    :func:`stepdamp_env.fixednet.mlp_forward`: the same bits on every CPU and for
     any batch size (torch picks its matrix kernels by instruction set and batch
     shape). Read through public modules: ``nn.Linear`` layers with ReLU or tanh
     between them, for PPO/A2C (the Gaussian's mean), TD3, SAC (tanh of the mean)
@@ -37,7 +37,7 @@ class PolicyNetwork:
     def __init__(self, layers: Sequence[Any], final_tanh: bool) -> None:
         import torch.nn as nn
 
-        from stepdamp_env.fixedmath import ACTIVATION
+        from stepdamp_env.fixednet import ACTIVATION
 
         IDENTITY, RELU, TANH = ACTIVATION.IDENTITY, ACTIVATION.RELU, ACTIVATION.TANH
 
@@ -72,7 +72,7 @@ class PolicyNetwork:
 
     def __call__(self, observations: np.ndarray) -> np.ndarray:
         """Raw actions (float32, n x action dim) of float32 observation rows."""
-        from stepdamp_env.fixedmath import mlp_forward
+        from stepdamp_env.fixednet import mlp_forward
 
         x = np.ascontiguousarray(observations, dtype=np.float32)
         return mlp_forward(x, self.weights, self.biases, self.sizes,
@@ -199,7 +199,7 @@ class RecurrentNetwork:
     """The deterministic action of sb3-contrib's ``RecurrentActorCriticPolicy``
     (one LSTM layer, not shared with the critic, before the actor's
     :class:`PolicyNetwork` head), evaluated by
-    :func:`stepdamp_env.fixedmath.lstm_step` and ``mlp_forward``: the same bits
+    :func:`stepdamp_env.fixednet.lstm_step` and ``mlp_forward``: the same bits
     on every CPU and for any batch. The memory (hidden and cell state, float64)
     is the caller's: :meth:`initial_state` for a batch of runs, :meth:`step`
     advances the rows it is given."""
@@ -228,7 +228,7 @@ class RecurrentNetwork:
              rows: np.ndarray) -> np.ndarray:
         """Raw actions (float64, k x action dim) of the observation rows of runs
         ``rows``; their memory moves one step on, in place."""
-        from stepdamp_env.fixedmath import lstm_step, mlp_forward
+        from stepdamp_env.fixednet import lstm_step, mlp_forward
 
         h, c = memory
         rows = np.ascontiguousarray(rows, dtype=np.int64).ravel()

@@ -22,12 +22,13 @@ from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
 from ..env.registration import ENV_ID, ENV_ID_V1
 from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, ALL_SUITES
+from .suites import get_suite, suite_of
 
 __all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
            "ZeroAction", "reference_policy", "KNOWLEDGE_ESTIMATES", "ORACLE_OPTIONS",
            "resolve_estimate", "estimate_model", "policy_env_options", "policy_context",
            "check_policy", "policy_env_id", "POLICY_ENV_IDS", "BatchPolicy", "ScalarPolicies",
-           "batch_policy"]
+           "batch_policy", "RowPolicy"]
 
 # The envs a policy may run in (its optional ``env_id`` attribute; v0 by default).
 POLICY_ENV_IDS = (ENV_ID, ENV_ID_V1)
@@ -127,6 +128,8 @@ class PolicyContext:
         current_scale_a: physical size of a q-current action of 1.0 (A).
         accel_rps2: the start-up ramp's acceleration (rev/s^2); the speed is
             held from ``speed_rps / accel_rps2`` seconds on.
+        suite: the stepdamp-bench suite the run belongs to (:mod:`.suites`:
+            "open-loop", "servo", "mid-band"), None for a run of none.
     """
 
     knowledge: MotorKnowledge
@@ -138,6 +141,7 @@ class PolicyContext:
     agent_hz: float
     current_scale_a: float = 0.0
     accel_rps2: float = DEFAULT_ACCEL_RPS2
+    suite: str | None = None
 
     @property
     def ramp_s(self) -> float:
@@ -190,6 +194,33 @@ class BatchPolicy(Policy, TypingProtocol):
         the running ``rows`` (k increasing row numbers)."""
 
 
+_ROW_0 = np.zeros(1, dtype=np.int64)
+
+
+class RowPolicy:
+    """A policy written once, on rows (:class:`BatchPolicy`): :meth:`reset` is
+    ``reset_batch`` of one context and :meth:`act` is ``act_batch`` of its row, so a
+    scalar run and a batched one run the same code. A subclass gives
+    ``reset_batch`` and ``act_batch``; ``configure(context)`` computes one run's
+    settings (its ``reset_batch`` calls it for each context, e.g. through
+    ``stepdamp_baselines.harmonic.gather_rows``)."""
+
+    def configure(self, context: PolicyContext) -> None:
+        """One run's settings, on ``self`` (none by default)."""
+
+    def reset(self, context: PolicyContext) -> None:
+        self.reset_batch([context])
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self.act_batch(np.asarray(observation)[None], _ROW_0)[0]
+
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        raise NotImplementedError
+
+    def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
 class ScalarPolicies:
     """A scalar :class:`Policy` as a :class:`BatchPolicy`: one fresh instance
     per row from ``make`` (a zero-argument factory), each reset and stepped
@@ -235,14 +266,14 @@ def _defined_by(cls: type, name: str) -> type | None:
 
 def batch_policy(make: Callable[[], Any]) -> Any:
     """``make()`` if it is a :class:`BatchPolicy` whose ``act_batch`` belongs to
-    its ``act`` (both defined by the same class: a subclass that changes ``act``
-    alone does not inherit a batched law that is no longer its own), else
-    :class:`ScalarPolicies` of ``make``."""
+    its ``act`` (both defined by the same class, or ``act`` is :class:`RowPolicy`'s:
+    a subclass that changes ``act`` alone does not inherit a batched law that is no
+    longer its own), else :class:`ScalarPolicies` of ``make``."""
     policy = make()
     cls = type(policy)
     if callable(getattr(policy, "act_batch", None)) and \
             callable(getattr(policy, "reset_batch", None)) and \
-            _defined_by(cls, "act_batch") is _defined_by(cls, "act"):
+            _defined_by(cls, "act") in (_defined_by(cls, "act_batch"), RowPolicy):
         return policy
     return ScalarPolicies(make, policy)
 
@@ -350,9 +381,15 @@ def policy_env_options(policy: Policy, knowledge: MotorKnowledge) -> dict[str, A
 
 
 def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: str,
-                   speed_rps: float, accel_rps2: float = DEFAULT_ACCEL_RPS2) -> PolicyContext:
+                   speed_rps: float, accel_rps2: float = DEFAULT_ACCEL_RPS2,
+                   suite: str | None = None) -> PolicyContext:
     """The :class:`PolicyContext` of a run with the checked ``options``
-    (:func:`policy_env_options`)."""
+    (:func:`policy_env_options`); ``suite`` None: the one of ``mode`` on the
+    nominal motor's drive (:func:`.suites.suite_of`)."""
+    if suite is None:
+        suite = suite_of(mode, knowledge.nominal.drive.drive_mode)
+    else:
+        get_suite(suite)
     base = options.get("base_controller", EnvOptions.base_controller)
     est = options.get("estimate", EnvOptions.estimate)
     action_mode = options.get("action_mode", EnvOptions.action_mode)
@@ -364,7 +401,7 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
                            else options["harmonic_scale_nm"]),
         agent_hz=float(options.get("agent_hz", EnvOptions.agent_hz)),
         current_scale_a=float(options["current_scale_a"]),
-        accel_rps2=float(accel_rps2))
+        accel_rps2=float(accel_rps2), suite=suite)
 
 
 assert set(ESTIMATES) <= set(KNOWLEDGE_ESTIMATES)

@@ -20,6 +20,7 @@ import math
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
 from ..params import ParameterError
+from .suites import SUITES_BY_NAME, SuiteField, suite_names
 
 if TYPE_CHECKING:
     from ..params import SystemParams
@@ -45,12 +46,13 @@ __all__ = [
 PROTOCOL_NAME = "stepdamp-bench"
 # Seeds below it are training seeds (agents, tuning); evaluation seeds are at or above it.
 TRAINING_SEED_LIMIT = 1_000_000
-SUITES = ("open-loop", "servo")
-#: Every suite of any protocol: v2 adds the voltage-mode drive's mid-band.
-ALL_SUITES = ("open-loop", "servo", "mid-band")
-#: The env mode a suite runs in, and its drive_mode.
-SUITE_MODE = {"open-loop": "open-loop", "servo": "servo", "mid-band": "open-loop"}
-SUITE_DRIVE_MODE = {"open-loop": "current", "servo": "current", "mid-band": "voltage"}
+#: v0's and v1's suites.
+SUITES = tuple(name for name, s in SUITES_BY_NAME.items() if s.since == "v0")
+#: Every suite of any protocol (:mod:`.suites`): v2 adds the voltage-mode drive's mid-band.
+ALL_SUITES = suite_names()
+#: The env mode a suite runs in, and its drive_mode (live views of :mod:`.suites`).
+SUITE_MODE = SuiteField("mode")
+SUITE_DRIVE_MODE = SuiteField("drive_mode")
 # A failed run (step loss, termination) counts as this many times the undamped ripple.
 FAILURE_RATIO = 10.0
 

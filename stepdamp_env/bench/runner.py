@@ -178,7 +178,8 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 settle_s: float | None = None, measure_from_s: float | None = None,
                 until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
-                pwm_trace: bool = False, lag_limit_steps: float | None = None) -> EpisodeResult:
+                pwm_trace: bool = False, lag_limit_steps: float | None = None,
+                suite: str | None = None) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` (or in ``StepperDamp-v1`` if its
     ``env_id`` says so: the drive's ``nominal`` model is then the knowledge's) on
     the true plant ``system``.
@@ -195,14 +196,15 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     ``pwm_trace`` the env records every PWM period of a step
     (``env.step_trace``) for ``on_step`` to read; the run is otherwise the same.
     ``lag_limit_steps`` (stepdamp-bench v3): the env's lag limit, and the run
-    is judged by its final slip (:func:`lost_steps`).
+    is judged by its final slip (:func:`lost_steps`). ``suite``: the policy's
+    ``PolicyContext.suite`` (None: the one of ``mode`` on the nominal drive).
     """
     spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s)
     env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
                                                  "rgb_array" if pwm_trace else None,
                                                  lag_limit_steps)
     obs, _ = env.reset(seed=seed)
-    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2))
+    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2, suite))
     steps, terminated, reason = 0, False, ""
     trace: list[Any] = []
     while env.time_s < end:
@@ -232,7 +234,8 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
 
 def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *, mode: str,
                  accel_rps2: float = DEFAULT_ACCEL_RPS2, window_s: float = 0.3,
-                 lag_limit_steps: float | None = None) -> list[EpisodeResult]:
+                 lag_limit_steps: float | None = None,
+                 suite: str | None = None) -> list[EpisodeResult]:
     """One episode per spec, all of one policy and suite, stepped together.
 
     ``make_policy()`` gives a fresh policy: a :class:`.policy.BatchPolicy`
@@ -253,7 +256,7 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         ends[i] = end
         windows.append((start, length))
         contexts.append(policy_context(options, spec.knowledge, mode, spec.speed_rps,
-                                       accel_rps2))
+                                       accel_rps2, suite))
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}

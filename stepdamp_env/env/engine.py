@@ -19,7 +19,7 @@ import abc
 import math
 import os
 from types import SimpleNamespace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import gymnasium as gym
 import numba
@@ -28,11 +28,12 @@ import numpy as np
 from .. import kernel as K
 from .. import lanes
 from ..params import ParameterError, SystemParams
-from ..simulation import RunMetrics, merge_accumulator_rows, metrics_from_accumulators
+from ..simulation import (RunMetrics, merge_accumulator_rows, metrics_from_accumulators,
+                          new_accumulators)
 from .actions import action_error, as_action
 from .arguments import check_batch_envs
 
-__all__ = ["EnvTask", "DriveBatch", "OneDriveEnv", "StepperDampBatch", "slip_cycles"]
+__all__ = ["EnvTask", "DriveBatch", "OneDriveEnv", "StepperDampBatch", "slip_cycles", "batch_step"]
 
 
 class EnvTask(abc.ABC):
@@ -107,6 +108,16 @@ class _ForkState:
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_ForkState.child)
+
+
+def batch_step(simd: bool, parallel: bool) -> Callable[..., Any]:
+    """The compiled step of a batch of drives, ``step(configs, states, accs, inputs,
+    laws, n_periods)`` (``laws`` None or LAW rows): the kernel's loop
+    (:func:`.kernel.step_batch`) or SIMD lanes (:func:`.lanes.step_lanes`), serial or
+    on numba's threads. Looked up at each call (a benchmark may wrap one)."""
+    return {(False, False): K.step_batch, (False, True): K.step_batch_parallel,
+            (True, False): lanes.step_lanes, (True, True): lanes.step_lanes_parallel}[
+        (bool(simd), bool(parallel))]
 
 
 class DriveBatch:
@@ -221,16 +232,10 @@ class DriveBatch:
         self.t += 1
 
     def _batch_step(self, n: int, parallel: bool) -> None:
-        """``n`` PWM periods of every drive: kernel.run_batch[_law][_parallel], or
-        lanes.run_batch[_law]_lanes[_parallel] (looked up at each call)."""
-        law = self.task.law_actions
-        name = (("run_batch_law" if law else "run_batch") + ("_lanes" if self.simd else "")
-                + ("_parallel" if parallel else ""))
-        step = getattr(lanes if self.simd else K, name)
-        if law:
-            step(self.c, self.s, self.acc, self.u, self.law, n)
-        else:
-            step(self.c, self.s, self.acc, self.u, n)
+        """``n`` PWM periods of every drive (:func:`batch_step`), with the task's
+        damping law if it has one."""
+        step = batch_step(self.simd, parallel)
+        step(self.c, self.s, self.acc, self.u, self.law if self.task.law_actions else None, n)
 
     def advance(self) -> tuple[np.ndarray, np.ndarray]:
         """Run one agent step of every drive; returns (terminated, truncated) masks."""
@@ -275,6 +280,42 @@ class OneDriveEnv:
     _trace: np.ndarray
     _run_acc: np.ndarray
     system: SystemParams | None
+
+    #: Why the episode is over ("terminated (...)", "been truncated (...)"), None while
+    #: it runs.
+    _ended: str | None
+
+    def _attach(self, task: EnvTask, render_mode: str | None) -> None:
+        """The env's drive for ``task`` (a DriveBatch of one), its spaces and an
+        episode not yet started (``render_mode`` checked already)."""
+        self.render_mode = render_mode
+        self.observation_space = task.observation_space()
+        self.action_space = task.action_space()
+        self._drives = DriveBatch(task, 1)
+        self._trace = np.zeros((task.n_periods if render_mode else 0, len(K.TRACE)))
+        self._run_acc = new_accumulators()
+        self._frames: list[np.ndarray] = []     # render: each step's trace rows
+        self.system = None
+        self._ready = False
+        self._ended = None
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)            # gym.Env's: seeds np_random
+        self._frames = []
+        info = self._drives.reset_drive(0, self.np_random)
+        self.system = self._drives.systems[0]
+        self._run_acc[:] = 0.0
+        self._ready = True
+        self._ended = None
+        return self._drives.obs[0].copy(), info
+
+    def _check_steppable(self) -> None:
+        if not self._ready:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if self._ended is not None:
+            raise gym.error.ResetNeeded(f"the episode has {self._ended}; call reset() before "
+                                        "step()")
 
     @property
     def drive_state(self) -> np.ndarray:

@@ -17,8 +17,8 @@ import numpy as np
 from gymnasium import spaces
 
 from .. import kernel as K
-from ..params import (RESONANCE_HARMONICS, FeedforwardModel, ParameterError, SystemParams,
-                      load_system, predicted_resonances)
+from ..params import RESONANCE_HARMONICS, FeedforwardModel, ParameterError, SystemParams, predicted_resonances
+from ..motorfile import load_system
 from ..simulation import RunSettings, SpeedProfile, build_config, check_integrable, initial_state
 from . import compiled as C
 from .engine import DriveBatch, EnvTask

@@ -7,12 +7,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from .. import kernel as K
-from ..params import SystemParams
-from ..simulation import merge_accumulators, new_accumulators
+from ..simulation import merge_accumulators
 from . import compiled as C
 from .arguments import check_render_mode
-from .engine import DriveBatch, OneDriveEnv
+from .engine import OneDriveEnv
 from .options import OPTIONS_DOC, EnvOptions
 from .registration import ENV_ID
 from .render import render_episode, trace_rows
@@ -115,20 +113,11 @@ class StepperDampEnv(OneDriveEnv, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
+        mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.options = EnvOptions.from_kwargs(options)
         self._sampler = f = EpisodeSampler(self.options)
-        self.observation_space = f.observation_space()
-        self.action_space = f.action_space()
-        self._act_shape = (f.act_dim,)
         self._measuring = self.options.measure_from_s is not None
-        self._drives = DriveBatch(f, 1)
-        self._trace = np.zeros((f.n_periods if render_mode else 0, len(K.TRACE)))
-        self._history: list[np.ndarray] = []
-        self._run_acc = new_accumulators()
-        self.system: SystemParams | None = None
-        self._ready = False
-        self._ended = False
+        self._attach(f, mode)
 
     # -- public read-outs ------------------------------------------------------
     @property
@@ -147,32 +136,18 @@ class StepperDampEnv(OneDriveEnv, gym.Env):
         return self._sampler
 
     # -- API ----------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        info = self._drives.reset_drive(0, self.np_random)
-        self.system = self._drives.systems[0]
-        self._history = []
-        self._run_acc[:] = 0.0
-        self._ready = True
-        self._ended = False
-        return self._drives.obs[0].copy(), info
-
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if not self._ready:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        if self._ended:
-            raise gym.error.ResetNeeded("the episode has terminated (step loss, over-current or "
-                                        "a non-finite state); call reset() before step()")
+        self._check_steppable()
         d = self._drives
-        d.load(action, self._act_shape)
+        d.load(action, (self.task.act_dim,))
         terminated, _ = d.advance_one(self._trace)
         if self._measuring:
             merge_accumulators(self._run_acc, d.acc[0])
         if self.render_mode is not None:
-            self._history.append(trace_rows(self._trace))
-        self._ended = terminated
-        return (d.obs[0].copy(), float(d.out[0, C.OUT.REWARD]), self._ended, False, d.info(0))
+            self._frames.append(trace_rows(self._trace))
+        if terminated:
+            self._ended = "terminated (step loss, over-current or a non-finite state)"
+        return (d.obs[0].copy(), float(d.out[0, C.OUT.REWARD]), terminated, False, d.info(0))
 
     # -- rendering ------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
@@ -182,4 +157,4 @@ class StepperDampEnv(OneDriveEnv, gym.Env):
                             "render_mode='rgb_array' to the constructor")
             return None
         speed = self._drives.par[0, C.PARAM.W_REF] / TWO_PI
-        return render_episode(self._history, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")
+        return render_episode(self._frames, f"{ENV_ID}: {speed:.3g} rev/s, {self.options.mode}")

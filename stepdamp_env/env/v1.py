@@ -8,30 +8,29 @@ env is a batch of one, so the two agree step for step by construction.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.utils import seeding
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
+from gymnasium.vector import AutoresetMode
 
 from .. import fixedmath as fm
 from .. import kernel as K
-from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
+from ..params import FeedforwardModel, SystemParams
+from ..motorfile import load_system
 from ..response import phasors, torque_paths
 from ..simulation import (RunSettings, SpeedProfile, build_config, initial_state,
-                          merge_accumulators, new_accumulators)
+                          merge_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
-from .arguments import (check_num_threads, check_render_mode, check_simd, check_vector_args,
-                        reseed)
+from .arguments import (check_num_threads, check_render_mode, check_simd, check_vector_args)
 from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
+from .vector_base import STEP_INFOS, DriveVectorEnv
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
 
@@ -313,35 +312,13 @@ class StepperDampV1Env(OneDriveEnv, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
+        mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.options = EnvOptionsV1.from_kwargs(options)
-        self.task = task = TaskV1(self.options)
-        self.observation_space = task.observation_space()
-        self.action_space = task.action_space()
-        self._drives = DriveBatch(task, 1)
-        self._trace = np.zeros((task.n_periods if render_mode else 0, len(K.TRACE)))
-        self._frames: list[np.ndarray] = []
-        self._run_acc = new_accumulators()
-        self.system: SystemParams | None = None
-        self._ready = False
-        self._ended: str | None = None
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        info = self._drives.reset_drive(0, self.np_random)
-        self.system = self._drives.systems[0]
-        self._frames = []
-        self._run_acc[:] = 0.0
-        self._ready = True
-        self._ended = None
-        return self._drives.obs[0].copy(), info
+        self.task = TaskV1(self.options)
+        self._attach(self.task, mode)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if not self._ready:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        if self._ended is not None:
-            raise gym.error.ResetNeeded(f"the episode has {self._ended}; call reset() before step()")
+        self._check_steppable()
         d = self._drives
         d.load(action, (self.task.act_dim,))
         terminated, truncated = d.advance_one(self._trace)
@@ -366,7 +343,7 @@ class StepperDampV1Env(OneDriveEnv, gym.Env):
                               f"{self.options.mode}, {self.options.base_controller}")
 
 
-class StepperDampV1VectorEnv(VectorEnv):
+class StepperDampV1VectorEnv(DriveVectorEnv):
     __doc__ = """Native vectorised ``StepperDamp-v1``: N drives stepped by one compiled call.
 
     Spaces, rewards and episode ends are those of :class:`StepperDampV1Env`; the
@@ -386,7 +363,8 @@ class StepperDampV1VectorEnv(VectorEnv):
     for AVX2 or wider.
     """ + OPTIONS_DOC_V1
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    out_layout = V.OUT
+    step_infos = STEP_INFOS[:3] + (("damping_current_rms_a", "LAW_RMS", False),) + STEP_INFOS[3:]
 
     def __init__(self, num_envs: int = 1, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
@@ -395,35 +373,10 @@ class StepperDampV1VectorEnv(VectorEnv):
         mode = check_vector_args(num_envs, autoreset_mode, render_mode)
         threads = check_num_threads(num_threads)
         simd_on = check_simd(simd, int(num_envs))
-        self.render_mode = None
-        self.metadata = {**type(self).metadata, "autoreset_mode": mode}
-        self.autoreset_mode = mode
         self.options = EnvOptionsV1.from_kwargs(options)
-        if self.options.measure_from_s is not None:
-            raise ParameterError("measure_from_s is an option of the scalar env only; allowed "
-                                 "here: None")
-        self.task = task = TaskV1(self.options)
-        n = self.num_envs = int(num_envs)
-        self.single_observation_space = task.observation_space()
-        self.single_action_space = task.action_space()
-        self.observation_space = batch_space(self.single_observation_space, n)
-        self.action_space = batch_space(self.single_action_space, n)
-        self._drives = DriveBatch(task, n)
-        self._drives.num_threads = threads
-        self._drives.simd = simd_on
-        self._autoreset = np.zeros(n, dtype=bool)
-        self._rngs: list[np.random.Generator | None] = [None] * n
-        self._ready = False
-
-    @property
-    def systems(self) -> list[SystemParams | None]:
-        """The system of each drive's current episode."""
-        return list(self._drives.systems)
-
-    @property
-    def num_threads(self) -> int:
-        """numba threads each step spreads the drives over (set when built)."""
-        return self._drives.num_threads
+        self.task = TaskV1(self.options)
+        drives = self._attach(self.task, num_envs, mode, threads, self.options.measure_from_s)
+        drives.simd = simd_on
 
     @property
     def simd(self) -> bool:
@@ -435,72 +388,6 @@ class StepperDampV1VectorEnv(VectorEnv):
         """The held command speed of each drive's current episode (rev/s); a copy."""
         return self._drives.speeds_rps.copy()
 
-    def _reset_drive(self, i: int) -> dict[str, Any]:
-        if self._rngs[i] is None:
-            self._rngs[i], _ = seeding.np_random(None)
-        return self._drives.reset_drive(i, self._rngs[i])
-
-    def reset(self, *, seed: int | Sequence[int | None] | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        n = self.num_envs
-        mask = reseed(self._rngs, seed, options, first=not self._ready)
-        speeds = np.zeros(n)
-        harm = np.zeros(n, dtype=np.int64)
-        for i in np.flatnonzero(mask):
-            info = self._reset_drive(int(i))
-            speeds[i], harm[i] = info["speed_rps"], info["target_harmonic"]
-        self._autoreset[mask] = False
-        self._ready = True
-        return self._drives.obs.copy(), {"speed_rps": speeds, "_speed_rps": mask.copy(),
-                                         "target_harmonic": harm, "_target_harmonic": mask.copy()}
-
-    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                          dict[str, Any]]:
-        if not self._ready:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        d = self._drives
-        d.load(actions, (self.num_envs, self.task.act_dim))
-        terminated, truncated = d.advance()
-        out = d.out.copy()
-        rewards = out[:, V.OUT.REWARD]
-        valid = np.ones(self.num_envs, dtype=bool)
-        infos: dict[str, Any] = {}
-        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
-            if self._autoreset.any():
-                # These drives ended last step: they start over now.
-                valid = ~self._autoreset
-                for i in np.flatnonzero(self._autoreset):
-                    self._reset_drive(int(i))
-                rewards[~valid] = 0.0
-                terminated &= valid
-                truncated &= valid
-            self._autoreset = terminated | truncated
-            obs = d.obs.copy()
-        else:
-            done = terminated | truncated
-            obs = d.obs.copy()
-            if done.any():
-                final_obs = np.full(self.num_envs, None, dtype=object)
-                final_info = np.full(self.num_envs, None, dtype=object)
-                for i in np.flatnonzero(done):
-                    final_obs[i] = obs[i].copy()
-                    final_info[i] = d.info(int(i))
-                    self._reset_drive(int(i))
-                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
-                infos["final_info"], infos["_final_info"] = final_info, done.copy()
-                obs = d.obs.copy()
-        physics = {"velocity_error_rms_rad_s": out[:, V.OUT.VEL_RMS], "lag_rad": out[:, V.OUT.LAG],
-                   "injected_current_rms_a": out[:, V.OUT.IINJ_RMS],
-                   "damping_current_rms_a": out[:, V.OUT.LAW_RMS],
-                   "peak_current_a": out[:, V.OUT.PEAK_I],
-                   "step_loss": out[:, V.OUT.STEP_LOSS] != 0.0,
-                   "overcurrent": out[:, V.OUT.OVERCURRENT] != 0.0,
-                   "time_s": d.t * self.task.seconds_per_step}
-        mask = valid.copy()                 # one mask for every key, as in v0
-        for key, value in physics.items():
-            infos[key] = value
-            infos["_" + key] = mask
-        return obs, rewards, terminated, truncated, infos
-
-    def render(self) -> None:
-        return None
+    def physics_infos(self, out: np.ndarray) -> dict[str, np.ndarray]:
+        return {**super().physics_infos(out),
+                "time_s": self._drives.t * self.task.seconds_per_step}

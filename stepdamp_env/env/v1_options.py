@@ -8,10 +8,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..params import FeedforwardModel, ParameterError, SystemParams, load_system
+from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..motorfile import load_system
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from . import v1_compiled as V
-from .layout import ACTION_NAMES, OBSERVATION_NAMES, PRIVILEGED_NAMES
+from .layout import ACTION_NAMES, OBSERVATION_NAMES, OBSERVATION_UNITS, PRIVILEGED_NAMES
 from .options import (ESTIMATES, EnvOptions, check_choice, check_number, check_pair)
 from .registration import ENV_ID_V1
 
@@ -41,8 +42,7 @@ assert OBSERVATION_NAMES_V1[:9] == OBSERVATION_NAMES[:9]
 OBSERVATION_UNITS_V1: dict[str, str] = {
     "position_error": "(theta_cmd - encoder angle) / position_unit_rad",
     "velocity_error": "(omega_cmd - velocity estimate) / velocity_unit_rad_s",
-    "sin_x": "sin of the electrical (Park) angle x", "cos_x": "cos x",
-    "sin_2x": "sin 2x", "cos_2x": "cos 2x", "sin_4x": "sin 4x", "cos_4x": "cos 4x",
+    **{k: OBSERVATION_UNITS[k] for k in OBSERVATION_NAMES[2:8]},    # sin, cos of x, 2x, 4x
     "speed_command": "omega_cmd / (2*pi * predicted h = 1 resonance speed)",
     "id_error": "(measured id - id command) / current_unit_a",
     "iq": "measured iq / current_unit_a",

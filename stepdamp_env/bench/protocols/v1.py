@@ -153,7 +153,8 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from ...limits import LIMITS
-from ...params import ALL_FIELDS, ParameterError, SystemParams, load_system, read_json_file
+from ...params import ALL_FIELDS, ParameterError, SystemParams
+from ...motorfile import load_system, read_json_file
 from ...presets import get_preset
 from ..motors import (ProtocolMotor, draw_around, holds_its_load, slowest_decay_rate,
                       speed_grid, with_sensors)

@@ -102,26 +102,21 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import math
-import multiprocessing
-import os
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from ... import fixedmath as fm
-from ...io import cache_dir, read_checked_json, write_checked_json
-from ...parallel import default_workers, pool_map
 from ...params import ParameterError, SystemParams
 from ...presets import get_preset
 from ...simulation import RunSettings, SpeedProfile, simulate
+from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, draw_around, holds_its_load, with_sensors
 from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE
-from ..provenance import code_fingerprint
-from ..stats import median_difference, motor_mean_bootstrap, probability_of_improvement, \
-    rank_groups
+from ..stats import (median_difference, motor_mean_bootstrap, probability_of_improvement,
+                     rank_groups)
 from .v1 import QUICK_SETTINGS, ProtocolV1
 from .v2 import ProtocolV2, midband_grid
 
@@ -503,66 +498,6 @@ class ProtocolV3(ProtocolV2):
                                              "ci": [-eff["ci"][1], -eff["ci"][0]]}
         for r in rows:
             r.pop("_cells", None)
-
-
-Grids = tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]
-
-
-def _motor_grids(job: tuple[ProtocolV3, SystemParams]) -> Grids:
-    protocol, system = job
-    return protocol.suite_grids(system)
-
-
-def _grids_from_json(kept: Any) -> Grids | None:
-    """A kept entry as grids, or None if it is not one (then computed again)."""
-    try:
-        out = tuple((str(suite), tuple(float(v) for v in speeds), tuple(str(x) for x in labels))
-                    for suite, speeds, labels in kept)
-    except (TypeError, ValueError):
-        return None
-    if not out or any(len(speeds) != len(labels) for _, speeds, labels in out):
-        return None
-    return out
-
-
-def grids_cached(protocol: ProtocolV3, systems: Sequence[SystemParams]) -> list[Grids]:
-    """``protocol.suite_grids(system)`` of each system, those not kept on disk
-    computed on every core (the same values on any number of workers) and kept
-    (:func:`...io.cache_dir` "grids"), per system, protocol settings and code
-    (:func:`..provenance.code_fingerprint`), as identifications are: the grids
-    are deterministic, so a kept grid is the one it would compute."""
-    where = cache_dir("grids")
-    paths: list[str | None] = [None] * len(systems)
-    keys: list[str] = [""] * len(systems)
-    out: list[Grids | None] = [None] * len(systems)
-    if where is not None and systems:
-        settings = {k: v for k, v in protocol.to_dict().items() if k != "splits"}
-        code = code_fingerprint()
-        for i, system in enumerate(systems):
-            key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code},
-                             sort_keys=True, default=str)
-            keys[i] = hashlib.sha256(key.encode()).hexdigest()
-            paths[i] = os.path.join(where, keys[i][:32] + ".json")
-            out[i] = _grids_from_json(read_checked_json(paths[i], keys[i], "grid cache entry"))
-    todo = [i for i, g in enumerate(out) if g is None]
-    workers = 1 if multiprocessing.current_process().daemon else default_workers()
-    workers = min(workers, len(todo))
-    if workers > 1:                     # the compiled kernel loaded once, inherited by the fork
-        simulate(systems[todo[0]], speed_rps=0.5,
-                 settings=RunSettings(settle_s=0.0, window_s=0.001))
-    done = pool_map(_motor_grids, [(protocol, systems[i]) for i in todo], max(workers, 1),
-                    max_chunk=1)
-    for i, g in zip(todo, done):
-        out[i] = g
-        if paths[i] is not None:
-            try:
-                write_checked_json(paths[i], keys[i], [[suite, list(speeds), list(labels)]
-                                                       for suite, speeds, labels in g])
-            except OSError:             # a full or read-only cache: computed anyway
-                pass
-    if any(g is None for g in out):
-        raise RuntimeError("grids_cached: a motor's grids were neither kept nor computed")
-    return [g for g in out if g is not None]
 
 
 def eligible(trained_on: Sequence[Sequence[Any]], suite: str, speeds_rps: Sequence[float]

@@ -1,0 +1,127 @@
+"""The suites of stepdamp-bench, one record each: what the drive runs, which
+speeds are scored, what the reference row removes and how an agent trains for
+it. Protocols choose which suites they run (``Protocol.known_suites``); the CLI's
+choices, the policies' context (:attr:`.policy.PolicyContext.suite`) and the
+training tasks (``stepdamp_agents.task.SUITE_TASKS``) read them from here.
+
+Adding a suite: one :class:`Suite` in :data:`SUITES_BY_NAME`, a protocol that
+runs it (its grid in ``suite_grids``), and its tests (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Iterator, Mapping
+
+from ..params import ParameterError
+
+__all__ = ["Suite", "SUITES_BY_NAME", "register_suite", "get_suite", "suite_names", "suite_of",
+           "SuiteField"]
+
+
+@dataclass(frozen=True)
+class Suite:
+    """One suite.
+
+    Attributes:
+        name: the suite's name on the CLI, in boards and in policy cards.
+        mode: the env's mode ("open-loop" microstepping or encoder "servo").
+        drive_mode: the drive's current control ("current" loops, or "voltage").
+        description: what the suite measures, in a line.
+        headline: which speeds are scored (the headline-speed rule, v3).
+        reference: what the unranked reference row removes (v3).
+        since: the first protocol version that runs it.
+        training_task: StepperDamp-v1 options ``stepdamp train --suite`` sets on
+            the reference task (``overrides`` merged key by key): the servo loop or
+            the voltage-mode drive, and speeds drawn uniformly over the dev
+            split's headline speeds (servo 0.168-0.545 rev/s, mid-band
+            1.58-10.79) widened by x0.8 and x1.2 (open loop: the reference task's
+            own draw, which covers its resonances). Chosen on the dev split,
+            never on a scored one.
+    """
+
+    name: str
+    mode: str
+    drive_mode: str
+    description: str
+    headline: str
+    reference: str
+    since: str
+    training_task: Mapping[str, Any] = field(default_factory=dict)
+
+
+_SUITES: dict[str, Suite] = {}
+#: Every registered suite by name (read-only; :func:`register_suite` adds one).
+SUITES_BY_NAME: Mapping[str, Suite] = MappingProxyType(_SUITES)
+
+
+def register_suite(suite: Suite) -> None:
+    """Add a suite (its name new; its mode and drive a pair no suite has yet)."""
+    if suite.name in _SUITES:
+        raise ParameterError(f"suite {suite.name!r} is registered twice")
+    taken = suite_of(suite.mode, suite.drive_mode)
+    if taken is not None:
+        raise ParameterError(f"suite {suite.name!r}: mode {suite.mode!r} on the "
+                             f"{suite.drive_mode!r} drive is suite {taken!r} already")
+    _SUITES[suite.name] = suite
+
+
+class SuiteField(Mapping[str, Any]):
+    """One field of every registered suite, by suite name (a live, read-only view:
+    ``SuiteField("mode")["servo"] == "servo"``)."""
+
+    def __init__(self, name: str) -> None:
+        self._field = name
+
+    def __getitem__(self, suite: str) -> Any:
+        return getattr(_SUITES[suite], self._field)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_SUITES)
+
+    def __len__(self) -> int:
+        return len(_SUITES)
+
+
+
+
+def suite_names() -> tuple[str, ...]:
+    """Every suite's name, in the order the protocols list them."""
+    return tuple(SUITES_BY_NAME)
+
+
+def get_suite(name: str) -> Suite:
+    """The suite named ``name``; a one-line error naming the suites otherwise."""
+    try:
+        return SUITES_BY_NAME[name]
+    except (KeyError, TypeError):
+        raise ParameterError(f"suite {name!r} is not one of {list(SUITES_BY_NAME)}") from None
+
+
+def suite_of(mode: str, drive_mode: str) -> str | None:
+    """The suite a run of ``mode`` on a ``drive_mode`` drive belongs to (None if
+    none: a servo on the voltage-mode drive)."""
+    return next((s.name for s in SUITES_BY_NAME.values()
+                 if (s.mode, s.drive_mode) == (mode, drive_mode)), None)
+
+
+# The suites of v0-v3.
+for _suite in (
+    Suite("open-loop", "open-loop", "current",
+          "microstepping on the holding current's spring: the detent resonances",
+          "the predicted resonances f4, f2, f1 where the detent ripple dominates",
+          "the same motor without torque harmonics (Kd1 = Kd2 = Kd4 = 0)", "v0"),
+    Suite("servo", "servo", "current",
+          "the encoder servo (eq. 15) holding the speed: its disturbance response",
+          "the 3 of 0.2-1.6 x f4 where undamped ripple is largest and dominated by the "
+          "detent", "the same motor without torque harmonics", "v0",
+          {"mode": "servo", "speed_range_rps": [0.13, 0.65], "resonance_prob": 0.0}),
+    Suite("mid-band", "open-loop", "voltage",
+          "the voltage-mode drive's mid-band instability",
+          "five speeds log-spaced through the predicted unstable band",
+          "the same motor on the current-mode drive at 4 x its bus voltage", "v2",
+          {"mode": "open-loop", "speed_range_rps": [1.25, 13.0], "resonance_prob": 0.0,
+           "overrides": {"drive_mode": "voltage"}}),
+):
+    register_suite(_suite)

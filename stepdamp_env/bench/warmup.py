@@ -1,0 +1,107 @@
+"""The warm-up before a board forks its workers: every compiled kernel, env step
+and fit loaded once (compiled first, in parallel, where this code's numba cache
+is cold), so that the workers inherit them."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import numpy as np
+
+from .. import fixedmath as fm
+from .. import numba_cache
+from ..env.engine import StepperDampBatch
+from ..env.scalar import StepperDampEnv
+from ..env.v1 import StepperDampV1Env
+from ..estimators import kalman_velocity_gains
+from ..fixednet import mlp_forward
+from ..parallel import pool_map
+from ..params import SystemParams
+from ..simulation import RunSettings, SpeedProfile, simulate
+
+__all__ = ["warm_up"]
+
+
+def _warm_plain(system: SystemParams) -> None:
+    """The kernel's plain loop (simulation, StepperDamp-v0, v1's harmonic actions),
+    and the small compiled helpers of identification, estimators and statistics."""
+    simulate(system, settings=RunSettings(settle_s=0.0, window_s=0.001), trace=True,
+             profile=SpeedProfile(speed_rps=0.5, accel_rps2=1000.0))
+    env = StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0)
+    env.reset(seed=0)
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    env.run_metrics()
+    _warm_batch(StepperDampEnv(motor=system, speed_rps=0.5, measure_from_s=0.0))
+    _warm_batch(StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
+                                 action_mode="harmonic"))
+    fm.lstsq(np.eye(3), np.ones(3))
+    fm.atan2(1.0, 1.0)
+    fm.dot(np.ones(3), np.ones(3))
+    fm.weighted_rows(np.eye(3), np.ones(3))
+    fm.exp_array(np.zeros(3))
+    fm.random_walk_kalman_update(np.zeros((1, 2)), np.eye(2)[None].copy(), np.ones((1, 2)),
+                                 np.zeros(1), 1e-4, 0.09)
+    kalman_velocity_gains(5e-5, 2.0 * np.pi / 4000.0, 1e4)
+    # The learned entries' network, with the argument types bench.network passes.
+    mlp_forward(np.zeros((1, 1), np.float32), np.ones(1), np.zeros(1),
+                np.array([1, 1], np.int64), np.zeros(1, np.int64))
+
+
+def _warm_law(system: SystemParams) -> None:
+    """The kernel's loop with the damping law (StepperDamp-v1's default actions)."""
+    _warm_batch(StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0))
+    env = StepperDampV1Env(motor=system, speed_rps=0.5, measure_from_s=0.0,
+                           render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+
+
+def _warm_batch(env: StepperDampEnv | StepperDampV1Env) -> None:
+    env.reset(seed=0)
+    batch = StepperDampBatch([env])
+    batch.step(np.zeros((1, env.action_space.shape[0]), dtype=np.float32))
+
+
+#: The warm-up in two parts that share no kernel loop (without and with the
+#: damping law: each inlines the whole drive; small helpers compile in both).
+_WARM_PARTS = (_warm_plain, _warm_law)
+
+
+def _warm_part(job: tuple[int, SystemParams]) -> None:
+    numba_cache.call_with_frame_room(_WARM_PARTS[job[0]], job[1])
+
+
+def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> float:
+    """Load the compiled kernel, env steps and fits once, before forking, so that
+    the workers inherit them instead of each loading the numba cache again.
+    Where this version's numba cache is cold, the parts compile in ``workers``
+    processes first (they share no compiled code), with a line on stderr if
+    ``progress``. Returns the seconds spent."""
+    start = time.perf_counter()
+    where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
+    marker = os.path.join(where, "compiled") if where else None
+    cold = marker is None or not os.path.exists(marker)
+    if cold and progress:
+        print(f"compiling the simulation kernels for this version of the code, once "
+              f"({min(workers, len(_WARM_PARTS))} process(es); under a minute)...",
+              file=sys.stderr, flush=True)
+    if cold and workers > 1:
+        try:
+            pool_map(_warm_part, [(k, system) for k in range(len(_WARM_PARTS))],
+                     min(workers, len(_WARM_PARTS)), min_jobs=2)
+        except Exception:       # noqa: BLE001 - a part failed: compiled here below
+            pass
+    for k in range(len(_WARM_PARTS)):
+        _warm_part((k, system))
+    if cold and marker is not None:
+        try:
+            with open(marker, "w", encoding="utf-8") as fh:
+                fh.write("compiled\n")
+        except OSError:
+            pass
+        if progress:
+            print(f"compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr,
+                  flush=True)
+    return time.perf_counter() - start
