@@ -85,7 +85,7 @@ REFERENCE_TASK: dict[str, Any] = {
 
 #: What ``stepdamp train --suite`` sets on top of the task for each stepdamp-bench v3
 #: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`).
-SUITE_TASKS: dict[str, dict[str, Any]] = {name: dict(s.training_task)
+SUITE_TASKS: dict[str, dict[str, Any]] = {name: copy.deepcopy(dict(s.training_task))
                                           for name, s in SUITES_BY_NAME.items()}
 
 

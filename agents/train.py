@@ -237,7 +237,7 @@ def train(args: Args) -> dict[str, Any]:
                                  **algo_kwargs)
     except (TypeError, ValueError, AssertionError) as exc:
         first = (str(exc).strip().splitlines() or [""])[0]
-        raise ParameterError(f"hyperparameters (YAML or --set) refused by {args.algo}: "
+        raise ParameterError(f"hyperparameters (YAML or --hyperparam) refused by {args.algo}: "
                              f"{first}") from None
     if start_action is not None:
         set_start_action(model, start_action, args.algo)

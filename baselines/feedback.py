@@ -24,7 +24,7 @@ from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        RowPolicy, estimate_model)
-from stepdamp_env.bench.suites import suite_of
+from stepdamp_env.bench.suites import nearest_suite, suite_of
 from stepdamp_env.env import EnvOptionsV1, TaskV1
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.env.registration import ENV_ID_V1
@@ -403,10 +403,13 @@ class PrivilegedBound(OracleFloor):
         return self._run_settings(context)[0]
 
     def _run_settings(self, context: PolicyContext) -> tuple[float, float, str]:
-        if context.suite not in self.settings:
-            raise ParameterError(f"{self.name}: no settings for suite {context.suite!r} (tuned "
+        plant = context.knowledge.plant
+        drive = (plant if plant is not None else context.knowledge.nominal).drive.drive_mode
+        suite = context.suite or nearest_suite(context.mode, drive)
+        if suite not in self.settings:
+            raise ParameterError(f"{self.name}: no settings for suite {suite!r} (tuned "
                                  f"for {sorted(self.settings)})")
-        return self.settings[context.suite]
+        return self.settings[suite]
 
 
 class TunedConstantGain(RowPolicy):

@@ -21,6 +21,7 @@ from typing import Mapping
 import numpy as np
 
 from stepdamp_env.bench.policy import PolicyCard, PolicyContext
+from stepdamp_env.bench.suites import nearest_suite
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
 
@@ -40,7 +41,8 @@ DEV_GAIN_PAIRS: Mapping[str, tuple[float, float]] = MappingProxyType({
 
 class TunedGainPair:
     """The damping law at a constant (``kv``, ``kp``) per suite (the run's
-    ``PolicyContext.suite``), gains
+    ``PolicyContext.suite``; a run of no suite, the servo on the voltage-mode
+    drive, takes the mid-band's), gains
     normalised as in :data:`DEV_GAIN_PAIRS`. Senses the encoder (velocity
     estimate, position error) and currents; model: nominal (law units),
     identified (feedforward)."""
@@ -65,7 +67,8 @@ class TunedGainPair:
     env_options = TunedConstantGain.env_options
 
     def reset(self, context: PolicyContext) -> None:
-        suite = context.suite
+        drive = context.knowledge.nominal.drive.drive_mode
+        suite = context.suite or nearest_suite(context.mode, drive)
         if suite not in self.pairs:
             raise ParameterError(f"{self.name}: no gains for suite {suite!r} (tuned for "
                                  f"{sorted(self.pairs)})")

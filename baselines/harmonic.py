@@ -107,7 +107,8 @@ class DelayCompensatedFF(_HarmonicResidual):
         (:mod:`stepdamp_env.bench.firmware`): the patent feedforward's coefficients
         plus its constant harmonic action as the env applies it (rounded to
         float32, clipped to [-1, 1], times the action scale), over the model's Km."""
-        if type(self).act_batch is not DelayCompensatedFF.act_batch:
+        if (type(self).act_batch is not DelayCompensatedFF.act_batch
+                or type(self).act is not DelayCompensatedFF.act):
             raise ParameterError(f"entry {self.name!r} cannot be exported: its harmonic "
                                  "table changes while it runs (it learns on line); a firmware "
                                  "table is fixed")

@@ -254,7 +254,7 @@ class RepetitiveControl(OnlineTable, DelayCompensatedFF):
         s = observations[:, HARMONIC_SIN].astype(float)
         c = observations[:, HARMONIC_COS].astype(float)
         e = observations[:, OBS.velocity_error].astype(np.float64) * r["_w_ref"][idx]
-        first = self._rows_step == r["_wait"][idx] + 1       # act's "_angle is None"
+        first = self._rows_step == r["_wait"][idx] + 1       # no previous angle yet
         angle = [fm.atan2(a, b) for a, b in zip(s[:, 0].tolist(), c[:, 0].tolist())]
         turned = r["_turned"][idx]
         for j, (a, prev) in enumerate(zip(angle, r["_angle"][idx].tolist())):

@@ -433,7 +433,8 @@ def step_lanes_parallel(configs, states, accs, inputs, laws, n_periods):
     return again.sum()
 
 
-# The entry points by their names before 0.18: the law's are the steps themselves.
+# The entry points by their names before 0.18: the law's are the steps themselves; the
+# others are Python functions (numba code calls step_lanes with laws None).
 run_batch_lanes = without_law(step_lanes)
 run_batch_lanes_parallel = without_law(step_lanes_parallel)
 run_batch_law_lanes = step_lanes

@@ -306,7 +306,7 @@ def check_name(name: Any, label: str = "name") -> str:
     if not isinstance(name, str):
         raise ParameterError(f"{label} must be text, got {type(name).__name__}")
     if not 1 <= len(name) <= LIMITS.name_chars or not name.isprintable():
-        # Only the start of the name into the message (_show shortens it anyway).
+        # Only the start of the name into the message (show_value shortens it anyway).
         raise ParameterError(f"{label}={show_value(name[:60])} ({len(name)} characters) is outside "
                              f"its allowed range: 1 to {LIMITS.name_chars} printable characters "
                              "(no line breaks or tabs)")

@@ -65,10 +65,10 @@ def finish_ripple_axes(ax, title: str) -> None:
     legend_outside(ax)
 
 
-def finish_trace_axes(ax, ylabel: str, title: str) -> None:
+def finish_trace_axes(ax, ylabel: str, title: str, title_size: float = 8) -> None:
     """Label, title, grid and legend of one speed's velocity-error trace."""
     ax.set_ylabel(ylabel, fontsize=8)
-    ax.set_title(title, fontsize=8, loc="left")
+    ax.set_title(title, fontsize=title_size, loc="left")
     ax.grid(True, alpha=0.3)
     legend_outside(ax, fontsize=7)
 

@@ -131,12 +131,36 @@ def check_lanes_give_the_same_bits() -> None:
             assert rollout(True, threads, mode) == plain, f"SIMD lanes differ ({mode})"
 
 
+def openblas_core() -> str:
+    """The kernels numpy's OpenBLAS picked here ("SkylakeX", "Haswell", ...); "" if
+    it does not say."""
+    import ctypes
+    import glob
+
+    import numpy as np
+
+    for path in glob.glob(os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs",
+                                       "*openblas*")):
+        lib = ctypes.CDLL(path)
+        for name in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename",
+                     "openblas_get_corename64_", "openblas_get_corename"):
+            get = getattr(lib, name, None)
+            if get is not None:
+                get.restype = ctypes.c_char_p
+                return get().decode()
+    return ""
+
+
 def runs_here(name: str) -> bool:
-    """False for a variant whose numba code needs an instruction set this CPU lacks."""
+    """False for a variant whose code needs an instruction set this CPU lacks, or
+    that is this machine's own configuration ("skylakex" where OpenBLAS picks its
+    SkylakeX kernels anyway: the "native" boards are that variant)."""
     from numba.core.codegen import get_host_cpu_features
 
-    needs = {"avx2": "+avx2"}.get(name)
-    return needs is None or needs in get_host_cpu_features().split(",")
+    needs = {"avx2": "+avx2", "skylakex": "+avx512f"}.get(name)
+    if needs is not None and needs not in get_host_cpu_features().split(","):
+        return False
+    return not (name == "skylakex" and openblas_core() == "SkylakeX")
 
 
 def start_variant(name: str, protocols: Sequence[str] = PROTOCOLS, full: bool = False

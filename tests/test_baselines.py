@@ -120,9 +120,13 @@ def test_tuned_gain_pair_acts_with_its_suites_pair_and_refuses_bad_gains():
     from stepdamp_baselines import TunedGainPair
     from stepdamp_baselines.gain_pair import DEV_GAIN_PAIRS
 
+    from stepdamp_env.presets import get_preset
+
     policy = TunedGainPair()
+    nominal = get_preset("patent")
     for suite in ("open-loop", "servo", "mid-band"):
-        policy.reset(SimpleNamespace(suite=suite))
+        policy.reset(SimpleNamespace(suite=suite, mode="open-loop",
+                                     knowledge=SimpleNamespace(nominal=nominal)))
         action = policy.act(np.zeros(3, dtype=np.float32))
         assert action.dtype == np.float32 and action.shape == (8,)
         assert tuple(action[:2]) == tuple(np.float32(g) for g in DEV_GAIN_PAIRS[suite])

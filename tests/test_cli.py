@@ -156,4 +156,5 @@ def test_a_renamed_flag_is_refused_with_one_line_naming_the_new_one(argv, new, c
         main(argv)
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1].endswith(f"{argv[1]} was renamed to {new} in 0.18.0")
+    assert len(err) == 1 and err[0] == (f"stepdamp {argv[0]}: error: {argv[1]} was renamed "
+                                        f"to {new} in 0.18.0")

@@ -6,7 +6,9 @@ emulated older CPUs (``tests/cpu_variants.py`` says what each variant changes).
 The cells are chosen to cover every dispatch axis with few runs: the oldest
 CPU (every library on its x86-64-v2 path, numba generic, the C library without
 FMA, one worker), an AVX2 machine without AVX-512 (one worker), and this
-machine with OpenBLAS's AVX-512 kernels (one worker), run side by side. The other variants, and
+machine with OpenBLAS's AVX-512 kernels (one worker; skipped where OpenBLAS
+picks them anyway, as on an AVX-512 machine: the first test is that cell),
+run side by side. The other variants, and
 the full boards: ``python benchmarks/bench_determinism.py``.
 """
 
@@ -43,7 +45,8 @@ def emulated():
 @pytest.mark.parametrize("variant", EMULATED)
 def test_the_quick_boards_on_an_emulated_cpu_are_the_stored_ones(variant, emulated):
     if variant not in emulated:
-        pytest.skip(f"{variant}: this CPU cannot run its code")
+        pytest.skip(f"{variant}: this CPU cannot run its code, or it is this machine's own "
+                    "configuration (the boards of the test above)")
     assert V.differences(V.stored(), V.finish_variant(emulated[variant])) == []
 
 

@@ -15,7 +15,7 @@ from stepdamp_env.bench import registry as policy_registry
 from stepdamp_env.bench import suites as suite_registry
 from stepdamp_env.bench.leaderboard import run_leaderboard
 from stepdamp_env.bench.motors import protocol_motors
-from stepdamp_env.bench.policy import MotorKnowledge, PolicyContext, RowPolicy
+from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, RowPolicy
 from stepdamp_env.bench.protocols.v1 import quick_protocol_v1
 from stepdamp_env.bench.protocols.v3 import ProtocolV3, quick_protocol_v3
 from stepdamp_env.bench.registry import register_policy
@@ -112,12 +112,16 @@ def test_a_new_suite_is_one_record_and_a_protocol_that_runs_it(registries):
     seen: list[str | None] = []
 
     class SeesSuite(HalfCurrent):
+        name = "sees-suite"
+        card = PolicyCard(sensors="none", model="none")     # runs in every suite
+
         def configure(self, context: PolicyContext) -> None:
             seen.append(context.suite)
 
     register_policy("sees-suite", SeesSuite, kind="baseline")
     board = run_leaderboard(protocol, ["sees-suite"], workers=1, progress=False)
     assert {e["suite"] for e in board["entries"]} == {"voltage-servo"}
+    assert "sees-suite" in {e["name"] for e in board["entries"]}
     assert seen and set(seen) == {"voltage-servo"}
     assert all(r["metrics"] is not None for e in board["entries"] for r in e["runs"])
 
@@ -146,3 +150,23 @@ def test_a_new_protocol_is_one_class_and_one_registration(registries):
     assert board["protocol"]["version"] == "v99"
     assert board["protocol"]["window_s"] == base.window_s / 2
     assert {e["name"] for e in board["entries"]} >= {"none"}
+
+
+def test_a_suite_record_is_checked_and_read_only(registries):
+    from stepdamp_env.bench.suites import SuiteField, get_suite
+    from stepdamp_env.params import ParameterError
+
+    for bad in (Suite("all", "servo", "voltage", "", "", "", "v9"),
+                Suite("typo", "open_loop", "current", "", "", "", "v9"),
+                Suite("servo-2", "servo", "current", "", "", "", "v9"),     # servo's pair
+                Suite("servo", "servo", "voltage", "", "", "", "v9")):      # servo's name
+        with pytest.raises(ParameterError):
+            register_suite(bad)
+    with pytest.raises(ParameterError, match="suite 'nope' is not one of"):
+        get_suite("nope")
+    with pytest.raises(ValueError, match="not a field of Suite"):
+        SuiteField("colour")
+    task = get_suite("mid-band").training_task
+    with pytest.raises(TypeError):
+        task["mode"] = "servo"                                  # read-only
+    assert get_suite("mid-band").training_task["overrides"] == {"drive_mode": "voltage"}

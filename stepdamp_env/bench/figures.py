@@ -244,7 +244,7 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
                 "lost steps before the window"
             ax.plot(t * 1e3, err, lw=0.7, color=styles[e["name"]][0],
                     label=f"{e['name']} ({what})")
-        finish_trace_axes(ax, "w_cmd - w (rad/s)", f"{title}: {v:.3g} rev/s")
+        finish_trace_axes(ax, "w_cmd - w (rad/s)", f"{title}: {v:.3g} rev/s", title_size=9)
     axes[-1, 0].set_xlabel("time in the measuring window (ms), one sample per PWM period")
     what = "the resonances" if suite == "open-loop" or motor.split is None else \
         {"servo": "the low-speed grid", "mid-band": "the mid-band (voltage mode)"}[suite]

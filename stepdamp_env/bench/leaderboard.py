@@ -271,7 +271,7 @@ def _suites(source: PolicySource, protocol: Protocol
             ) -> tuple[tuple[str, ...], str]:
     """The protocol's suites this policy runs in, and why not in the others."""
     card = policy_card(source.make())
-    if card is None:
+    if card is None or card.suites is None:
         return protocol.suites, ""
     return tuple(s for s in protocol.suites if s in card.suites), card.not_in_suites
 

@@ -21,7 +21,7 @@ from ..env.options import BASE_CONTROLLERS, ESTIMATES, EnvOptions, default_actio
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2
 from ..env.registration import ENV_ID, ENV_ID_V1
-from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY, ALL_SUITES
+from .protocol import POLICY_OPTIONS, POLICY_OPTIONS_V1, REFERENCE_POLICY
 from .suites import get_suite, suite_of
 
 __all__ = ["MotorKnowledge", "PolicyContext", "Policy", "PolicyCard", "policy_card",
@@ -88,7 +88,7 @@ class PolicyCard:
     model: str
     calibration: str = ""
     oracle: bool = False
-    suites: tuple[str, ...] = ALL_SUITES
+    suites: tuple[str, ...] | None = None
     not_in_suites: str = ""
     learned: bool = False
     trained_on: tuple[tuple[str, float, float], ...] = ()
@@ -129,7 +129,8 @@ class PolicyContext:
         accel_rps2: the start-up ramp's acceleration (rev/s^2); the speed is
             held from ``speed_rps / accel_rps2`` seconds on.
         suite: the stepdamp-bench suite the run belongs to (:mod:`.suites`:
-            "open-loop", "servo", "mid-band"), None for a run of none.
+            "open-loop", "servo", "mid-band"); left None, the one of ``mode`` on
+            the nominal motor's drive (None for a run of no suite).
     """
 
     knowledge: MotorKnowledge
@@ -142,6 +143,13 @@ class PolicyContext:
     current_scale_a: float = 0.0
     accel_rps2: float = DEFAULT_ACCEL_RPS2
     suite: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.suite is None:          # the one of the mode on the nominal drive
+            nominal = getattr(self.knowledge, "nominal", None)
+            if nominal is not None:
+                object.__setattr__(self, "suite", suite_of(self.mode,
+                                                           nominal.drive.drive_mode))
 
     @property
     def ramp_s(self) -> float:
@@ -195,6 +203,7 @@ class BatchPolicy(Policy, TypingProtocol):
 
 
 _ROW_0 = np.zeros(1, dtype=np.int64)
+_ROW_0.flags.writeable = False
 
 
 class RowPolicy:
@@ -266,14 +275,16 @@ def _defined_by(cls: type, name: str) -> type | None:
 
 def batch_policy(make: Callable[[], Any]) -> Any:
     """``make()`` if it is a :class:`BatchPolicy` whose ``act_batch`` belongs to
-    its ``act`` (both defined by the same class, or ``act`` is :class:`RowPolicy`'s:
-    a subclass that changes ``act`` alone does not inherit a batched law that is no
+    its ``act`` and whose ``reset_batch`` belongs to its ``reset`` (each pair defined
+    by the same class, or ``act``/``reset`` are :class:`RowPolicy`'s: a subclass that
+    changes ``act`` or ``reset`` alone does not inherit a batched law that is no
     longer its own), else :class:`ScalarPolicies` of ``make``."""
     policy = make()
     cls = type(policy)
     if callable(getattr(policy, "act_batch", None)) and \
             callable(getattr(policy, "reset_batch", None)) and \
-            _defined_by(cls, "act") in (_defined_by(cls, "act_batch"), RowPolicy):
+            _defined_by(cls, "act") in (_defined_by(cls, "act_batch"), RowPolicy) and \
+            _defined_by(cls, "reset") in (_defined_by(cls, "reset_batch"), RowPolicy):
         return policy
     return ScalarPolicies(make, policy)
 

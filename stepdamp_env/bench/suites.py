@@ -10,6 +10,7 @@ runs it (its grid in ``suite_grids``), and its tests (docs/architecture.md).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Iterator, Mapping
@@ -17,7 +18,11 @@ from typing import Any, Iterator, Mapping
 from ..params import ParameterError
 
 __all__ = ["Suite", "SUITES_BY_NAME", "register_suite", "get_suite", "suite_names", "suite_of",
-           "SuiteField"]
+           "nearest_suite", "SuiteField", "MODES", "DRIVE_MODES"]
+
+#: The env's modes and the drive's current controls a suite may pair.
+MODES = ("open-loop", "servo")
+DRIVE_MODES = ("current", "voltage")
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,11 @@ class Suite:
     since: str
     training_task: Mapping[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        # Frozen all the way down: a copy, read-only.
+        object.__setattr__(self, "training_task", MappingProxyType(copy.deepcopy(
+            dict(self.training_task))))
+
 
 _SUITES: dict[str, Suite] = {}
 #: Every registered suite by name (read-only; :func:`register_suite` adds one).
@@ -57,7 +67,15 @@ SUITES_BY_NAME: Mapping[str, Suite] = MappingProxyType(_SUITES)
 
 
 def register_suite(suite: Suite) -> None:
-    """Add a suite (its name new; its mode and drive a pair no suite has yet)."""
+    """Add a suite (its name new and not "all"; its mode and drive one of
+    :data:`MODES` and :data:`DRIVE_MODES`, a pair no suite has yet). Processes
+    forked later see it; a spawned or Ray worker registers it again."""
+    if not isinstance(suite.name, str) or not suite.name or suite.name == "all":
+        raise ParameterError(f"suite name {suite.name!r}: a non-empty name other than 'all'")
+    if suite.mode not in MODES or suite.drive_mode not in DRIVE_MODES:
+        raise ParameterError(f"suite {suite.name!r}: mode {suite.mode!r} must be one of "
+                             f"{list(MODES)}, drive_mode {suite.drive_mode!r} one of "
+                             f"{list(DRIVE_MODES)}")
     if suite.name in _SUITES:
         raise ParameterError(f"suite {suite.name!r} is registered twice")
     taken = suite_of(suite.mode, suite.drive_mode)
@@ -72,6 +90,9 @@ class SuiteField(Mapping[str, Any]):
     ``SuiteField("mode")["servo"] == "servo"``)."""
 
     def __init__(self, name: str) -> None:
+        if name not in Suite.__dataclass_fields__:
+            raise ValueError(f"SuiteField({name!r}): not a field of Suite "
+                             f"{list(Suite.__dataclass_fields__)}")
         self._field = name
 
     def __getitem__(self, suite: str) -> Any:
@@ -97,6 +118,13 @@ def get_suite(name: str) -> Suite:
         return SUITES_BY_NAME[name]
     except (KeyError, TypeError):
         raise ParameterError(f"suite {name!r} is not one of {list(SUITES_BY_NAME)}") from None
+
+
+def nearest_suite(mode: str, drive_mode: str) -> str | None:
+    """:func:`suite_of`, or else the suite of the same drive in open loop (a servo
+    on the voltage-mode drive: the mid-band's), for a policy tuned per suite run
+    outside the suites."""
+    return suite_of(mode, drive_mode) or suite_of("open-loop", drive_mode)
 
 
 def suite_of(mode: str, drive_mode: str) -> str | None:

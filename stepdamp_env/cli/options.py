@@ -154,6 +154,6 @@ def renamed(p: argparse.ArgumentParser, old: str, new: str, since: str = "0.18.0
 
     class Renamed(argparse.Action):
         def __call__(self, parser: argparse.ArgumentParser, *_: Any) -> None:
-            parser.error(f"{old} was renamed to {new} in {since}")
+            parser.exit(2, f"{parser.prog}: error: {old} was renamed to {new} in {since}\n")
 
     p.add_argument(old, nargs="*", action=Renamed, help=argparse.SUPPRESS)

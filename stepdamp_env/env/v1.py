@@ -354,7 +354,7 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
     ``infos["final_info"]``). ``infos`` holds the scalar env's step info as
     arrays with ``_key`` masks. Rendering: None only.
     ``num_threads`` (default 1) spreads each step's drives over that many of
-    numba's threads (``kernel.run_batch_parallel``, or groups of 32 drives in
+    numba's threads (``kernel.step_batch_parallel``, or groups of 32 drives in
     lanes); a drive's numbers are the same for any count. ``simd`` steps the
     drives in SIMD lanes, LANES (32) at a
     time (:mod:`stepdamp_env.lanes`): the same numbers, 2.3-4x faster per core

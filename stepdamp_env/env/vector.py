@@ -21,7 +21,7 @@ TWO_PI = 2.0 * np.pi
 
 
 class StepperDampVectorEnv(DriveVectorEnv):
-    __doc__ = """Native vectorised ``StepperDamp-v0``: N drives stepped by one ``kernel.run_batch``.
+    __doc__ = """Native vectorised ``StepperDamp-v0``: N drives stepped by one ``kernel.step_batch``.
 
     Spaces, rewards and episode ends are those of :class:`StepperDampEnv` (see
     there for every option); the same seeds give the same episodes as N scalar
@@ -35,7 +35,7 @@ class StepperDampVectorEnv(DriveVectorEnv):
     ``peak_current_a``, ``step_loss``, ``overcurrent`` with ``_key`` masks.
     Rendering is not supported (``render_mode`` must be None).
     ``num_threads`` (default 1) spreads each step's drives over that many of
-    numba's threads (``kernel.run_batch_parallel``); a drive's numbers are the
+    numba's threads (``kernel.step_batch_parallel``); a drive's numbers are the
     same for any count.
     """ + OPTIONS_DOC
 

@@ -259,7 +259,8 @@ def without_law(step: Callable[..., Any]) -> Callable[..., Any]:
     return run
 
 
-# The entry points by their names before 0.18: the law's are the steps themselves.
+# The entry points by their names before 0.18: the law's are the steps themselves; the
+# others are Python functions (numba code calls step_batch with laws None).
 run_batch = without_law(step_batch)
 run_batch_parallel = without_law(step_batch_parallel)
 run_batch_law = step_batch
