@@ -234,9 +234,10 @@ def build_cases(tmp: str) -> list[tuple[str, list[str]]]:
     add("analyse with a stray argument", "analyse", "extra")
     add("simulate with a bad drive_mode", "simulate", "--speed", "1", "--set",
         "drive_mode=chopper")
-    add("mid-band suite on v1", "leaderboard", "--quick", "--suite", "mid-band", "--out",
-        os.path.join(tmp, "mb"))
-    add("unknown protocol", "leaderboard", "--protocol", "v3", "--out", os.path.join(tmp, "p3"))
+    add("mid-band suite on v1", "leaderboard", "--quick", "--protocol", "v1", "--suite",
+        "mid-band", "--out", os.path.join(tmp, "mb"))
+    add("unknown protocol", "leaderboard", "--protocol", "v99", "--out",
+        os.path.join(tmp, "p99"))
     add("sweep without --out", "sweep", "--speeds", "0.5:0.5:0.1", "--no-progress")
     add("identify without --out", "identify", "--method", "least-squares")
     add("leaderboard without --out", "leaderboard", "--quick", "--no-plots")
