@@ -215,23 +215,24 @@ def _advance(c, s, acc, u_arr, law, n_periods, trace, trace_every):
 
 
 @_jit
-def _drive(configs, states, accs, inputs, laws, n_periods, i):
-    """Drive ``i`` of a batch by ``n_periods``, without trace."""
-    empty = np.zeros((0, len(TRACE)))
+def _drive(configs, states, accs, inputs, laws, n_periods, i, no_trace):
+    """Drive ``i`` of a batch by ``n_periods``, without trace (``no_trace``: a
+    (0, len(TRACE)) array, made once per batch)."""
     # int64 as from Python: a literal 1 would compile the whole loop once more for its type.
     every = np.int64(1)
     if laws is None:
-        _advance(configs[i], states[i], accs[i], inputs[i], None, n_periods, empty, every)
+        _advance(configs[i], states[i], accs[i], inputs[i], None, n_periods, no_trace, every)
     else:
-        _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, empty, every)
+        _advance(configs[i], states[i], accs[i], inputs[i], laws[i], n_periods, no_trace, every)
 
 
 @_jit
 def step_batch(configs, states, accs, inputs, laws, n_periods):
     """Advance N drives (rows of the arrays) by ``n_periods`` each, without trace;
     ``laws`` None (no damping law; pruned when compiled) or each drive's LAW row."""
+    no_trace = np.zeros((0, len(TRACE)))
     for i in range(configs.shape[0]):
-        _drive(configs, states, accs, inputs, laws, n_periods, i)
+        _drive(configs, states, accs, inputs, laws, n_periods, i, no_trace)
 
 
 # The parallel twin: the drives of a batch on numba's threads (numba.set_num_threads
@@ -243,8 +244,9 @@ _jit_parallel = njit(cache=True, error_model="numpy", parallel=True)
 @_jit_parallel
 def step_batch_parallel(configs, states, accs, inputs, laws, n_periods):
     """:func:`step_batch`, the drives spread over numba's threads."""
+    no_trace = np.zeros((0, len(TRACE)))
     for i in prange(configs.shape[0]):
-        _drive(configs, states, accs, inputs, laws, n_periods, i)
+        _drive(configs, states, accs, inputs, laws, n_periods, i, no_trace)
 
 
 def without_law(step: Callable[..., Any]) -> Callable[..., Any]:
