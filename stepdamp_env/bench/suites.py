@@ -56,7 +56,7 @@ class Suite:
     training_task: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        # Frozen all the way down: a copy, read-only.
+        # A copy of its own, read-only at the top (the builders deep-copy what they use).
         object.__setattr__(self, "training_task", MappingProxyType(copy.deepcopy(
             dict(self.training_task))))
 
