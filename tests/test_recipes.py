@@ -25,7 +25,9 @@ from stepdamp_env.cli import build_parser
 
 @pytest.fixture
 def registries(monkeypatch):
-    """Whatever a test registers is gone after it."""
+    """Whatever a test registers is gone after it (the plugins are loaded first, so
+    the registry put back is the whole one)."""
+    policy_registry.registered_policies()
     monkeypatch.setattr(policy_registry, "_REGISTRY", dict(policy_registry._REGISTRY))
     monkeypatch.setattr(protocol_registry, "_REGISTRY", dict(protocol_registry._REGISTRY))
     saved = dict(suite_registry._SUITES)
