@@ -82,6 +82,35 @@ def test_grids_are_kept_per_motor_settings_and_code(tmp_path, monkeypatch):
     assert grids_cached(p, systems) == computed
 
 
+@dataclasses.dataclass(frozen=True)
+class _ExtraSuite(ProtocolV3):
+    """v3's settings and one more grid: a protocol defined outside the package."""
+
+    def suite_grids(self, system):
+        return super().suite_grids(system) + (("extra", (0.5,), ("s0.5",)),)
+
+
+def test_a_protocol_class_outside_the_package_never_shares_a_kept_grid(tmp_path, monkeypatch):
+    """A test's v3 subclass with one more suite (equal settings, so equal to_dict)
+    once left its grids in the cache, and every later v3 board on the machine
+    recorded the extra suite in its motors (CI: 'v3: protocol' differed)."""
+    import os
+
+    from stepdamp_env.bench.grid_cache import grids_cached
+
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", str(tmp_path))
+    fields = {f.name: getattr(p, f.name) for p in [ProtocolV3(splits=("dev",), **SMALL)]
+              for f in dataclasses.fields(p) if f.init}
+    base, extra = ProtocolV3(**fields), _ExtraSuite(**fields)
+    assert extra.to_dict() == base.to_dict()
+    system = base.motors()[0].system
+    kept = sorted(os.listdir(tmp_path / "grids"))
+    assert grids_cached(extra, [system]) == [extra.suite_grids(system)]
+    assert sorted(os.listdir(tmp_path / "grids")) == kept
+    assert grids_cached(base, [system]) == [base.suite_grids(system)]
+    assert "extra" not in {g[0] for g in grids_cached(base, [system])[0]}
+
+
 def test_headline_speeds_are_where_the_phenomenon_dominates():
     p = ProtocolV3(splits=("interpolation",), **SMALL)
     system = get_preset("patent").replace(encoder_cpr=4000)

@@ -24,9 +24,11 @@ from stepdamp_env.cli import build_parser
 
 
 @pytest.fixture
-def registries(monkeypatch):
+def registries(monkeypatch, tmp_path):
     """Whatever a test registers is gone after it (the plugins are loaded first, so
-    the registry put back is the whole one)."""
+    the registry put back is the whole one), and what it computes is kept in its
+    own cache, never the machine's."""
+    monkeypatch.setenv("STEPDAMP_CACHE_DIR", str(tmp_path / "cache"))
     policy_registry.registered_policies()
     monkeypatch.setattr(policy_registry, "_REGISTRY", dict(policy_registry._REGISTRY))
     monkeypatch.setattr(protocol_registry, "_REGISTRY", dict(protocol_registry._REGISTRY))

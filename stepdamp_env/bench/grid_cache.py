@@ -19,6 +19,8 @@ from .provenance import code_fingerprint
 __all__ = ["Grids", "grids_cached"]
 
 
+_PACKAGE = __name__.split(".")[0]
+
 Grids = tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]
 
 
@@ -45,8 +47,11 @@ def grids_cached(protocol: Any, systems: Sequence[SystemParams]) -> list[Grids]:
     computed on every core (the same values on any number of workers) and kept
     (:func:`..io.cache_dir` "grids"), per system, protocol settings and code
     (:func:`.provenance.code_fingerprint`), as identifications are: the grids
-    are deterministic, so a kept grid is the one it would compute."""
-    where = cache_dir("grids")
+    are deterministic, so a kept grid is the one it would compute. The key
+    names the protocol's class; a class defined outside this package (its code
+    is not in the fingerprint) is never cached."""
+    kind = type(protocol)
+    where = cache_dir("grids") if kind.__module__.startswith(_PACKAGE + ".") else None
     paths: list[str | None] = [None] * len(systems)
     keys: list[str] = [""] * len(systems)
     out: list[Grids | None] = [None] * len(systems)
@@ -54,7 +59,8 @@ def grids_cached(protocol: Any, systems: Sequence[SystemParams]) -> list[Grids]:
         settings = {k: v for k, v in protocol.to_dict().items() if k != "splits"}
         code = code_fingerprint()
         for i, system in enumerate(systems):
-            key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code},
+            key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code,
+                              "class": f"{kind.__module__}.{kind.__qualname__}"},
                              sort_keys=True, default=str)
             keys[i] = hashlib.sha256(key.encode()).hexdigest()
             paths[i] = os.path.join(where, keys[i][:32] + ".json")
