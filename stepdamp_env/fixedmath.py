@@ -29,7 +29,7 @@ from numba.extending import intrinsic
 
 
 __all__ = ["exp", "expm1", "log", "sin", "cos", "sincos", "sincos_shifted", "sincos_rotated",
-           "sincos_lane", "log_lane", "float_bits", "bits_float", "atan", "atan2", "hypot", "tanh", "cexp", "cmul", "exp_array",
+           "sincos_lane", "log_lane", "sincos_in", "sincos_shifted_in", "log_in", "float_bits", "bits_float", "atan", "atan2", "hypot", "tanh", "cexp", "cmul", "exp_array",
            "sincos_array", "dot", "weighted_rows", "lstsq", "solve", "random_walk_kalman_update"]
 
 # numba without fastmath: no reassociation, no contraction into FMA.
@@ -243,6 +243,31 @@ def sincos_lane(x):
     c = cp if quadrant == 0.0 else (-sp if quadrant == 1.0 else (-cp if quadrant == 2.0 else sp))
     # sin(-0) = -0: the polynomial gives it too, the select makes it plain.
     return (x if x == 0.0 else s), (1.0 if x == 0.0 else c)
+
+
+@_inline
+def sincos_in(x, lanes):
+    """:func:`sincos`, or :func:`sincos_lane` where ``lanes`` is not None (code
+    compiled for SIMD lanes: the choice is made when compiled)."""
+    if lanes is None:
+        return sincos(x)
+    return sincos_lane(x)
+
+
+@_inline
+def sincos_shifted_in(x0, s0, c0, delta, lanes):
+    """:func:`sincos_shifted`, or :func:`sincos_rotated` where ``lanes`` is not None."""
+    if lanes is None:
+        return sincos_shifted(x0, s0, c0, delta)
+    return sincos_rotated(s0, c0, delta)
+
+
+@_inline
+def log_in(x, lanes):
+    """:func:`log`, or :func:`log_lane` where ``lanes`` is not None."""
+    if lanes is None:
+        return log(x)
+    return log_lane(x)
 
 
 @_inline

@@ -4,9 +4,10 @@
 and gives the same bits, but steps ``LANES`` drives at once: each field of the
 drives' CONFIG, STATE, ACC, INPUT and LAW rows is one row of a workspace, so that
 a loop over the drives is a loop over contiguous lanes that LLVM vectorises (8
-doubles per AVX-512 instruction, 4 per AVX2). The arithmetic per drive is the
-kernel's, in the kernel's order (no FMA, no reassociation), so vectorising
-cannot change a bit.
+doubles per AVX-512 instruction, 4 per AVX2). The code per drive is the
+kernel's own (:func:`kernel.control_period`, :func:`kernel.plant_step_in`,
+compiled for lanes: no branches), in the kernel's order (no FMA, no
+reassociation), so vectorising cannot change a bit.
 
 Lanes run one variant of the drive, v1's default: open loop, DQ current loops,
 the encoder's low-pass velocity, current sensors with or without noise, a
@@ -24,18 +25,17 @@ from its state at the period's start.
 
 from __future__ import annotations
 
-import math
 from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
 
-from .fixedmath import log_lane, sincos, sincos_lane, sincos_rotated
-from .kernel import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, MODE, PLANT, PROFILE, STATE, TRACE, VEL_EST,
-                     constant_speed_command, controller_params, current_loop, driving_torque_sc,
-                     feedforward_torque, harmonics, law_feedback, motor_derivative_sc, park_sc,
-                     plant_params, quantise, resonant_phasor, rk4_combine, rk4_step_stuck, run_periods,
-                     run_periods_law, uniform_pair, without_law)
+from .fixedmath import sincos
+from .kernel import (ACC, CONFIG, CTRL, INPUT, LAW, STATE, TRACE, control_period, controller_params,
+                     in_lanes_variant, law_input, load_controller, load_law, load_metrics, load_plant, plant_params,
+                     plant_step_in, run_periods, run_periods_law, store_controller, store_law,
+                     store_metrics,
+                     store_plant, without_law)
 
 __all__ = ["LANES", "step_lanes", "step_lanes_parallel", "run_batch_lanes",
            "run_batch_law_lanes", "run_batch_lanes_parallel", "run_batch_law_lanes_parallel", "in_lanes", "control_lanes", "plant_lanes", "workspace_size",
@@ -92,12 +92,6 @@ def _st(field, d):
     return (ROW.ST + field) * LANES + d
 
 
-@njit(error_model="numpy", inline="always")
-def _ac(field, d):
-    """Index in the workspace of lane d's ACC ``field``."""
-    return (ROW.AC + field) * LANES + d
-
-
 def simd_by_default(num_drives: int) -> bool:
     """Whether a vector env of ``num_drives`` drives steps in lanes unless told:
     from LANES drives up, where numba compiles for AVX2 or wider. With SSE4.2's
@@ -126,175 +120,51 @@ def workspace_size() -> int:
 @_jit
 def in_lanes(c, n_sub):
     """True if the drive of CONFIG row ``c`` is of the variant that runs in lanes
-    with ``n_sub`` substeps."""
-    return (c[CONFIG.MODE] == MODE.OPEN_LOOP and c[CONFIG.DRIVE_MODE] == DRIVE.CURRENT
-            and c[CONFIG.VEL_EST] == VEL_EST.LOWPASS
-            and c[CONFIG.PROFILE] == PROFILE.CONSTANT and int(c[CONFIG.SUBSTEPS]) == n_sub)
+    (:data:`kernel.LANES_VARIANT`) with ``n_sub`` substeps."""
+    return in_lanes_variant(c) and int(c[CONFIG.SUBSTEPS]) == n_sub
 
 
 @_jit
 def control_lanes(w, law):
-    """The sample, control and metrics of one period for every lane (the kernel's
-    ``_advance`` before its plant steps, for the lanes' variant); ``law`` None
-    (pruned at compile time) or ``w`` for the damping law in the workspace."""
+    """The sample, law, control and metrics of one period for every lane
+    (:func:`kernel.control_period`, compiled for lanes); ``law`` None (pruned
+    at compile time) or ``w`` for the damping law in the workspace."""
     n = LANES
     for d in range(n):
         c = _config_column(w, ROW.CFG, d)
-        q = _controller_params(c)
+        q = _controller_params(c, n)
         u = _input_column(w, ROW.IN, d)
-        dt = q[CTRL.DT]
-        iq_u = u[INPUT.IQ]
+        at = ROW.ST * n + d
+        x = load_plant(w, at, n)
+        period, cs, v_next, obs = load_controller(w, at, n, w[ROW.SIN * n + d], w[ROW.COS * n + d])
+        m = load_metrics(w, ROW.AC * n + d, n)
+        win_start, ref_rate = c[CONFIG.WINDOW_START], c[CONFIG.NR] * c[CONFIG.REF_SPEED]
         if law is not None:
-            # kernel.law_current from the previous period's samples, its resonant
-            # terms computed and selected (stored unconditionally, so it vectorises).
-            at = ROW.LW * n + d
-            e_w = w[_st(STATE.OMEGA_CMD, d)] - w[_st(STATE.OMEGA_FB, d)]
-            i_law = law_feedback(w, at, n, e_w, w[_st(STATE.THETA_CMD, d)] - w[_st(STATE.THETA_FB_PREV, d)])
-            limit = w[at + LAW.LIMIT * n]
-            on = w[at + LAW.RESONANT * n] != 0.0
-            s1, c1 = w[ROW.SIN * n + d], w[ROW.COS * n + d]
-            s2, c2, s4, c4 = harmonics(s1, c1)
-            a1, b1 = resonant_phasor(w, at, n, 0, e_w, s1, c1, dt, limit)
-            a2, b2 = resonant_phasor(w, at, n, 1, e_w, s2, c2, dt, limit)
-            a4, b4 = resonant_phasor(w, at, n, 2, e_w, s4, c4, dt, limit)
-            i_res = ((i_law + (a1 * s1 + b1 * c1)) + (a2 * s2 + b2 * c2)) + (a4 * s4 + b4 * c4)
-            w[at + LAW.A1 * n] = a1 if on else w[at + LAW.A1 * n]
-            w[at + LAW.B1 * n] = b1 if on else w[at + LAW.B1 * n]
-            w[at + LAW.A2 * n] = a2 if on else w[at + LAW.A2 * n]
-            w[at + LAW.B2 * n] = b2 if on else w[at + LAW.B2 * n]
-            w[at + LAW.A4 * n] = a4 if on else w[at + LAW.A4 * n]
-            w[at + LAW.B4 * n] = b4 if on else w[at + LAW.B4 * n]
-            # The law's current, then held for the period.
-            # The end of law_current, written out: numba's inlined call to a function
-            # that adds into an array element leaves the loop unvectorised.
-            i_law = min(max(i_res if on else i_law, -limit), limit)
-            w[at + LAW.SUM_I2 * n] += i_law * i_law
-            iq_u = iq_u + i_law
-        period = w[_st(STATE.PERIOD, d)]
-        t = period * dt
-        theta, omega, ia, ib = w[_st(STATE.THETA, d)], w[_st(STATE.OMEGA, d)], w[_st(STATE.IA, d)], w[_st(STATE.IB, d)]
-        va, vb = w[_st(STATE.VA_NEXT, d)], w[_st(STATE.VB_NEXT, d)]
-        # control_step, for the variant: command, encoder, sensors (offsets only),
-        # low-pass velocity, open-loop current command, current loops.
-        theta_cmd, omega_cmd = constant_speed_command(t, q[CTRL.SPEED], q[CTRL.ACCEL])
-        theta_fb = quantise(theta, q[CTRL.ENCODER])
-        # sense_currents, both branches computed, one selected.
-        u1, u2 = uniform_pair(q[CTRL.NOISE_SEED], period)
-        r_noise = math.sqrt(-2.0 * log_lane(u1))
-        sin_n, cos_n = sincos_lane(2.0 * math.pi * u2)
-        noisy = q[CTRL.I_NOISE] != 0.0
-        ia_m = (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * (r_noise * cos_n) if noisy
-                else ia + q[CTRL.I_OFFSET_A])
-        ib_m = (ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * (r_noise * sin_n) if noisy
-                else ib + q[CTRL.I_OFFSET_B])
-        omega_fb = w[_st(STATE.OMEGA_FB, d)]
-        omega_fb = omega_fb + q[CTRL.VEL_ALPHA] * ((theta_fb - w[_st(STATE.THETA_FB_PREV, d)]) * (1.0 / dt)
-                                                    - omega_fb)
-        angle = q[CTRL.NR] * quantise(theta_cmd, q[CTRL.MICROSTEP])
-        sin_a, cos_a = sincos_lane(angle)
-        iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[CTRL.KM_EST]) + iq_u
-        id_m, iq_m = park_sc(ia_m, ib_m, sin_a, cos_a)
-        int_d, int_q, va_next, vb_next = current_loop(w[_st(STATE.INT_D, d)], w[_st(STATE.INT_Q, d)], q[CTRL.HOLD],
-                                                      iq_inj, id_m, iq_m, sin_a, cos_a, q)
-        # Metrics of the sample at the period's start.
-        err = omega_cmd - omega
-        lag = abs(theta_cmd - theta)
-        w[_ac(ACC.MAX_LAG, d)] = max(w[_ac(ACC.MAX_LAG, d)], lag)
-        w[_ac(ACC.MAX_CURRENT, d)] = max(w[_ac(ACC.MAX_CURRENT, d)], abs(ia), abs(ib))
-        w[_ac(ACC.SUM_E2_ALL, d)] += err * err
-        w[_ac(ACC.SUM_IFF2_ALL, d)] += iq_inj * iq_inj
-        w[_ac(ACC.COUNT_ALL, d)] += 1.0
-        win_start = c[CONFIG.WINDOW_START]
-        ref = c[CONFIG.NR] * c[CONFIG.REF_SPEED] * (t - win_start)
-        in_win = t >= win_start
-        n_win = w[_ac(ACC.COUNT, d)]
-        min_e = err if n_win == 0.0 else w[_ac(ACC.MIN_E, d)]
-        max_e = err if n_win == 0.0 else w[_ac(ACC.MAX_E, d)]
-        s1, c1 = sincos_lane(ref)
-        s2, c2, s4, c4 = harmonics(s1, c1)
-        w[_ac(ACC.MIN_E, d)] = min(min_e, err) if in_win else w[_ac(ACC.MIN_E, d)]
-        w[_ac(ACC.MAX_E, d)] = max(max_e, err) if in_win else w[_ac(ACC.MAX_E, d)]
-        w[_ac(ACC.COUNT, d)] = n_win + 1.0 if in_win else n_win
-        w[_ac(ACC.SUM_E, d)] = w[_ac(ACC.SUM_E, d)] + err if in_win else w[_ac(ACC.SUM_E, d)]
-        w[_ac(ACC.SUM_E2, d)] = w[_ac(ACC.SUM_E2, d)] + err * err if in_win else w[_ac(ACC.SUM_E2, d)]
-        w[_ac(ACC.SUM_IFF2, d)] = w[_ac(ACC.SUM_IFF2, d)] + iq_inj * iq_inj if in_win else w[_ac(ACC.SUM_IFF2, d)]
-        w[_ac(ACC.H1_S, d)] = w[_ac(ACC.H1_S, d)] + err * s1 if in_win else w[_ac(ACC.H1_S, d)]
-        w[_ac(ACC.H1_C, d)] = w[_ac(ACC.H1_C, d)] + err * c1 if in_win else w[_ac(ACC.H1_C, d)]
-        w[_ac(ACC.H2_S, d)] = w[_ac(ACC.H2_S, d)] + err * s2 if in_win else w[_ac(ACC.H2_S, d)]
-        w[_ac(ACC.H2_C, d)] = w[_ac(ACC.H2_C, d)] + err * c2 if in_win else w[_ac(ACC.H2_C, d)]
-        w[_ac(ACC.H4_S, d)] = w[_ac(ACC.H4_S, d)] + err * s4 if in_win else w[_ac(ACC.H4_S, d)]
-        w[_ac(ACC.H4_C, d)] = w[_ac(ACC.H4_C, d)] + err * c4 if in_win else w[_ac(ACC.H4_C, d)]
-        # The new controller state and samples, as _advance stores them.
-        w[_st(STATE.INT_D, d)] = int_d
-        w[_st(STATE.INT_Q, d)] = int_q
-        w[_st(STATE.THETA_FB_PREV, d)] = theta_fb
-        w[_st(STATE.OMEGA_FB, d)] = omega_fb
-        w[_st(STATE.IA_PREV, d)] = ia_m
-        w[_st(STATE.IB_PREV, d)] = ib_m
-        w[_st(STATE.VA_OLD, d)] = va
-        w[_st(STATE.VB_OLD, d)] = vb
-        w[_st(STATE.VA_NEXT, d)] = va_next
-        w[_st(STATE.VB_NEXT, d)] = vb_next
-        w[_st(STATE.THETA_FB, d)] = theta_fb
-        w[_st(STATE.THETA_CMD, d)] = theta_cmd
-        w[_st(STATE.OMEGA_CMD, d)] = omega_cmd
-        w[_st(STATE.ID_MEAS, d)] = id_m
-        w[_st(STATE.IQ_MEAS, d)] = iq_m
-        w[_st(STATE.IQ_FF, d)] = iq_inj
-        w[_st(STATE.PARK_ANGLE, d)] = angle
-        w[_st(STATE.PERIOD, d)] = period + 1.0
-        w[ROW.VA * n + d] = va
-        w[ROW.VB * n + d] = vb
-        w[ROW.SIN * n + d] = sin_a
-        w[ROW.COS * n + d] = cos_a
-        off_path = (abs(angle) >= 1e6) | (angle != angle) | (in_win & ((abs(ref) >= 1e6) | (ref != ref)))
+            lw, u = law_input(load_law(w, ROW.LW * n + d, n), u, cs, obs, q[CTRL.DT], n)
+            store_law(w, ROW.LW * n + d, n, lw)
+        cs, v, v_next, obs, m, off_path = control_period(period, x, cs, v_next, obs, m, q, u,
+                                                         win_start, ref_rate, n)
+        store_controller(w, at, n, period + 1.0, cs, v_next, obs)
+        store_metrics(w, ROW.AC * n + d, n, m)
+        w[ROW.VA * n + d] = v[0]
+        w[ROW.VB * n + d] = v[1]
+        w[ROW.SIN * n + d] = obs.sin_angle
+        w[ROW.COS * n + d] = obs.cos_angle
         w[ROW.RARE * n + d] = 1.0 if off_path else 0.0
 
 
 @_jit
 def plant_lanes(w):
-    """One plant step (the kernel's ``plant_step``) for every lane, in place."""
+    """One plant step (:func:`kernel.plant_step_in`, compiled for lanes) for every
+    lane, in place."""
     n = LANES
     for d in range(n):
         c = _config_column(w, ROW.CFG, d)
-        p = _plant_params(c)
-        va, vb = w[ROW.VA * n + d], w[ROW.VB * n + d]
-        h = c[CONFIG.DT] / int(c[CONFIG.SUBSTEPS])
-        th, om, ia, ib = w[_st(STATE.THETA, d)], w[_st(STATE.OMEGA, d)], w[_st(STATE.IA, d)], w[_st(STATE.IB, d)]
-        nr = p[PLANT.NR]
-        hh = 0.5 * h
-        x0 = nr * th
-        s0, c0 = sincos_lane(x0)
-        # plant_step's stick decision: the driving torque at rest, at x0.
-        stuck = ((abs(om) < c[CONFIG.W_STICK])
-                 & (abs(driving_torque_sc(s0, c0, 0.0, ia, ib, p)) <= p[PLANT.FS]))
-        # rk4_step
-        k1 = motor_derivative_sc(s0, c0, om, ia, ib, va, vb, p)
-        shift2 = nr * hh * k1[0]
-        s2, c2 = sincos_rotated(s0, c0, shift2)
-        k2 = motor_derivative_sc(s2, c2, om + hh * k1[1], ia + hh * k1[2], ib + hh * k1[3], va, vb, p)
-        shift3 = nr * hh * k2[0]
-        s3, c3 = sincos_rotated(s0, c0, shift3)
-        k3 = motor_derivative_sc(s3, c3, om + hh * k2[1], ia + hh * k2[2], ib + hh * k2[3], va, vb, p)
-        shift4 = nr * h * k3[0]
-        s4, c4 = sincos_rotated(s0, c0, shift4)
-        k4 = motor_derivative_sc(s4, c4, om + h * k3[1], ia + h * k3[2], ib + h * k3[3], va, vb, p)
-        x = (th, om, ia, ib, w[_st(STATE.E_IN, d)], w[_st(STATE.E_CU, d)], w[_st(STATE.E_DAMP, d)],
-             w[_st(STATE.E_FRIC, d)], w[_st(STATE.E_LOAD, d)])
-        # Both steps computed, one selected (plant_step's branch).
-        moving = rk4_combine(x, k1, k2, k3, k4, h)
-        held = rk4_step_stuck(x, va, vb, p, h)
-        w[_st(STATE.THETA, d)] = held[0] if stuck else moving[0]
-        w[_st(STATE.OMEGA, d)] = held[1] if stuck else moving[1]
-        w[_st(STATE.IA, d)] = held[2] if stuck else moving[2]
-        w[_st(STATE.IB, d)] = held[3] if stuck else moving[3]
-        w[_st(STATE.E_IN, d)] = held[4] if stuck else moving[4]
-        w[_st(STATE.E_CU, d)] = held[5] if stuck else moving[5]
-        w[_st(STATE.E_DAMP, d)] = held[6] if stuck else moving[6]
-        w[_st(STATE.E_FRIC, d)] = held[7] if stuck else moving[7]
-        w[_st(STATE.E_LOAD, d)] = held[8] if stuck else moving[8]
-        off_path = (abs(x0) >= 1e6) | (x0 != x0) | ((not stuck) & (
-            (abs(shift2) > 0.125) | (abs(shift3) > 0.125) | (abs(shift4) > 0.125)))
+        at = ROW.ST * n + d
+        x, off_path = plant_step_in(load_plant(w, at, n), w[ROW.VA * n + d], w[ROW.VB * n + d],
+                                    _plant_params(c), c[CONFIG.DT] / int(c[CONFIG.SUBSTEPS]),
+                                    c[CONFIG.W_STICK], n)
+        store_plant(w, at, n, x)
         w[ROW.RARE * n + d] = 1.0 if off_path | (w[ROW.RARE * n + d] != 0.0) else 0.0
 
 

@@ -24,26 +24,32 @@ One PWM period of length dt = 1/pwm_hz, starting at t_k = k*dt, does:
 4. integrate the plant over the period with ``substeps`` RK4 steps at constant
    winding voltage (exact ZOH: voltages only change at period boundaries).
 
-The pieces live in four modules: :mod:`.layout` (the rows), :mod:`.plant`,
-:mod:`.control` and :mod:`.loop`; every name is importable from here.
+The pieces live in five modules: :mod:`.layout` (the rows), :mod:`.plant`,
+:mod:`.control`, :mod:`.period` (one period, defined once for a drive's own
+loop and for :mod:`stepdamp_env.lanes`) and :mod:`.loop`; every name is
+importable from here.
 """
 
 from __future__ import annotations
 
-from .control import (command, constant_speed_command, control_step, controller_params,
+from .control import (LANES_VARIANT, command, constant_speed_command, control_step, controller_params,
                       current_command, current_loop, estimate_velocity, feedforward_torque,
-                      gaussian_pair, move_command, quantise, sense_currents, splitmix64,
+                      gaussian_pair, in_lanes_variant, move_command, quantise, sense_currents, splitmix64,
                       uniform_pair, voltage_drive)
 from .layout import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, MODE, PLANT, PROFILE, STATE, TRACE,
-                     TRACE_NAMES, TRACE_UNITS, VEL_EST)
-from .loop import (law_current, law_feedback, merge_rows, resonant_phasor, run_batch,
+                     TRACE_NAMES, TRACE_UNITS, VEL_EST, ControllerState, LawState, Metrics,
+                     Sample)
+from .loop import (merge_rows, run_batch,
                    run_batch_law, run_batch_law_parallel, run_batch_parallel, run_periods,
                    run_periods_law, step_batch, step_batch_parallel, without_law)
+from .period import (accumulate, control_period, law_current, law_input, load_controller, load_law,
+                     load_metrics, load_plant, resonant_phasor, store_controller, store_law,
+                     store_metrics, store_plant)
 from .plant import (detent_potential, detent_torque, driving_torque, driving_torque_sc,
                     electromagnetic_torque, friction_torque, harmonic_series, harmonics,
                     inverse_park, inverse_park_sc, motor_derivative, motor_derivative_sc, park,
-                    park_sc, pi_output, pi_update, plant_params, plant_step, rk4_combine, rk4_step,
-                    rk4_step_stuck, svpwm_legs)
+                    park_sc, pi_output, pi_update, plant_params, plant_step, plant_step_in,
+                    rk4_combine, rk4_moving, rk4_step, rk4_step_stuck, svpwm_legs)
 
 __all__ = ["CONFIG", "DRIVE", "VEL_EST", "MODE", "PROFILE", "PLANT", "CTRL", "STATE", "ACC",
            "INPUT", "LAW", "TRACE", "TRACE_NAMES", "TRACE_UNITS", "park_sc", "inverse_park_sc",
@@ -55,6 +61,10 @@ __all__ = ["CONFIG", "DRIVE", "VEL_EST", "MODE", "PROFILE", "PLANT", "CTRL", "ST
            "constant_speed_command", "move_command", "command", "controller_params",
            "feedforward_torque", "sense_currents", "estimate_velocity", "current_command",
            "voltage_drive", "current_loop", "control_step", "run_periods", "run_periods_law",
-           "law_feedback", "resonant_phasor", "law_current", "run_batch", "run_batch_law",
+           "resonant_phasor", "law_input", "law_current", "run_batch", "run_batch_law",
            "run_batch_parallel", "run_batch_law_parallel", "merge_rows", "step_batch",
-           "step_batch_parallel", "without_law"]
+           "step_batch_parallel", "without_law", "ControllerState", "Sample", "Metrics",
+           "LANES_VARIANT", "in_lanes_variant", "accumulate", "control_period", "load_controller",
+           "store_controller", "load_plant", "store_plant", "load_metrics", "store_metrics",
+           "load_law", "store_law", "LawState",
+           "plant_step_in", "rk4_moving"]

@@ -9,12 +9,12 @@ import math
 import numpy as np
 from numba import njit
 
-from ..fixedmath import log, sincos, sincos_shifted
-from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST
+from ..fixedmath import log_in, sincos, sincos_in, sincos_shifted
+from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST, ControllerState, Sample
 from .plant import harmonic_series, inverse_park_sc, park_sc, pi_output, pi_update, svpwm_legs
 
 __all__ = ["splitmix64", "uniform_pair", "gaussian_pair", "quantise", "constant_speed_command",
-           "move_command", "command", "controller_params", "feedforward_torque", "sense_currents",
+           "move_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params", "feedforward_torque", "sense_currents",
            "estimate_velocity", "current_command", "voltage_drive", "current_loop", "control_step"]
 
 # No Python error checks on division: the inputs are validated before they get here.
@@ -52,17 +52,17 @@ def uniform_pair(seed, counter):
     return u1, u2
 
 
-@_jit
-def gaussian_pair(seed, counter):
+@_jit_inline
+def gaussian_pair(seed, counter, lanes=None):
     """Two independent standard normal samples for (seed, counter).
 
     Counter-based (Box-Muller on hashed counters, :func:`uniform_pair`): the noise
     of PWM period k is a function of k alone, so it does not depend on how a run
-    is chunked.
+    is chunked. ``lanes``: see :func:`control_step`.
     """
     u1, u2 = uniform_pair(seed, counter)
-    r = math.sqrt(-2.0 * log(u1))
-    s, c = sincos(2.0 * math.pi * u2)
+    r = math.sqrt(-2.0 * log_in(u1, lanes))
+    s, c = sincos_in(2.0 * math.pi * u2, lanes)
     return r * c, r * s
 
 
@@ -120,9 +120,26 @@ def command(t, kind, speed, accel, distance):
     return move_command(t, speed, accel, distance)
 
 
+#: The drive variant that runs in SIMD lanes (:mod:`stepdamp_env.lanes`): open
+#: loop, current mode, the encoder's low-pass velocity, a constant-speed profile.
+LANES_VARIANT = {"mode": MODE.OPEN_LOOP, "drive": DRIVE.CURRENT, "vel_est": VEL_EST.LOWPASS,
+                 "profile": PROFILE.CONSTANT}
+_L_MODE, _L_DRIVE, _L_VEL_EST, _L_PROFILE = (float(LANES_VARIANT[k]) for k in
+                                             ("mode", "drive", "vel_est", "profile"))
+
+
+@_jit_inline
+def in_lanes_variant(c):
+    """True if the drive of CONFIG row ``c`` is of :data:`LANES_VARIANT`."""
+    return (c[CONFIG.MODE] == _L_MODE and c[CONFIG.DRIVE_MODE] == _L_DRIVE
+            and c[CONFIG.VEL_EST] == _L_VEL_EST and c[CONFIG.PROFILE] == _L_PROFILE)
+
+
 @_jit
-def controller_params(c):
-    """The controller's constants as a tuple, the form :func:`control_step` takes.
+def controller_params(c, lanes=None):
+    """The controller's constants as a tuple, the form :func:`control_step` takes;
+    for SIMD lanes (``lanes`` not None) the variant's codes are constants
+    (:data:`LANES_VARIANT`), so the other variants' branches compile away.
 
     Positions are the ``Q_*`` names: (dt, Nr, holding current, microstep angle,
     Kp_i, Ki_i, encoder angle, velocity filter alpha, Kp_vel, Kp_pos, Ki_pos,
@@ -131,13 +148,19 @@ def controller_params(c):
     velocity estimator, Kalman k0, k1, back-EMF G1, G2, drive mode, R and L of
     the voltage mode's winding model).
     """
+    mode = c[CONFIG.MODE] if lanes is None else _L_MODE
+    drive = c[CONFIG.DRIVE_MODE] if lanes is None else _L_DRIVE
+    vel_est = c[CONFIG.VEL_EST] if lanes is None else _L_VEL_EST
+    profile = c[CONFIG.PROFILE] if lanes is None else _L_PROFILE
     return (c[CONFIG.DT], c[CONFIG.NR], c[CONFIG.HOLD], c[CONFIG.MICROSTEP], c[CONFIG.KP_I], c[CONFIG.KI_I],
             c[CONFIG.ENCODER], c[CONFIG.VEL_ALPHA], c[CONFIG.KP_VEL], c[CONFIG.KP_POS], c[CONFIG.KI_POS],
-            c[CONFIG.MODE], c[CONFIG.BASE_CONTROLLER], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
+            mode, c[CONFIG.BASE_CONTROLLER], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
             c[CONFIG.FF_S1], c[CONFIG.FF_C1], c[CONFIG.FF_S2], c[CONFIG.FF_C2], c[CONFIG.FF_S4], c[CONFIG.FF_C4],
-            c[CONFIG.VDC], c[CONFIG.PROFILE], c[CONFIG.SPEED], c[CONFIG.ACCEL], c[CONFIG.DISTANCE],
-            c[CONFIG.I_NOISE], c[CONFIG.I_OFFSET_A], c[CONFIG.I_OFFSET_B], c[CONFIG.NOISE_SEED], c[CONFIG.VEL_EST],
-            c[CONFIG.KF_K0], c[CONFIG.KF_K1], c[CONFIG.BEMF_G1], c[CONFIG.BEMF_G2], c[CONFIG.DRIVE_MODE],
+            c[CONFIG.VDC], profile, c[CONFIG.SPEED], c[CONFIG.ACCEL], c[CONFIG.DISTANCE],
+            c[CONFIG.I_NOISE], c[CONFIG.I_OFFSET_A], c[CONFIG.I_OFFSET_B], c[CONFIG.NOISE_SEED],
+            vel_est,
+            c[CONFIG.KF_K0], c[CONFIG.KF_K1], c[CONFIG.BEMF_G1], c[CONFIG.BEMF_G2],
+            drive,
             c[CONFIG.R_EST], c[CONFIG.L_EST])
 
 
@@ -156,14 +179,17 @@ def feedforward_torque(sin_x, cos_x, q, u):
 
 
 @_jit_inline
-def sense_currents(period, ia, ib, q):
+def sense_currents(period, ia, ib, q, lanes=None):
     """The current sensors' readings (A) of the true ``ia``, ``ib``: offset and,
-    if set, noise drawn for ``period``."""
-    if q[CTRL.I_NOISE] != 0.0:
-        noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period)
-        return (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a,
-                ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b)
-    return ia + q[CTRL.I_OFFSET_A], ib + q[CTRL.I_OFFSET_B]
+    if set, noise drawn for ``period``. ``lanes``: see :func:`control_step`."""
+    noisy = q[CTRL.I_NOISE] != 0.0
+    noise_a = noise_b = 0.0
+    if lanes is not None or noisy:
+        noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period, lanes)
+    return (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a if noisy
+            else ia + q[CTRL.I_OFFSET_A],
+            ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b if noisy
+            else ib + q[CTRL.I_OFFSET_B])
 
 
 @_jit_inline
@@ -199,14 +225,14 @@ def estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_p
 
 
 @_jit_inline
-def current_command(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u):
+def current_command(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lanes=None):
     """The mode's current command: returns (pos_int, Park angle (rad), its sine
-    and cosine, id_cmd, iq_cmd, iq_injected (A))."""
+    and cosine, id_cmd, iq_cmd, iq_injected (A)). ``lanes``: see :func:`control_step`."""
     nr, dt = q[CTRL.NR], q[CTRL.DT]
     if q[CTRL.MODE] == MODE.OPEN_LOOP:
         # Eqs. 7-8: Park angle and feedforward at the microstep-quantised command.
         angle = nr * quantise(theta_cmd, q[CTRL.MICROSTEP])
-        sin_a, cos_a = sincos(angle)
+        sin_a, cos_a = sincos_in(angle, lanes)
         iq_inj = feedforward_torque(sin_a, cos_a, q, u) * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ]
         return pos_int, angle, sin_a, cos_a, q[CTRL.HOLD], iq_inj, iq_inj
     # Eqs. 14-15 at the encoder angle, taken at the centre of its count (a
@@ -268,7 +294,7 @@ def current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a, cos_a, q):
 
 
 @_jit_inline
-def control_step(period, theta, ia, ib, cs, q, u):
+def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
     """The controller of PWM period ``period`` (a count): a pure function, one
     job per piece: the command, the sensors (:func:`sense_currents`), the
     velocity estimate (:func:`estimate_velocity`), the mode's current command
@@ -282,9 +308,14 @@ def control_step(period, theta, ia, ib, cs, q, u):
     controller's state (the caller sets the last two);
     ``q`` is :func:`controller_params`, ``u`` the external inputs.
 
-    Returns (new cs, (va, vb) winding voltages to apply next period,
-    (theta_fb, theta_cmd, omega_cmd, id, iq, iq_cmd, iq_injected, angle, sin angle,
-    cos angle)).
+    ``lanes`` None: a drive's own loop. Not None: compiled for SIMD lanes
+    (:mod:`stepdamp_env.lanes`; ``q`` from ``controller_params(c, lanes)``):
+    the branch-free sine, cosine and logarithm, both branches of the sensor
+    noise computed and one selected, so a loop over lanes vectorises; the same
+    arithmetic, so the same bits.
+
+    Returns (the new :class:`.layout.ControllerState`, (va, vb) winding voltages
+    to apply next period, the period's :class:`.layout.Sample`).
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
         vb_old = cs
@@ -292,20 +323,21 @@ def control_step(period, theta, ia, ib, cs, q, u):
     theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL], q[CTRL.DISTANCE])
     # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[CTRL.ENCODER])
-    ia, ib = sense_currents(period, ia, ib, q)
+    ia, ib = sense_currents(period, ia, ib, q, lanes)
     omega_fb, theta_est = estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib,
                                             ia_prev, ib_prev, va_old, vb_old, theta_cmd,
                                             omega_cmd, q)
     pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command(
-        theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u)
+        theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lanes)
     id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
     if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
         va, vb = voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
     else:
         int_d, int_q, va, vb = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a,
                                             cos_a, q)
-    return ((int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old, vb_old),
+    return (ControllerState(int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
+                            vb_old),
             (va, vb),
-            (theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
+            Sample(theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
 
 

@@ -6,10 +6,13 @@ codes ``DRIVE``, ``VEL_EST``, ``MODE``, ``PROFILE``."""
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 from ..fields import describe, layout
 
 __all__ = ["CONFIG", "DRIVE", "VEL_EST", "MODE", "PROFILE", "PLANT", "CTRL", "STATE", "ACC",
-           "INPUT", "LAW", "TRACE", "TRACE_NAMES", "TRACE_UNITS"]
+           "INPUT", "LAW", "TRACE", "TRACE_NAMES", "TRACE_UNITS", "ControllerState", "Sample",
+           "Metrics", "LawState"]
 
 # ---------------------------------------------------------------------------
 # Configuration vector (per drive, float64). Plant truth, drive, controller.
@@ -285,3 +288,23 @@ TRACE = layout("Trace", """
 TRACE_NAMES = tuple(name.lower() for name in TRACE._fields)
 #: SI unit of each trace channel.
 TRACE_UNITS = {name.lower(): text.split(",")[0] for name, text in describe(TRACE).items()}
+
+# ---------------------------------------------------------------------------
+# The tuples the loop carries from period to period (numba keeps them in
+# registers); :mod:`.period` loads them from, and stores them in, the rows.
+# ---------------------------------------------------------------------------
+#: The controller's state: the PI integrators (V), the previous encoder angle
+#: (rad), the velocity estimate (rad/s), the servo's position-error integral
+#: (rad*s), the Kalman angle (rad), the previous measured phase currents (A),
+#: the voltages applied during the period that just ended (V).
+ControllerState = namedtuple("ControllerState", "int_d int_q theta_fb_prev omega_fb pos_int "
+                                                "theta_est ia_prev ib_prev va_old vb_old")
+#: A period's sample and command: encoder angle, command angle (rad) and speed
+#: (rad/s), measured d/q currents, q current command, injected q current (A),
+#: Park angle (rad), its sine and cosine.
+Sample = namedtuple("Sample", "theta_fb theta_cmd omega_cmd id iq iq_cmd iq_ff angle sin_angle "
+                              "cos_angle")
+#: The accumulated metrics, in ACC's order (ACC's fields, lower case).
+Metrics = namedtuple("Metrics", [name.lower() for name in ACC._fields])
+#: The damping law's gains and state, in LAW's order (LAW's fields, lower case).
+LawState = namedtuple("LawState", [name.lower() for name in LAW._fields])

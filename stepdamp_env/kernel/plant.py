@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..fixedmath import sincos, sincos_shifted
+from ..fixedmath import sincos, sincos_in, sincos_shifted_in
 from .layout import CONFIG, PLANT
 
 __all__ = ["park_sc", "inverse_park_sc", "park", "inverse_park", "svpwm_legs", "pi_output",
            "pi_update", "harmonics", "harmonic_series", "plant_params", "detent_torque",
            "detent_potential", "electromagnetic_torque", "friction_torque", "driving_torque",
            "driving_torque_sc", "motor_derivative_sc", "motor_derivative", "rk4_step",
-           "rk4_combine", "plant_step", "rk4_step_stuck"]
+           "rk4_moving", "rk4_combine", "plant_step", "plant_step_in", "rk4_step_stuck"]
 
 # No Python error checks on division: the inputs are validated before they get here.
 # No fastmath, not even contraction: a fused multiply-add rounds once where a CPU
@@ -211,22 +211,35 @@ def rk4_step(x, va, vb, p, h):
     energies (J) are integrated with the same stages, so the balance closes to
     the integrator's accuracy. Returns the new ``x``.
     """
-    th, w, ia, ib = x[0], x[1], x[2], x[3]
+    x0 = p[PLANT.NR] * x[0]
+    s0, c0 = sincos(x0)
+    return rk4_moving(x, x0, s0, c0, va, vb, p, h, None)[0]
+
+
+@_jit_inline
+def rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes):
+    """:func:`rk4_step` given x0 = Nr*theta and its sine and cosine; returns the
+    new ``x`` and whether a stage shifted x0 by more than 1/8 rad (beyond
+    :func:`..fixedmath.sincos_rotated`'s range: only lanes, ``lanes`` not None,
+    need to know)."""
+    w, ia, ib = x[1], x[2], x[3]
     nr = p[PLANT.NR]
     hh = 0.5 * h
-    x0 = nr * th
-    s0, c0 = sincos(x0)
     k1 = motor_derivative_sc(s0, c0, w, ia, ib, va, vb, p)
-    s2, c2 = sincos_shifted(x0, s0, c0, nr * hh * k1[0])
+    shift2 = nr * hh * k1[0]
+    s2, c2 = sincos_shifted_in(x0, s0, c0, shift2, lanes)
     k2 = motor_derivative_sc(s2, c2, w + hh * k1[1], ia + hh * k1[2], ib + hh * k1[3],
                              va, vb, p)
-    s3, c3 = sincos_shifted(x0, s0, c0, nr * hh * k2[0])
+    shift3 = nr * hh * k2[0]
+    s3, c3 = sincos_shifted_in(x0, s0, c0, shift3, lanes)
     k3 = motor_derivative_sc(s3, c3, w + hh * k2[1], ia + hh * k2[2], ib + hh * k2[3],
                              va, vb, p)
-    s4, c4 = sincos_shifted(x0, s0, c0, nr * h * k3[0])
+    shift4 = nr * h * k3[0]
+    s4, c4 = sincos_shifted_in(x0, s0, c0, shift4, lanes)
     k4 = motor_derivative_sc(s4, c4, w + h * k3[1], ia + h * k3[2], ib + h * k3[3],
                              va, vb, p)
-    return rk4_combine(x, k1, k2, k3, k4, h)
+    far = (abs(shift2) > 0.125) | (abs(shift3) > 0.125) | (abs(shift4) > 0.125)
+    return rk4_combine(x, k1, k2, k3, k4, h), far
 
 
 @_jit_inline
@@ -253,10 +266,35 @@ def plant_step(x, va, vb, p, h, w_stick):
     (the kinetic energy removed, 0.5*J*w^2, is booked as friction loss) and
     friction holds it for the step. Returns the new ``x`` (see rk4_step).
     """
-    w = x[1]
-    if abs(w) < w_stick and abs(driving_torque(x[0], 0.0, x[2], x[3], p)) <= p[PLANT.FS]:
-        return rk4_step_stuck(x, va, vb, p, h)
-    return rk4_step(x, va, vb, p, h)
+    return plant_step_in(x, va, vb, p, h, w_stick, None)[0]
+
+
+@_jit_inline
+def plant_step_in(x, va, vb, p, h, w_stick, lanes):
+    """:func:`plant_step`, the one definition for a drive's own loop (``lanes``
+    None: branches) and for SIMD lanes (``lanes`` not None, chosen when
+    compiled: both steps computed, one selected). Returns the new ``x`` and,
+    for lanes, whether the step left their branch-free path (an angle beyond
+    1e6 rad or NaN, a stage shift beyond 1/8 rad); False for a drive's loop."""
+    x0 = p[PLANT.NR] * x[0]
+    s0, c0 = sincos_in(x0, lanes)
+    # The stick decision: the driving torque at rest, at x0 (computed only for a
+    # slow rotor, except in lanes).
+    stuck = abs(x[1]) < w_stick
+    if lanes is not None or stuck:
+        stuck = stuck & (abs(driving_torque_sc(s0, c0, 0.0, x[2], x[3], p)) <= p[PLANT.FS])
+    if lanes is None and stuck:
+        return rk4_step_stuck(x, va, vb, p, h), False
+    moving, far = rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes)
+    if lanes is None:
+        return moving, False
+    held = rk4_step_stuck(x, va, vb, p, h)
+    off_path = (abs(x0) >= 1e6) | (x0 != x0) | ((not stuck) & far)
+    return ((held[0] if stuck else moving[0], held[1] if stuck else moving[1],
+             held[2] if stuck else moving[2], held[3] if stuck else moving[3],
+             held[4] if stuck else moving[4], held[5] if stuck else moving[5],
+             held[6] if stuck else moving[6], held[7] if stuck else moving[7],
+             held[8] if stuck else moving[8]), off_path)
 
 
 @_jit_inline
