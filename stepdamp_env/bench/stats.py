@@ -1,5 +1,6 @@
 """Statistics of the leaderboard: interquartile mean, stratified (v0) and two-level
-(v1) bootstrap intervals, probability of improvement."""
+(v1) bootstrap intervals, probability of improvement, and ranks from paired
+comparisons over motors (:func:`paired_ranks`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from .. import fixedmath as fm
 __all__ = ["iqm", "stratified_bootstrap_ci", "summary", "two_level_bootstrap",
            "probability_of_improvement", "cell_summary", "normal_quantile",
            "student_t_quantile", "widening_factor", "motor_mean_bootstrap",
-           "median_difference", "rank_groups"]
+           "median_difference", "rank_groups", "paired_difference", "paired_ranks"]
 
 
 def _iqm_weights(n: int) -> np.ndarray:
@@ -357,4 +358,70 @@ def rank_groups(estimates: Sequence[float], intervals: Sequence[Sequence[float]]
     for k, lo_hi in enumerate(intervals):
         out.append(1 + sum(1 for j, other in enumerate(intervals)
                            if finite(j) and other[0] > lo_hi[1]) if finite(k) else None)
+    return out
+
+
+def paired_difference(x: Mapping[Any, float], y: Mapping[Any, float],
+                      strata: Mapping[Any, Any] | None = None, *, resamples: int = 2000,
+                      seed: int = 2000, confidence: float = 0.95) -> dict[str, Any]:
+    """X against Y paired by motor (per-motor scores, higher better), on the motors
+    both have a finite score for: the IQM over motors of x - y, the lower end
+    of its two-sided ``confidence`` interval (motors drawn within their strata,
+    widened as in :func:`motor_mean_bootstrap`; so two entries are told apart,
+    in either direction, at level 1 - ``confidence``), and the share of motors
+    where X scores higher (ties half; with one cell per motor, rliable's
+    probability that X improves on Y)."""
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r} is outside (0, 1)")
+    common = sorted((k for k in set(x) & set(y)
+                     if math.isfinite(x[k]) and math.isfinite(y[k])), key=str)
+    if not common:
+        return {"iqm": math.nan, "low": math.nan, "share": math.nan, "motors": 0}
+    d = np.array([x[k] - y[k] for k in common], dtype=float)
+    share = float(((d > 0).sum() + 0.5 * (d == 0).sum()) / d.size)
+    est = iqm(d)
+    rng = np.random.default_rng(seed)
+    m_idx = _motor_draws(common, strata, rng, resamples)
+    sample = np.sort(d[m_idx], axis=1)
+    stats = fm.weighted_rows(np.ascontiguousarray(sample), _iqm_weights(sample.shape[1]))
+    q = float(np.quantile(stats, (1.0 - confidence) / 2.0))
+    low = est - widening_factor(len(common), confidence) * (est - q)
+    return {"iqm": est, "low": low, "share": share, "motors": len(common)}
+
+
+def paired_ranks(estimates: Mapping[Any, float], per_motor: Mapping[Any, Mapping[Any, float]],
+                 strata: Mapping[Any, Any] | None = None, *, confidence: float = 0.95,
+                 decisive_share: float = 0.95, min_motors: int = 3, resamples: int = 2000,
+                 seed: int = 2000) -> dict[Any, int | None]:
+    """Ranks (1 best, higher scores better) from paired comparisons over motors.
+
+    Entry J beats entry K when, on their common motors (at least ``min_motors``),
+    the IQM of J's per-motor score minus K's is above 0 and either its lower
+    bound (:func:`paired_difference` at ``confidence``) is above 0 or J scores
+    higher on at least ``decisive_share`` of the motors. An entry's rank is 1 +
+    the number of entries that beat it; ranks are then made monotone in
+    ``estimates`` (the entries in decreasing order of their estimate; an entry
+    never ranks above one with a higher estimate) and shifted so that the first
+    is 1. So an entry shares rank 1 only if no entry beats it, the leader
+    included, and a higher estimate never has a worse rank. An entry without a
+    finite estimate gets None."""
+    names = sorted((k for k in estimates if math.isfinite(estimates[k])),
+                   key=lambda k: (-estimates[k], str(k)))
+
+    def beats(j: Any, k: Any) -> bool:
+        t = paired_difference(per_motor.get(j, {}), per_motor.get(k, {}), strata,
+                              resamples=resamples, seed=seed, confidence=confidence)
+        return (t["motors"] >= min_motors and t["iqm"] > 0.0
+                and (t["low"] > 0.0 or t["share"] >= decisive_share))
+
+    raw = {k: 1 + sum(beats(j, k) for j in names if j != k) for k in names}
+    out: dict[Any, int | None] = {k: None for k in estimates}
+    best = 0
+    for k in names:
+        best = max(best, raw[k])
+        out[k] = best
+    if names:
+        first = out[names[0]]
+        for k in names:
+            out[k] = int(out[k]) - int(first) + 1
     return out
