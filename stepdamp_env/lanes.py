@@ -224,7 +224,7 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
             w[ROW.COS * n + d] = cos_a
         if laws is not None:
             _load(w, first, laws, ROW.LW, m)
-            # Whether the resonant terms run is set once per call, as in _advance.
+            # Whether the resonant terms run is set once per call, as in run_periods_law.
             for d in range(n):
                 on = 0.0
                 for j in range(LAW.KR1, LAW.KI4 + 1):

@@ -14,8 +14,9 @@ from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST, Controll
 from .plant import harmonic_series, inverse_park_sc, park_sc, pi_output, pi_update, svpwm_legs
 
 __all__ = ["splitmix64", "uniform_pair", "gaussian_pair", "quantise", "constant_speed_command",
-           "move_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params", "feedforward_torque", "sense_currents",
-           "estimate_velocity", "current_command", "voltage_drive", "current_loop", "control_step"]
+           "move_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params",
+           "feedforward_torque", "sense_currents", "estimate_velocity", "current_command",
+           "voltage_drive", "current_loop", "control_step"]
 
 # No Python error checks on division: the inputs are validated before they get here.
 # No fastmath, not even contraction: a fused multiply-add rounds once where a CPU
@@ -158,10 +159,8 @@ def controller_params(c, lanes=None):
             c[CONFIG.FF_S1], c[CONFIG.FF_C1], c[CONFIG.FF_S2], c[CONFIG.FF_C2], c[CONFIG.FF_S4], c[CONFIG.FF_C4],
             c[CONFIG.VDC], profile, c[CONFIG.SPEED], c[CONFIG.ACCEL], c[CONFIG.DISTANCE],
             c[CONFIG.I_NOISE], c[CONFIG.I_OFFSET_A], c[CONFIG.I_OFFSET_B], c[CONFIG.NOISE_SEED],
-            vel_est,
-            c[CONFIG.KF_K0], c[CONFIG.KF_K1], c[CONFIG.BEMF_G1], c[CONFIG.BEMF_G2],
-            drive,
-            c[CONFIG.R_EST], c[CONFIG.L_EST])
+            vel_est, c[CONFIG.KF_K0], c[CONFIG.KF_K1], c[CONFIG.BEMF_G1], c[CONFIG.BEMF_G2],
+            drive, c[CONFIG.R_EST], c[CONFIG.L_EST])
 
 
 @_jit_inline

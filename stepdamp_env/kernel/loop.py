@@ -16,18 +16,15 @@ from .period import (control_period, law_input, load_controller, load_law, load_
                      store_controller, store_law, store_metrics, store_plant)
 from .plant import plant_params, plant_step
 
-__all__ = ["run_periods", "run_periods_law", "step_batch", "step_batch_parallel", "without_law", "run_batch", "run_batch_law",
-           "run_batch_parallel", "run_batch_law_parallel", "merge_rows"]
+__all__ = ["run_periods", "run_periods_law", "step_batch", "step_batch_parallel", "without_law",
+           "run_batch", "run_batch_law", "run_batch_parallel", "run_batch_law_parallel",
+           "merge_rows"]
 
 # No Python error checks on division: the inputs are validated before they get here.
 # No fastmath, not even contraction: a fused multiply-add rounds once where a CPU
 # without FMA rounds twice, and the result must not depend on the CPU
 # (:mod:`.fixedmath`).
 _jit = njit(cache=True, error_model="numpy")
-# The pieces of the hot loop are inlined at numba-IR level: LLVM's own inliner
-# leaves many as calls that return tuples through memory (measured with
-# benchmarks/bench_sim.py: about 10 % of the loop's time).
-_jit_inline = njit(cache=True, error_model="numpy", inline="always")
 
 # ---------------------------------------------------------------------------
 # The fused loop

@@ -2,17 +2,16 @@
 
 :func:`law_input` is the damping law of one period, :func:`control_period`
 the sample, the controller and the metrics; :func:`.plant.plant_step_in` its
-plant steps. The
-drive's own loop (:mod:`.loop`, a row per drive) and the SIMD lanes
-(:mod:`stepdamp_env.lanes`, a structure of arrays) call the same functions:
-a row's field j is ``a[at + j*step]`` (``at`` the row's start and ``step`` 1
-for a row of its own; a lane's index and LANES in the lanes' workspace), and
-``lanes`` None compiles the drive's loop (with branches) while a workspace
+plant steps. The drive's own loop (:mod:`.loop`, a row per drive) and the
+SIMD lanes (:mod:`stepdamp_env.lanes`, a structure of arrays) call the same
+functions: a row's field j is ``a[at + j*step]`` (``at`` the row's start and
+``step`` 1 for a row of its own; in the lanes' workspace ``at`` is the
+block's first row times LANES plus the lane, and ``step`` LANES), and
+``lanes`` None compiles the drive's loop (with branches) while the lane count
 compiles the lanes' (both branches computed and one selected, the branch-free
 sine, cosine and logarithm, :data:`.control.LANES_VARIANT`'s codes as
 constants). The arithmetic is the same, in the same order, so both give the
-same bits.
-"""
+same bits."""
 
 from __future__ import annotations
 
