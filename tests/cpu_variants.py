@@ -1,6 +1,6 @@
 """The quick boards under emulated CPUs: the same numbers on every x86-64 CPU.
 
-Each variant runs the quick boards of v0, v1, v2 and v3 (every default entry of
+Each variant runs the quick boards of v0 to v4 (every default entry of
 each version, ``Protocol.default_entries``: the identification, estimators,
 adaptive laws, learned networks and statistics all run) in a fresh process whose environment makes the libraries take the
 code paths of another CPU:
@@ -40,7 +40,7 @@ from typing import Any, Sequence
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 STORED = os.path.join(HERE, "data", "quick_boards.json")
-PROTOCOLS = ("v0", "v1", "v2", "v3")
+PROTOCOLS = ("v0", "v1", "v2", "v3", "v4")
 
 _ABOVE_V2 = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 _ABOVE_V3 = "X86_V4 AVX512_ICL AVX512_SPR"
@@ -75,9 +75,11 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
     from stepdamp_env.bench.provenance import entry_fingerprints
 
     from stepdamp_env.bench.protocols.v3 import full_protocol_v3, quick_protocol_v3
+    from stepdamp_env.bench.protocols.v4 import full_protocol_v4, quick_protocol_v4
 
     make = {"v0": (quick_protocol, full_protocol), "v1": (quick_protocol_v1, full_protocol_v1),
-            "v2": (quick_protocol_v2, full_protocol_v2), "v3": (quick_protocol_v3, full_protocol_v3)}
+            "v2": (quick_protocol_v2, full_protocol_v2), "v3": (quick_protocol_v3, full_protocol_v3),
+            "v4": (quick_protocol_v4, full_protocol_v4)}
     out = {}
     for name in protocols:
         board = run_leaderboard(make[name][full](), workers=workers, progress=False)

@@ -1,4 +1,4 @@
-"""The catalogue motors (``docs/motors/catalogue.json``): real motors from public
+"""The catalogue motors (``stepdamp_env/bench/catalogue.json``): real motors from public
 datasheets, for the coming catalogue split (stepdamp-bench v4). Every one loads
 as ``--motors`` reads it, says where its values come from, and runs."""
 
@@ -15,7 +15,7 @@ from stepdamp_env.bench.protocols.v3 import quick_protocol_v3
 from stepdamp_env.motorfile import load_system
 from stepdamp_env.simulation import RunSettings, simulate
 
-PATH = os.path.join(os.path.dirname(__file__), "..", "docs", "motors", "catalogue.json")
+PATH = os.path.join(os.path.dirname(__file__), "..", "stepdamp_env", "bench", "catalogue.json")
 
 
 def _items():

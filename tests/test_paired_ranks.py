@@ -74,6 +74,17 @@ def test_the_leader_beating_an_entry_on_95_percent_of_motors_keeps_it_off_rank_1
     assert paired_ranks(est, scores)["other"] == 2
 
 
+def test_a_given_probability_of_improvement_also_decides():
+    # Indistinguishable per-motor means, but the board's P says the leader wins.
+    scores = {"a": {f"m{i}": float(i) for i in range(6)},
+              "b": {f"m{i}": float(i) for i in range(6)}}
+    est = {"a": 1.0, "b": 0.5}
+    assert paired_ranks(est, scores) == {"a": 1, "b": 1}
+    assert paired_ranks(est, scores, probability={("a", "b"): 0.95, ("b", "a"): 0.05}) \
+        == {"a": 1, "b": 2}
+    assert paired_ranks(est, scores, probability={("a", "b"): 0.94}) == {"a": 1, "b": 1}
+
+
 def test_too_few_common_motors_decide_nothing():
     scores = {"a": {"m0": 10.0, "m1": 11.0}, "b": {"m0": 0.0, "m1": 1.0, "m2": 2.0}}
     assert paired_ranks({"a": 10.5, "b": 1.0}, scores) == {"a": 1, "b": 1}

@@ -469,6 +469,9 @@ def _board(protocol: Protocol, motors: Sequence[ProtocolMotor],
            "entries": entries}
     if not_run:
         out["not_run"] = not_run
+    tables = protocol.tables(entries)
+    if tables:
+        out["tables"] = tables
     run_s = sum(r["simulated_s"] for r in results)
     calib = _calibration_seconds(jobs, results)
     out["simulated_seconds"] = run_s + calib

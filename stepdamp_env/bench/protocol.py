@@ -165,6 +165,16 @@ class Protocol(abc.ABC):
         raise ParameterError(f"--split: {self.name} {self.version} has no choice of splits "
                              "(--protocol v3 or later)")
 
+    def with_eval_seeds(self, count: int) -> "Protocol":
+        """The same protocol with ``count`` evaluation seeds (``--eval-seeds``)."""
+        raise ParameterError(f"--eval-seeds: {self.name} {self.version}'s evaluation seeds are "
+                             "frozen (--protocol v4 or later)")
+
+    def tables(self, entries: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """Facts per suite and split the board records beside its rows (``tables``);
+        none (the default) before v4."""
+        return []
+
     def with_custom_motors(self, systems: Sequence["SystemParams"]) -> "Protocol":
         """The protocol on the user's motors (``--motors FILE``)."""
         raise ParameterError(f"--motors: {self.name} {self.version}'s motors are frozen; "

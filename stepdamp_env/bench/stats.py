@@ -392,13 +392,16 @@ def paired_difference(x: Mapping[Any, float], y: Mapping[Any, float],
 def paired_ranks(estimates: Mapping[Any, float], per_motor: Mapping[Any, Mapping[Any, float]],
                  strata: Mapping[Any, Any] | None = None, *, confidence: float = 0.95,
                  decisive_share: float = 0.95, min_motors: int = 3, resamples: int = 2000,
-                 seed: int = 2000) -> dict[Any, int | None]:
+                 seed: int = 2000, probability: Mapping[tuple[Any, Any], float] | None = None
+                 ) -> dict[Any, int | None]:
     """Ranks (1 best, higher scores better) from paired comparisons over motors.
 
     Entry J beats entry K when, on their common motors (at least ``min_motors``),
     the IQM of J's per-motor score minus K's is above 0 and either its lower
     bound (:func:`paired_difference` at ``confidence``) is above 0 or J scores
-    higher on at least ``decisive_share`` of the motors. An entry's rank is 1 +
+    higher on at least ``decisive_share`` of the motors, or ``probability[(J,
+    K)]`` (a board's P(J improves on K), if given) is at least
+    ``decisive_share``. An entry's rank is 1 +
     the number of entries that beat it; ranks are then made monotone in
     ``estimates`` (the entries in decreasing order of their estimate; an entry
     never ranks above one with a higher estimate) and shifted so that the first
@@ -411,8 +414,10 @@ def paired_ranks(estimates: Mapping[Any, float], per_motor: Mapping[Any, Mapping
     def beats(j: Any, k: Any) -> bool:
         t = paired_difference(per_motor.get(j, {}), per_motor.get(k, {}), strata,
                               resamples=resamples, seed=seed, confidence=confidence)
-        return (t["motors"] >= min_motors and t["iqm"] > 0.0
-                and (t["low"] > 0.0 or t["share"] >= decisive_share))
+        p = (probability or {}).get((j, k), math.nan)
+        return t["motors"] >= min_motors and (
+            (t["iqm"] > 0.0 and (t["low"] > 0.0 or t["share"] >= decisive_share))
+            or p >= decisive_share)
 
     raw = {k: 1 + sum(beats(j, k) for j in names if j != k) for k in names}
     out: dict[Any, int | None] = {k: None for k in estimates}

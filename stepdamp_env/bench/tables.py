@@ -16,7 +16,8 @@ PATENT_ENTRY = "patent-ff-identified"
 
 __all__ = ["PATENT_ENTRY", "best_eligible", "entry_knowledge", "entry_line", "entry_rows",
            "format_db", "format_summary", "has_splits", "render_ladder", "render_markdown",
-           "render_per_motor", "render_results", "render_suite_page", "row_notes", "row_rank",
+           "render_per_motor", "render_results", "render_suite_page", "render_table_facts",
+           "rank_rule", "row_notes", "row_rank", "table_facts_line",
            "score_label", "scored_in_db", "splits", "suite_page"]
 
 
@@ -56,17 +57,20 @@ def row_notes(e: Mapping[str, Any]) -> list[str]:
     no score, or it is privileged and still worse than no damping."""
     if "attenuation_db" not in e or e.get("reference"):
         return []
-    notes = []
     att = e["attenuation_db"]["iqm"]
     sl = e["step_losses"]
-    if sl["runs"] and sl["runs_lost"] == sl["runs"]:
-        notes.append("loses every run: the rotor falls behind the command at every speed "
-                     "of this suite on these motors, with or without this entry's help")
-    elif not math.isfinite(att):
+    if "notes" in e:            # v4: the protocol stated them from the table's data
+        notes = list(e["notes"])
+    elif sl["runs"] and sl["runs_lost"] == sl["runs"]:
+        notes = ["loses every run: the rotor falls behind the command at every speed "
+                 "of this suite on these motors, with or without this entry's help"]
+    else:
+        notes = []
+    if not math.isfinite(att) and not (sl["runs"] and sl["runs_lost"] == sl["runs"]):
         notes.append("no score: `none` lost every headline run on these motors, so there "
                      "is no undamped ripple to attenuate (a stalled rotor does not resonate)")
     errors = [r["error"] for r in e.get("runs", []) if r.get("error")]
-    if errors:
+    if errors and "notes" not in e:
         notes.append(f"could not run in {len(errors)} of {sl['runs']} runs, each counted as "
                      f"lost (first: {errors[0]})")
     if e.get("privileged") and math.isfinite(att) and att < 0.0:
@@ -74,6 +78,65 @@ def row_notes(e: Mapping[str, Any]) -> list[str]:
                      "does not make this law right for this motor and suite (a privileged "
                      "row shows what that knowledge buys its law; it is no floor)")
     return notes
+
+
+def rank_rule(protocol: Mapping[str, Any], before_v4: str, end: str = "") -> str:
+    """How the board's ranks were made: what the protocol records (v4 on; a
+    sentence where ``end`` ends one, else a clause), or ``before_v4`` (v3's
+    words, as its published pages have them) followed by ``end``."""
+    rule = protocol.get("rank_rule")
+    if rule is None:
+        return f"{before_v4}{end}"
+    return _sentence(str(rule)) if end else str(rule)
+
+
+def _sentence(clause: str) -> str:
+    return clause[:1].upper() + clause[1:] + "."
+
+
+def table_facts_line(t: Mapping[str, Any]) -> str:
+    """One table's facts (v4's ``tables``): cells, headroom, saturation, the
+    bound per motor, rank stability over the evaluation seeds."""
+    parts = [f"cells scored {t['cells']['scored']} of {t['cells']['split']}"]
+    if t.get("headroom_db") is not None:
+        parts.append(f"headroom {t['headroom_db']:+.1f} dB (bound minus `{t['best']}`)")
+    if t.get("saturated") is not None:
+        parts.append(("saturated" if t["saturated"] else "not saturated")
+                     + f" (best against {' and '.join(t['saturated_against'])})")
+    b = t.get("bound_check")
+    if b:
+        worst = max(b["beaten_on"], key=lambda x: x["by_db"], default=None)
+        parts.append(f"bound holds on {b['holds']} of {b['motors']} motors"
+                     + (f" (worst: `{worst['by']}` {worst['by_db']:.1f} dB above it on "
+                        f"{worst['motor']})" if worst else ""))
+    r = t.get("rank_stability")
+    if r:
+        parts.append(f"rank 1 kept on {r['rank_1_kept_on_seeds']} of {r['seeds']} seeds, "
+                     f"ranks move {r['mean_rank_change']:.2f} on average (at most "
+                     f"{r['max_rank_change']})")
+    return "Table: " + "; ".join(parts) + "."
+
+
+def render_table_facts(board: Mapping[str, Any]) -> list[str]:
+    """LEADERBOARD.md's table of v4's per-table facts (none before v4)."""
+    tables = board.get("tables")
+    if not tables:
+        return []
+    lines = ["| suite, split | best ranked | headroom (dB) | saturated | bound holds "
+             "(motors) | rank 1 kept (seeds) |", "|---|---|---|---|---|---|"]
+    for t in tables:
+        b, r = t.get("bound_check"), t.get("rank_stability")
+        lines.append(
+            f"| {t['suite']}, {t['split']} | {t['best'] or '-'} | "
+            + (f"{t['headroom_db']:+.1f}" if t.get("headroom_db") is not None else "-") + " | "
+            + ("-" if t.get("saturated") is None else "yes" if t["saturated"] else "no") + " | "
+            + (f"{b['holds']}/{b['motors']}" if b else "-") + " | "
+            + (f"{r['rank_1_kept_on_seeds']}/{r['seeds']}" if r else "-") + " |")
+    return ["Per table: headroom = the bound (`privileged-bound`) minus the best ranked "
+            "entry; saturated = the best ranked entry is told apart from neither the "
+            "reference nor the bound; the bound holds on a motor where no non-privileged "
+            "entry scores above it; rank 1 kept = seeds on which every rank-1 entry is "
+            "rank 1 again.", "", *lines, ""]
 
 
 def best_eligible(rows: Sequence[Mapping[str, Any]], skip: Sequence[str] = ()
@@ -207,6 +270,8 @@ def _render_markdown_by_split(board: Mapping[str, Any]) -> str:
                     if r != e["name"] else "- | " for r in refs)
                 sl = e["step_losses"]
                 seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
+                if e.get("learned") and "coverage" in e:
+                    seeds += f" (covers {e['coverage']:.0%})"
                 if e.get("learned") and len(e.get("training_seeds", [])) < fewest:
                     seeds += f" (fewer than {fewest}: no claim)"
                 lines.append(f"| {e['rank']} | {name} | {format_summary(e['headline'])} | "
@@ -250,8 +315,9 @@ def _render_summary_db(board: Mapping[str, Any]) -> str:
     lines = _db_header(board) + ["",
              "Attenuation of the velocity ripple at the suite's headline speeds against no "
              "damping, dB (higher is better), IQM over motors [95 % interval]; `reference`: "
-             "the same motors without the phenomenon. Rank 1 may be shared (overlapping "
-             "intervals). Every entry, P(improvement), effect sizes, success and knowledge: "
+             "the same motors without the phenomenon. "
+             + rank_rule(p, "Rank 1 may be shared (overlapping intervals)", ".")
+             + " Every entry, P(improvement), effect sizes, success and knowledge: "
              + ", ".join(f"[{suite}]({suite_page(suite)})" for suite in p["suites"]) + ".", "",
              "| suite, split | reference | 1st | 2nd | 3rd | patent-ff-identified |",
              "|---|---|---|---|---|---|"]
@@ -279,6 +345,7 @@ def _render_summary_db(board: Mapping[str, Any]) -> str:
                          + " | ".join(cell(e) for e in ranked + [None] * (3 - len(ranked)))
                          + f" | {cell(patent, False)} |")
     lines.append("")
+    lines += render_table_facts(board)
     if notes:
         lines += [f"{notes} rows carry a note (a lost suite, no score, or a privileged entry "
                   "worse than no damping): see the suite pages.", ""]
@@ -299,7 +366,8 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
              f"{p.get('failure_db', -20):g} dB). Gap closed: attenuation / the `reference` "
              "row's (the same motors without the phenomenon: 1 = as good as removing it). "
              "Ratio: ripple over `none`'s. Full sweep: mean / worst ratio over every speed. "
-             "Rank: entries whose intervals overlap share a rank; `ref`, `privileged` "
+             + rank_rule(p, "Rank: entries whose intervals overlap share a rank", ";")
+             + " `ref`, `privileged` "
              "(true state or exact model; `privileged-bound` is the bound) and `zero-shot` "
              "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
              "of the difference in dB against the best ranked entry, with its interval.", ""]
@@ -309,7 +377,10 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
             if not rows:
                 continue
             best = next((e for e in rows if e.get("rank") == 1), None)
-            lines += [f"## {suite}, {split}", "",
+            facts = [t for t in board.get("tables", ())
+                     if t["suite"] == suite and t["split"] == split]
+            lines += [f"## {suite}, {split}", "", *(
+                [table_facts_line(facts[0]), ""] if facts else []),
                       "| rank | entry | attenuation (dB) | gap closed | ratio | success | "
                       "full sweep mean / worst | effect vs "
                       f"{best['name'] if best else '-'} (dB) | P(better than it) | "
@@ -322,6 +393,8 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
                 poi = e.get("probability_of_improvement", {}).get(best["name"]) \
                     if best and e is not best else None
                 seeds = ", ".join(str(k) for k in e.get("training_seeds", [])) or "-"
+                if e.get("learned") and "coverage" in e:
+                    seeds += f" (covers {e['coverage']:.0%})"
                 effect = (f"{eff['median']:+.2f} [{eff['ci'][0]:+.2f}, {eff['ci'][1]:+.2f}]"
                           if eff else "-")
                 know = ("policy none on the motor without the phenomenon"
@@ -404,7 +477,8 @@ def render_ladder(board: Mapping[str, Any]) -> str:
     if scored_in_db(board):             # v3: attenuation (dB), the reference row first
         title = (f"{where}: attenuation of the velocity ripple "
                  "at the headline speeds against no damping, dB (higher is better), IQM over "
-                 "motors [95 % interval]; rank in parentheses (shared where intervals overlap), "
+                 "motors [95 % interval]; rank in parentheses ("
+                 + rank_rule(p, "shared where intervals overlap") + "), "
                  "`ref`: the same motors without the phenomenon, `privileged`: true state or "
                  "exact model, "
                  "`zero-shot`: a learned entry outside its training coverage (unranked)")

@@ -43,10 +43,14 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
     p.add_argument("--suite", choices=[*known_suites(), "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
                         "in each suite beside its knowledge (the README's table)")
-    p.add_argument("--split", choices=["dev", "interpolation", "extrapolation"], default=None,
-                   help="v3: run one split; 'dev' is the split for tuning, ablations and "
-                        "model selection (never scored). Default: interpolation and "
-                        "extrapolation")
+    p.add_argument("--split", choices=["dev", "interpolation", "extrapolation", "catalogue"],
+                   default=None,
+                   help="v3 or later: run one split; 'dev' is the split for tuning, ablations "
+                        "and model selection (never scored); 'catalogue' (v4): real "
+                        "motors from public datasheets. Default: the protocol's scored splits")
+    p.add_argument("--eval-seeds", type=number(int, 1, 20), default=None, metavar="N",
+                   help="v4 or later: how many evaluation (noise) seeds each run is repeated "
+                        "with, from 1000000 on (default: the protocol's, 3)")
     add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--no-resume", action="store_true",
@@ -107,6 +111,8 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
         if args.motors is not None:
             raise ParameterError("--split: give --split or --motors (the custom split), not both")
         protocol = protocol.with_splits((args.split,))
+    if args.eval_seeds is not None:
+        protocol = protocol.with_eval_seeds(args.eval_seeds)
     named = default_policy_names()
     chosen = protocol.default_entries(named) if args.entries is None else \
         [b for g in args.entries for b in g]

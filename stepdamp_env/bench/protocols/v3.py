@@ -135,6 +135,16 @@ FAILURE_DB = -20.0
 _LN10 = 2.302585092994046
 
 
+#: The default entries of the published v3 board (0.17.0); later entries join v4.
+PUBLISHED_ENTRIES_V3 = (
+    "none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
+    "velocity-feedback", "sensorless-damping", "calibrated-table", "repetitive-control",
+    "tuned-constant-gain", "tuned-gain-pair", "oracle-floor", "privileged-bound",
+    "ars-mid-band", "ars-open-loop", "ars-per-step", "ars-per-step-25hz", "ars-servo",
+    "ppo-gain-selector", "ppo-mid-band", "ppo-open-loop", "ppo-open-loop-long",
+    "ppo-per-step", "td3-per-step")
+
+
 def ratio_of_db(db: float) -> float:
     """The ripple ratio 10^(-db/20) of an attenuation (fixed-order exp)."""
     return fm.exp(-db * _LN10 / 20.0) if math.isfinite(db) else math.nan
@@ -171,7 +181,7 @@ class ProtocolV3(ProtocolV2):
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     known_suites: ClassVar[tuple[str, ...]] = ALL_SUITES
     records_training_coverage: ClassVar[bool] = True
-    published_entries: ClassVar[tuple[str, ...] | None] = None
+    published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V3
 
     def __post_init__(self) -> None:
         super().__post_init__()

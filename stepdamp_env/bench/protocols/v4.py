@@ -1,0 +1,501 @@
+"""``stepdamp-bench v4``: verdicts that decide, on real catalogue motors too.
+
+v0-v3 stay frozen. v4 keeps v3's drawn motors, suites, speeds, reference rows,
+sensors, windows and scores in dB, and changes who is ranked, how, on which
+cells and seeds. The specification with the measurements behind each rule is
+``docs/protocol_v4.md``; in short:
+
+Splits
+    v3's ``interpolation`` and ``extrapolation`` draws, and ``catalogue``:
+    real motors from public datasheets (``catalogue.json`` beside this package
+    module; the source of every value in each motor's ``source`` and
+    ``notes``; where a source gives no rotor inertia it is estimated from the
+    holding torque by a fit stated in docs/motors.md). A catalogue motor is
+    the drive's own model (its nominal = its plant) and keeps the file's
+    encoder (else 4000 counts/rev). ``dev`` as v3 (never scored by default).
+
+Evaluation seeds
+    ``eval_seeds`` = three noise seeds from 1,000,000 (``--eval-seeds N`` sets
+    how many). A motor's score is its mean over speeds, seeds and training
+    seeds, as v3's.
+
+Runs (a held run never scores below a lost run of the same cell)
+    Where ``none`` held the run: attenuation in dB against its ripple,
+    bounded below at ``failure_db`` = -20 dB; a lost run scores -20 dB.
+    Where ``none`` lost it (or ended before its window): a lost run scores
+    0 dB (as bad as no damping), a held one its attenuation against the mean
+    ripple of ``none``'s held headline runs on that motor and seed, bounded
+    below at 0 dB (holding where ``none`` did not is never worse than no
+    damping); no such runs: the cell has no score.
+
+Eligibility, per cell
+    A cell is (motor, headline speed). A learned entry's coverage is the
+    share of the split's cells whose speed its card's ``trained_on`` covers
+    for the suite; it is ranked where coverage >= ``coverage_min`` = 0.9,
+    else its row is ``zero_shot``. Every row of a table is scored on the
+    table's common cells: those every ranked learned row covers (all cells if
+    none is). ``coverage`` and ``cells`` are columns.
+
+Ranks (paired)
+    Among ranked rows: J beats K when, on their common motors (>= 3), the IQM
+    of the per-motor difference in dB is above 0 and either its 95 % lower
+    bound is above 0 or J scores higher on >= 95 % of the motors
+    (:func:`..stats.paired_ranks`); rank = 1 + the number of rows that beat
+    it, made monotone in the headline (no inversion). Ranks are also computed
+    per evaluation seed: ``rank_stability`` says whether the leader keeps
+    rank 1 on every seed and how far ranks move.
+
+Tables (``tables`` of the board, per suite and split)
+    ``headroom_db``: the bound's IQM minus the best ranked row's
+    (``bound_entry`` = ``privileged-bound``); ``saturated``: neither the
+    reference row nor the bound is told apart from the best ranked row by
+    the paired rule; ``bound_check``: the share of motors on which the bound
+    scores at least every non-privileged row, and where it does not.
+
+``--quick`` (CI): v3's quick motors, three catalogue motors, two evaluation
+seeds, 500 resamples.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+
+from ...params import ParameterError, SystemParams
+from ..grid_cache import grids_cached
+from ..motors import ProtocolMotor, holds_its_load
+from ..protocol import REFERENCE_POLICY, REFERENCE_ROW, TRAINING_SEED_LIMIT
+from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_difference, paired_ranks,
+                     probability_of_improvement)
+from .v1 import QUICK_SETTINGS, ProtocolV1, load_motors_file
+from .v3 import ProtocolV3, attenuation_db, ratio_of_db
+
+__all__ = ["ProtocolV4", "SPLITS", "CATALOGUE_PATH", "full_protocol_v4", "quick_protocol_v4",
+           "coverage", "evaluation_seeds", "catalogue_systems"]
+
+SPLITS = ("dev", "interpolation", "extrapolation", "catalogue", "custom")
+#: The catalogue split's motors (public datasheets; sources inside).
+CATALOGUE_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                              "catalogue.json")
+#: The privileged entry that stands for what damping can reach (``headroom_db``).
+BOUND_ENTRY = "privileged-bound"
+#: How many evaluation seeds ``--eval-seeds`` may ask for.
+MAX_EVAL_SEEDS = 20
+
+
+def evaluation_seeds(count: int) -> tuple[int, ...]:
+    """``count`` evaluation seeds from :data:`TRAINING_SEED_LIMIT` on (``--eval-seeds``)."""
+    if not (isinstance(count, int) and 1 <= count <= MAX_EVAL_SEEDS):
+        raise ParameterError(f"--eval-seeds {count!r} is outside [1, {MAX_EVAL_SEEDS}] (a count)")
+    return tuple(TRAINING_SEED_LIMIT + k for k in range(count))
+
+
+def catalogue_systems(protocol: ProtocolV1, names: Sequence[str] = ()) -> tuple[SystemParams, ...]:
+    """The catalogue's motors (all, or those named, in the file's order), with
+    the protocol's sensors where the file gives none."""
+    systems = load_motors_file(CATALOGUE_PATH, protocol)
+    if not names:
+        return systems
+    known = {s.name for s in systems}
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ParameterError(f"catalogue_motors: {bad} are not in {CATALOGUE_PATH}")
+    return tuple(s for s in systems if s.name in set(names))
+
+
+def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
+             cells: Sequence[tuple[str, float]]) -> tuple[float, frozenset]:
+    """The share of ``cells`` ((motor, rev/s) pairs) whose speed a learned
+    entry's ``trained_on`` ((suite, lowest rev/s, highest rev/s) ranges) covers
+    in ``suite``, and the covered cells."""
+    ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
+    covered = frozenset(c for c in cells if any(lo <= c[1] <= hi for lo, hi in ranges))
+    return (len(covered) / len(cells) if cells else 0.0), covered
+
+
+@dataclass(frozen=True)
+class ProtocolV4(ProtocolV3):
+    """Every setting of ``stepdamp-bench v4`` (module docstring, docs/protocol_v4.md)."""
+
+    version: str = "v4"
+    splits: tuple[str, ...] = ("interpolation", "extrapolation", "catalogue")
+    eval_seeds: tuple[int, ...] = evaluation_seeds(3)
+    #: The catalogue motors run (empty: every one in the file).
+    catalogue_motors: tuple[str, ...] = ()
+    coverage_min: float = 0.9
+    rank_confidence: float = 0.95
+    decisive_share: float = 0.95
+    min_paired_motors: int = 3
+    bound_entry: str = BOUND_ENTRY
+
+    known_splits: ClassVar[tuple[str, ...]] = SPLITS
+    published_entries: ClassVar[tuple[str, ...] | None] = None
+    #: ``--eval-seeds`` may change how many evaluation seeds run.
+    eval_seeds_settable: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 0.0 < self.coverage_min <= 1.0:
+            raise ParameterError(f"coverage_min={self.coverage_min!r} is outside (0, 1]")
+        if not 0.0 < self.rank_confidence < 1.0:
+            raise ParameterError(f"rank_confidence={self.rank_confidence!r} is outside (0, 1)")
+        if not 0.5 < self.decisive_share <= 1.0:
+            raise ParameterError(f"decisive_share={self.decisive_share!r} is outside (0.5, 1]")
+        if not (isinstance(self.min_paired_motors, int) and self.min_paired_motors >= 1):
+            raise ParameterError(f"min_paired_motors={self.min_paired_motors!r} is outside "
+                                 "[1, inf) (integer)")
+
+    # -- the record --------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        out = super().to_dict()
+        out["catalogue_motors"] = list(self.catalogue_motors)
+        out["rank_rule"] = ("ranks from paired comparisons over motors: an entry shares rank "
+                            "1 only if the leader does not beat it (paired interval or "
+                            f"{self.decisive_share:.0%} of motors), never above a higher "
+                            "score")
+        out["headline"] = (
+            "attenuation_db as v3 on each table's common cells; a held run never scores "
+            "below a lost one (lost -20 dB where 'none' held, 0 dB where it lost; held "
+            "runs bounded below at -20 dB, or at 0 dB where 'none' lost); ranks from "
+            f"paired comparisons over motors ({self.rank_confidence:g} interval or "
+            f"{self.decisive_share:g} of motors), monotone in the headline")
+        return out
+
+    def with_eval_seeds(self, count: int) -> "ProtocolV4":
+        """The same protocol with ``count`` evaluation seeds (``--eval-seeds``)."""
+        return dataclasses.replace(self, eval_seeds=evaluation_seeds(count))
+
+    def with_splits(self, splits: Sequence[str]) -> "ProtocolV4":
+        return ProtocolV3.with_splits(self, splits)      # type: ignore[return-value]
+
+    # -- motors ------------------------------------------------------------------------
+    def motors(self) -> tuple[ProtocolMotor, ...]:
+        """dev (if run), v3's drawn splits or the custom motors, then the
+        catalogue; their grids as v3's."""
+        drafts = self._dev_motors() + ProtocolV1.motors(self) + self._catalogue()
+        grids = grids_cached(self, [m.system for m in drafts])
+        return tuple(dataclasses.replace(m, speeds_rps=g[0][1], speed_labels=g[0][2], grids=g)
+                     for m, g in zip(drafts, grids))
+
+    def _catalogue(self) -> tuple[ProtocolMotor, ...]:
+        if "catalogue" not in self.splits:
+            return ()
+        out = []
+        for system in catalogue_systems(self, self.catalogue_motors):
+            if not holds_its_load(system, self.holding_margin):
+                raise ParameterError(f"catalogue motor {system.name!r} cannot hold its load "
+                                     f"with margin {self.holding_margin:g}")
+            out.append(self.build_motor(system.name, system, system, "catalogue",
+                                        "catalogue", 0))
+        return tuple(out)
+
+    def motor_sensors(self, name: str, system: SystemParams, nominal: SystemParams,
+                      split: str) -> tuple[SystemParams, SystemParams]:
+        """A catalogue motor keeps its file's sensors (as a custom one); drawn
+        motors v3's."""
+        if split == "catalogue":
+            return system, nominal
+        return super().motor_sensors(name, system, nominal, split)
+
+    # -- scoring -----------------------------------------------------------------------
+    def entries(self, names: Mapping[str, tuple[str, str]],
+                by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
+                motors: Sequence[ProtocolMotor],
+                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+        """Rows per (suite, split): the reference, then every entry, scored on the
+        table's common cells, ranked by paired comparisons (module docstring)."""
+        split_of = {m.name: m.split for m in motors}
+        out = []
+        for suite in self.suites:
+            if (REFERENCE_POLICY, suite) not in by_entry:
+                continue
+            none = {(r["motor"], r["seed"], r["speed_rps"]): r
+                    for r in by_entry[(REFERENCE_POLICY, suite)]}
+            stand_in = self._stand_ins(none)
+            for split in self.splits:
+                cells = sorted({(m.name, float(v)) for m in motors if m.split == split
+                                for v, lbl in zip(*m.speeds(suite))
+                                if not lbl.startswith("off")}, key=str)
+                specs = [(REFERENCE_ROW, REFERENCE_ROW, REFERENCE_ROW, {"reference": True})] + [
+                    (spec, name, text, dict(meta[spec])) for spec, (name, text) in names.items()
+                    if (spec, suite) in by_entry]
+                rows, covered = [], []
+                for spec, name, text, info in specs:
+                    learned = bool(info.get("learned"))
+                    share, mine = coverage(info.get("trained_on", ()), suite, cells) \
+                        if learned else (1.0, frozenset(cells))
+                    row = {"name": name, "spec": text, "suite": suite, "split": split,
+                           **info, "reference": bool(info.get("reference")),
+                           "learned": learned, "privileged": bool(info.get("oracle")),
+                           "zero_shot": learned and share < self.coverage_min,
+                           "coverage": share}
+                    runs = [r for r in by_entry.get((spec, suite), [])
+                            if split_of[r["motor"]] == split]
+                    rows.append((row, runs))
+                    if learned and not row["zero_shot"]:
+                        covered.append(mine)
+                common = frozenset(cells).intersection(*covered) if covered else frozenset(cells)
+                scored = [self._score(row, runs, none, stand_in, common, len(cells))
+                          for row, runs in rows]
+                self._gap(scored)
+                self._compare(scored)
+                out += scored
+        return out
+
+    def _score(self, row: dict[str, Any], runs: list[dict[str, Any]],
+               none: Mapping[tuple, Mapping[str, Any]],
+               stand_in: Mapping[tuple[str, int], float], common: frozenset,
+               n_cells: int) -> dict[str, Any]:
+        """A row's scores on the ``common`` cells (``_cells``, ``_motor_db`` and
+        ``_seed_motor_db``: taken off by :meth:`_compare`)."""
+        cell_runs: dict[tuple[str, Any], list[float]] = {}
+        by_seed: dict[tuple[int, str], list[float]] = {}
+        ratios, lost = [], 0
+        for r in runs:
+            n = none.get((r["motor"], r["seed"], r["speed_rps"]))
+            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
+            ratios.append(ratio_of_db(db))
+            lost += bool(r["failed"])
+            if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
+                    and not r["speed_label"].startswith("off"):
+                cell_runs.setdefault((r["motor"], r.get("training_seed")), []).append(db)
+                by_seed.setdefault((r["seed"], r["motor"]), []).append(db)
+        keys = sorted(cell_runs, key=str)
+        cell_db = [float(np.mean(cell_runs[k])) for k in keys]
+        cell_motor = [k[0] for k in keys]
+        motor_db = {m: float(np.mean([v for v, k in zip(cell_db, cell_motor) if k == m]))
+                    for m in sorted(set(cell_motor))}
+        seed_motor_db: dict[int, dict[str, float]] = {}
+        for (seed, motor), v in sorted(by_seed.items(), key=str):
+            seed_motor_db.setdefault(seed, {})[motor] = float(np.mean(v))
+        stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                     confidence=self.confidence)
+        att = motor_mean_bootstrap(cell_db, cell_motor, **stats)
+        ratio = motor_mean_bootstrap([ratio_of_db(v) for v in cell_db], cell_motor,
+                                     positive=True, **stats)
+        row["cells"] = {"scored": len(common), "split": n_cells}
+        row["training_seeds"] = sorted({r["training_seed"] for r in runs
+                                        if r.get("training_seed") is not None})
+        row["attenuation_db"] = att
+        row["ratio"] = ratio
+        row["success_rate"] = 1.0 - lost / len(runs) if runs else math.nan
+        fin = [v for v in ratios if math.isfinite(v)]
+        row["full_sweep"] = {"mean": float(np.mean(fin)) if fin else math.nan,
+                             "worst": float(np.max(fin)) if fin else math.nan}
+        row["per_motor_db"] = motor_db
+        row["headline"] = {"iqm": ratio["iqm"], "ci95": ratio["ci"], "n": len(cell_db)}
+        row["step_losses"] = {"runs_lost": lost, "runs": len(runs)}
+        row["scores"] = [{"motor": k[0], **({"training_seed": k[1]} if k[1] is not None else {}),
+                          "attenuation_db": v, "headline": ratio_of_db(v)}
+                         for k, v in zip(keys, cell_db)]
+        row["runs"] = runs
+        row["_cells"] = (cell_db, cell_motor)
+        row["_seed_motor_db"] = seed_motor_db
+        return row
+
+    def run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
+               stand_in: float) -> float:
+        """One run's attenuation in dB (module docstring, "Runs")."""
+        none_held = none is not None and not none["failed"] and none["metrics"] is not None
+        if run["failed"]:
+            return self.failure_db if none_held else 0.0
+        own = run["metrics"]["rms_velocity_error_rad_s"] if run["metrics"] else math.nan
+        if none_held:
+            return attenuation_db(none["metrics"]["rms_velocity_error_rad_s"], own,
+                                  self.failure_db)
+        return attenuation_db(stand_in, own, 0.0)
+
+    def _gap(self, rows: list[dict[str, Any]]) -> None:
+        """``gap_closed`` per row: attenuation / the reference row's, per motor."""
+        ref = next((r for r in rows if r["reference"]), None)
+        ref_db = ref["per_motor_db"] if ref is not None else {}
+        stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                     confidence=self.confidence)
+        for r in rows:
+            if r["reference"]:
+                r["gap_closed"] = {"iqm": 1.0, "ci": [1.0, 1.0],
+                                   "motors": len(r["per_motor_db"])}
+                continue
+            cell_db, cell_motor = r["_cells"]
+            gap = [v / ref_db[m] if ref_db.get(m, 0.0) > 0.0 else math.nan
+                   for v, m in zip(cell_db, cell_motor)]
+            r["gap_closed"] = motor_mean_bootstrap(gap, cell_motor, **stats)
+
+    def _ranks(self, per_motor: Mapping[str, Mapping[str, float]],
+               estimates: Mapping[str, float],
+               probability: Mapping[tuple[str, str], float] | None = None
+               ) -> dict[str, int | None]:
+        return paired_ranks(estimates, per_motor, confidence=self.rank_confidence,
+                            decisive_share=self.decisive_share,
+                            min_motors=self.min_paired_motors,
+                            resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                            probability=probability)
+
+    def _compare(self, rows: list[dict[str, Any]]) -> None:
+        """P(improvement) and effect sizes between rows; paired ranks (overall,
+        where a board P of at least ``decisive_share`` also decides, and per
+        evaluation seed)."""
+        self._improvements(rows)
+        ranked = [r for r in rows if not (r["reference"] or r["privileged"] or r["zero_shot"])]
+        est = {r["name"]: r["attenuation_db"]["iqm"] for r in ranked}
+        p = {(a["name"], b["name"]): a["probability_of_improvement"][b["name"]]
+             for a in ranked for b in ranked if a is not b}
+        ranks = self._ranks({r["name"]: r["per_motor_db"] for r in ranked}, est, p)
+        seeds = sorted({s for r in ranked for s in r["_seed_motor_db"]})
+        by_seed = {}
+        for s in seeds:
+            per = {r["name"]: r["_seed_motor_db"].get(s, {}) for r in ranked}
+            by_seed[s] = self._ranks(per, {
+                n: iqm(list(v.values())) if v else math.nan
+                for n, v in per.items()})
+        is_ranked = {id(r) for r in ranked}
+        for r in rows:
+            r["rank"] = ranks.get(r["name"]) if id(r) in is_ranked else None
+            r["rank_by_seed"] = {str(s): by_seed[s].get(r["name"]) for s in seeds} \
+                if id(r) in is_ranked else {}
+        self._notes(rows)
+        for r in rows:
+            r.pop("_cells", None)
+            r.pop("_seed_motor_db", None)
+
+    def _improvements(self, rows: list[dict[str, Any]]) -> None:
+        """P(improvement) and the effect in dB of every pair of rows."""
+        stats = dict(resamples=self.bootstrap_resamples, seed=self.bootstrap_seed,
+                     confidence=self.confidence)
+        for r in rows:
+            r["probability_of_improvement"], r["effect_db"] = {}, {}
+        for i, a in enumerate(rows):
+            for b in rows[i + 1:]:
+                (xa, ma), (xb, mb) = a["_cells"], b["_cells"]
+                p = probability_of_improvement(
+                    [-v for v in xa], ma, [-v for v in xb], mb, interval=False, **stats)["p"]
+                a["probability_of_improvement"][b["name"]] = p
+                b["probability_of_improvement"][a["name"]] = 1.0 - p
+                eff = median_difference(a["per_motor_db"], b["per_motor_db"], **stats)
+                a["effect_db"][b["name"]] = {"median": eff["median"], "ci": eff["ci"]}
+                b["effect_db"][a["name"]] = {"median": -eff["median"],
+                                             "ci": [-eff["ci"][1], -eff["ci"][0]]}
+
+    @staticmethod
+    def _notes(rows: list[dict[str, Any]]) -> None:
+        """Each row's ``notes``, stated from the table's own data."""
+        none = next((r for r in rows if r["spec"] == REFERENCE_POLICY and not r["reference"]),
+                    None)
+        for r in rows:
+            notes = []
+            sl = r["step_losses"]
+            if not r["reference"] and sl["runs"] and sl["runs_lost"] == sl["runs"]:
+                if none is not None and none["step_losses"]["runs_lost"] == \
+                        none["step_losses"]["runs"]:
+                    notes.append("loses every run, as `none` does: the rotor falls behind "
+                                 "the command at every speed of this suite on these motors")
+                elif none is not None:
+                    held = none["step_losses"]["runs"] - none["step_losses"]["runs_lost"]
+                    notes.append(f"loses every run, where `none` holds {held} of "
+                                 f"{none['step_losses']['runs']}")
+                else:
+                    notes.append("loses every run")
+            if r["learned"] and r["coverage"] < 1.0:
+                notes.append(f"trained on {r['coverage']:.0%} of this table's cells"
+                             + (" (too few to be ranked)" if r["zero_shot"] else ""))
+            errors = [x["error"] for x in r.get("runs", []) if x.get("error")]
+            if errors:
+                notes.append(f"could not run in {len(errors)} of {sl['runs']} runs, each "
+                             f"counted as lost (first: {errors[0]})")
+            r["notes"] = notes
+
+    # -- the tables --------------------------------------------------------------------
+    def tables(self, entries: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """Per suite and split: ``headroom_db``, ``saturated``, ``bound_check`` and
+        ``rank_stability`` (module docstring), from the rows alone."""
+        out = []
+        for suite in self.suites:
+            for split in self.splits:
+                rows = [e for e in entries if e["suite"] == suite and e["split"] == split]
+                if rows:
+                    out.append({"suite": suite, "split": split, **self._table(rows)})
+        return out
+
+    def _beats(self, a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+        t = paired_difference(a["per_motor_db"], b["per_motor_db"],
+                              confidence=self.rank_confidence,
+                              resamples=self.bootstrap_resamples, seed=self.bootstrap_seed)
+        return (t["motors"] >= self.min_paired_motors and t["iqm"] > 0.0
+                and (t["low"] > 0.0 or t["share"] >= self.decisive_share))
+
+    def _table(self, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+        ranked = [r for r in rows if r.get("rank") is not None]
+        contenders = [r for r in ranked if r["spec"] != REFERENCE_POLICY]
+        best = max(contenders, key=lambda r: (r["attenuation_db"]["iqm"], r["name"]),
+                   default=None)
+        ref = next((r for r in rows if r["reference"]), None)
+        bound = next((r for r in rows if r["name"] == self.bound_entry), None)
+        out: dict[str, Any] = {"cells": rows[0]["cells"], "best": best["name"] if best else None}
+        if best is not None and bound is not None:
+            out["headroom_db"] = bound["attenuation_db"]["iqm"] - best["attenuation_db"]["iqm"]
+        else:
+            out["headroom_db"] = None
+        if best is not None:
+            apart = {name: self._beats(best, r) or self._beats(r, best)
+                     for name, r in (("reference", ref), ("bound", bound)) if r is not None}
+            out["saturated"] = bool(apart) and not any(apart.values())
+            out["saturated_against"] = sorted(apart)
+        else:
+            out["saturated"], out["saturated_against"] = None, []
+        if bound is not None:
+            others = [r for r in rows if not (r["reference"] or r["privileged"])]
+            beaten = []
+            motors = sorted(bound["per_motor_db"])
+            for m in motors:
+                top = max(((r["per_motor_db"].get(m, -math.inf), r["name"]) for r in others),
+                          default=(-math.inf, ""))
+                if top[0] > bound["per_motor_db"][m]:
+                    beaten.append({"motor": m, "by": top[1],
+                                   "by_db": top[0] - bound["per_motor_db"][m]})
+            out["bound_check"] = {"entry": self.bound_entry, "motors": len(motors),
+                                  "holds": len(motors) - len(beaten),
+                                  "share": (1.0 - len(beaten) / len(motors)) if motors else None,
+                                  "beaten_on": beaten}
+        else:
+            out["bound_check"] = None
+        seeds = sorted({s for r in ranked for s in r.get("rank_by_seed", {})})
+        if seeds and best is not None:
+            leader = [r for r in ranked if r["rank"] == 1]
+            kept = sum(all(r["rank_by_seed"].get(s) == 1 for r in leader) for s in seeds)
+            moves = [abs(r["rank_by_seed"][s] - r["rank"]) for r in ranked for s in seeds
+                     if r["rank_by_seed"].get(s) is not None]
+            out["rank_stability"] = {"seeds": len(seeds),
+                                     "rank_1_kept_on_seeds": kept,
+                                     "mean_rank_change": float(np.mean(moves)) if moves else 0.0,
+                                     "max_rank_change": int(max(moves)) if moves else 0}
+        else:
+            out["rank_stability"] = None
+        return out
+
+
+def full_protocol_v4() -> ProtocolV4:
+    """``stepdamp-bench v4``, the full protocol."""
+    return ProtocolV4()
+
+
+#: The quick board's catalogue motors: a NEMA 11 from its manual, a NEMA 17 whose
+#: inertia is estimated, a 0.9 degree NEMA 17.
+QUICK_CATALOGUE = ("qsh2818-32-07-006", "ms17hd6p4200", "17hm19-2004s")
+
+
+def quick_protocol_v4() -> ProtocolV4:
+    """v4's CI variant (module docstring)."""
+    return ProtocolV4(**{**QUICK_SETTINGS, "servo_factors": (0.28, 0.56, 1.1)},
+                      servo_headline=2, midband_factors=(0.3, 0.7), dev_per_preset=1,
+                      eval_seeds=evaluation_seeds(2), catalogue_motors=QUICK_CATALOGUE)
+
+
+PROTOCOL = {"version": "v4", "full": full_protocol_v4, "quick": quick_protocol_v4,
+            "about": "paired ranks, three evaluation seeds, per-cell eligibility, a catalogue "
+                     "split of real motors",
+            "quick_about": "v3's quick motors, three catalogue motors, two evaluation seeds"}
