@@ -15,6 +15,33 @@ from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, in
                                      new_accumulators)
 
 
+def pytest_configure(config):
+    """Under pytest-xdist, the controller compiles (where numba's cache is cold)
+    the kernels, env steps and SIMD lanes once, on two processes, before the
+    workers start; otherwise every worker compiles the same code at once, which
+    costs CI minutes. Without xdist, or in a worker, nothing happens here."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    from stepdamp_env.bench.warmup import warm_up
+    from stepdamp_env.parallel import pool_map
+
+    try:
+        warm_up(get_preset("patent"), workers=2)
+        pool_map(_warm_lanes, ["harmonic", "damping-gains"], 2)
+    except Exception:       # noqa: BLE001 - only a head start: the workers compile it
+        pass
+
+
+def _warm_lanes(action_mode):
+    """The SIMD lanes' loop of one action mode (plain, or with the damping law)."""
+    from stepdamp_env.env import StepperDampV1VectorEnv
+
+    env = StepperDampV1VectorEnv(num_envs=37, simd=True, agent_hz=500.0,
+                                 action_mode=action_mode)
+    env.reset(seed=0)
+    call_with_frame_room(env.step, np.zeros(env.action_space.shape, dtype=np.float32))
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_pyfunc_call(pyfuncitem):
     """Each test runs with room on CPython's frame stack, so that numba compiling

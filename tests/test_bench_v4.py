@@ -166,3 +166,25 @@ def test_the_board_pages_state_the_table_facts(board):
     page = render_suite_page(board, "open-loop")
     assert page.count("Table: cells scored") == 3
     assert "bound holds on" in page
+
+
+@pytest.mark.slow
+def test_v4_on_a_users_motors_runs_and_checks_its_bound_there(tmp_path):
+    # Two catalogue motors as a user's --motors file: the custom split.
+    import json
+
+    from stepdamp_env.bench.protocols.v4 import CATALOGUE_PATH
+
+    with open(CATALOGUE_PATH, encoding="utf-8") as fh:
+        items = [m for m in json.load(fh) if m["name"] in ("qsh4218-35-10-027", "42byghm810")]
+    path = tmp_path / "mine.json"
+    path.write_text(json.dumps(items))
+    out = tmp_path / "board"
+    assert main(["leaderboard", "--protocol", "v4", "--quick", "--motors", str(path),
+                 "--suite", "open-loop", "--entries", "tuned-gain-pair", "privileged-bound",
+                 "--eval-seeds", "1", "--out", str(out), "--no-plots", "--no-progress",
+                 "--workers", "1"]) == 0
+    board = json.loads((out / "leaderboard.json").read_text())
+    (t,) = board["tables"]
+    assert t["split"] == "custom" and t["bound_check"]["motors"] == 2
+    assert "bound holds on" in (out / "LEADERBOARD_open-loop.md").read_text()

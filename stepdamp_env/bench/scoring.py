@@ -11,7 +11,7 @@ from .protocol import FAILURE_RATIO, Protocol
 from .stats import cell_summary, probability_of_improvement, summary
 
 __all__ = ["reference_index", "score_runs", "make_entry", "make_entry_v1",
-           "add_probability_of_improvement", "SCORE_KEYS"]
+           "add_probability_of_improvement", "db_row_fields", "SCORE_KEYS"]
 
 # The per-(motor, seed) scores summarised in an entry, headline first.
 SCORE_KEYS = ("headline", "sweep_mean_ratio", "sweep_worst_ratio", "rms_injected_current_a")
@@ -161,3 +161,26 @@ def add_probability_of_improvement(entries: Sequence[dict[str, Any]], protocol: 
             other["probability_of_improvement"][e["name"]] = 1.0 - res["p"]
             other["probability_of_improvement_ci95"][e["name"]] = [1.0 - res["ci95"][1],
                                                                    1.0 - res["ci95"][0]]
+
+
+def db_row_fields(runs: Sequence[Mapping[str, Any]], keys: Sequence[tuple[str, Any]],
+                  cell_db: Sequence[float], run_ratios: Sequence[float],
+                  ratio: Mapping[str, Any], motor_db: Mapping[str, float],
+                  ratio_of_db: Any) -> dict[str, Any]:
+    """The fields a row scored in dB (v3 on) has beside its attenuation:
+    success, full sweep, per-motor dB, the ratio headline, step losses, the
+    cell scores and the runs. ``keys``: (motor, training seed) per cell."""
+    lost = sum(bool(r["failed"]) for r in runs)
+    fin = [v for v in run_ratios if math.isfinite(v)]
+    return {
+        "success_rate": 1.0 - lost / len(runs) if runs else math.nan,
+        "full_sweep": {"mean": float(np.mean(fin)) if fin else math.nan,
+                       "worst": float(np.max(fin)) if fin else math.nan},
+        "per_motor_db": dict(motor_db),
+        # What the plots and v1-style readers use: the ratio, lower better.
+        "headline": {"iqm": ratio["iqm"], "ci95": ratio["ci"], "n": len(cell_db)},
+        "step_losses": {"runs_lost": lost, "runs": len(runs)},
+        "scores": [{"motor": k[0], **({"training_seed": k[1]} if k[1] is not None else {}),
+                    "attenuation_db": v, "headline": ratio_of_db(v)}
+                   for k, v in zip(keys, cell_db)],
+        "runs": list(runs)}

@@ -115,6 +115,7 @@ from ...simulation import RunSettings, SpeedProfile, simulate
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, draw_around, holds_its_load, with_sensors
 from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE
+from ..scoring import db_row_fields
 from ..stats import (median_difference, motor_mean_bootstrap, probability_of_improvement,
                      rank_groups)
 from .v1 import QUICK_SETTINGS, ProtocolV1
@@ -406,12 +407,10 @@ class ProtocolV3(ProtocolV2):
         ``stand_in``: :meth:`_stand_ins` of ``none``."""
         cells: dict[tuple[str, Any], list[float]] = {}
         ratios: list[float] = []
-        lost = 0
         for r in runs:
             n = none.get((r["motor"], r["seed"], r["speed_rps"]))
             db = self._run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
             ratios.append(ratio_of_db(db))
-            lost += bool(r["failed"])
             if not r["speed_label"].startswith("off") and math.isfinite(db):
                 cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
         keys = sorted(cells, key=str)
@@ -437,17 +436,7 @@ class ProtocolV3(ProtocolV2):
             row["gap_closed"] = motor_mean_bootstrap(gap, cell_motor, **stats)
         else:
             row["gap_closed"] = {"iqm": 1.0, "ci": [1.0, 1.0], "motors": len(motor_db)}
-        row["success_rate"] = 1.0 - lost / len(runs) if runs else math.nan
-        fin = [v for v in ratios if math.isfinite(v)]
-        row["full_sweep"] = {"mean": float(np.mean(fin)) if fin else math.nan,
-                             "worst": float(np.max(fin)) if fin else math.nan}
-        row["per_motor_db"] = motor_db
-        # What the plots and v1-style readers use: the ratio, lower better.
-        row["headline"] = {"iqm": ratio["iqm"], "ci95": ratio["ci"], "n": len(cell_db)}
-        row["step_losses"] = {"runs_lost": lost, "runs": len(runs)}
-        row["scores"] = [{"motor": k[0], **({"training_seed": k[1]} if k[1] is not None else {}),
-                          "attenuation_db": v, "headline": ratio_of_db(v)}
-                         for k, v in zip(keys, cell_db)]
+        row.update(db_row_fields(runs, keys, cell_db, ratios, ratio, motor_db, ratio_of_db))
         row["runs"] = runs
         row["_motor_db"] = motor_db
         row["_cells"] = (cell_db, cell_motor)

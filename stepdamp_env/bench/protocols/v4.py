@@ -70,6 +70,7 @@ from ...params import ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
 from ..protocol import REFERENCE_POLICY, REFERENCE_ROW, TRAINING_SEED_LIMIT
+from ..scoring import db_row_fields
 from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_difference, paired_ranks,
                      probability_of_improvement)
 from .v1 import QUICK_SETTINGS, ProtocolV1, load_motors_file
@@ -255,12 +256,11 @@ class ProtocolV4(ProtocolV3):
         ``_seed_motor_db``: taken off by :meth:`_compare`)."""
         cell_runs: dict[tuple[str, Any], list[float]] = {}
         by_seed: dict[tuple[int, str], list[float]] = {}
-        ratios, lost = [], 0
+        ratios = []
         for r in runs:
             n = none.get((r["motor"], r["seed"], r["speed_rps"]))
             db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
             ratios.append(ratio_of_db(db))
-            lost += bool(r["failed"])
             if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
                     and not r["speed_label"].startswith("off"):
                 cell_runs.setdefault((r["motor"], r.get("training_seed")), []).append(db)
@@ -283,16 +283,7 @@ class ProtocolV4(ProtocolV3):
                                         if r.get("training_seed") is not None})
         row["attenuation_db"] = att
         row["ratio"] = ratio
-        row["success_rate"] = 1.0 - lost / len(runs) if runs else math.nan
-        fin = [v for v in ratios if math.isfinite(v)]
-        row["full_sweep"] = {"mean": float(np.mean(fin)) if fin else math.nan,
-                             "worst": float(np.max(fin)) if fin else math.nan}
-        row["per_motor_db"] = motor_db
-        row["headline"] = {"iqm": ratio["iqm"], "ci95": ratio["ci"], "n": len(cell_db)}
-        row["step_losses"] = {"runs_lost": lost, "runs": len(runs)}
-        row["scores"] = [{"motor": k[0], **({"training_seed": k[1]} if k[1] is not None else {}),
-                          "attenuation_db": v, "headline": ratio_of_db(v)}
-                         for k, v in zip(keys, cell_db)]
+        row.update(db_row_fields(runs, keys, cell_db, ratios, ratio, motor_db, ratio_of_db))
         row["runs"] = runs
         row["_cells"] = (cell_db, cell_motor)
         row["_seed_motor_db"] = seed_motor_db
