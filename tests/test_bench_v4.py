@@ -72,6 +72,7 @@ def test_the_cli_refuses_eval_seeds_on_a_frozen_protocol_in_one_line(tmp_path, c
 
 def test_bad_v4_settings_name_the_setting_and_its_range():
     for field, value in (("coverage_min", 0.0), ("rank_confidence", 1.0),
+                         ("bound_share_min", 0.0), ("saturation_db", -1.0),
                          ("decisive_share", 0.5), ("min_paired_motors", 0)):
         with pytest.raises(ParameterError, match=field):
             ProtocolV4(**{field: value})
@@ -138,7 +139,11 @@ def test_ranks_are_monotone_paired_and_per_seed(board):
                   if any(o["per_motor_db"].get(m, -math.inf) > v for o in others)}
         assert {x["motor"] for x in b["beaten_on"]} == beaten
         assert b["holds"] == b["motors"] - len(beaten)
-        assert t["saturated"] in (True, False) and t["rank_stability"]["seeds"] == 2
+        assert t["rank_stability"]["seeds"] == 2
+        if b["holds"] < 0.95 * b["motors"]:
+            assert t["saturated"] is None and "bound is beaten" in t["saturated_why"]
+        else:
+            assert t["saturated"] == (t["headroom_db"] < 3.0 or not t["told_apart"]["bound"])
         assert t["cells"]["scored"] <= t["cells"]["split"]
 
 

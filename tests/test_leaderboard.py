@@ -255,11 +255,13 @@ def test_policy_styles_are_distinct_on_a_full_board():
 def test_warm_up_marks_this_code_version_compiled(tmp_path, monkeypatch, capsys):
     """The leaderboard's warm-up leaves a marker in this code version's numba
     cache; without it (a cold cache) it says it is compiling, on stderr."""
-    from stepdamp_env import numba_cache
     from stepdamp_env.bench.leaderboard import warm_up
+    from stepdamp_env.bench.warmup import compiled_marker
     from stepdamp_env.motorfile import load_system
 
-    marker = os.path.join(numba_cache.user_cache_dir(), "compiled")
+    marker = compiled_marker()
+    assert marker is not None and os.path.dirname(marker) == __import__(
+        "stepdamp_env.numba_cache").numba_cache.user_cache_dir()
     if os.path.exists(marker):
         os.remove(marker)
     assert warm_up(load_system("patent"), workers=1, progress=True) >= 0.0

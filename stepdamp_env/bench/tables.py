@@ -100,9 +100,9 @@ def table_facts_line(t: Mapping[str, Any]) -> str:
     parts = [f"cells scored {t['cells']['scored']} of {t['cells']['split']}"]
     if t.get("headroom_db") is not None:
         parts.append(f"headroom {t['headroom_db']:+.1f} dB (bound minus `{t['best']}`)")
-    if t.get("saturated") is not None:
-        parts.append(("saturated" if t["saturated"] else "not saturated")
-                     + f" (best against {' and '.join(t['saturated_against'])})")
+    if "saturated" in t:
+        word = {True: "saturated", False: "not saturated", None: "saturation unknown"}
+        parts.append(f"{word[t['saturated']]} ({t['saturated_why']})")
     b = t.get("bound_check")
     if b:
         worst = max(b["beaten_on"], key=lambda x: x["by_db"], default=None)
@@ -129,12 +129,14 @@ def render_table_facts(board: Mapping[str, Any]) -> list[str]:
         lines.append(
             f"| {t['suite']}, {t['split']} | {t['best'] or '-'} | "
             + (f"{t['headroom_db']:+.1f}" if t.get("headroom_db") is not None else "-") + " | "
-            + ("-" if t.get("saturated") is None else "yes" if t["saturated"] else "no") + " | "
+            + {True: "yes", False: "no", None: "unknown (bound beaten)"}[t.get("saturated")]
+            + " | "
             + (f"{b['holds']}/{b['motors']}" if b else "-") + " | "
             + (f"{r['rank_1_kept_on_seeds']}/{r['seeds']}" if r else "-") + " |")
     return ["Per table: headroom = the bound (`privileged-bound`) minus the best ranked "
-            "entry; saturated = the best ranked entry is told apart from neither the "
-            "reference nor the bound; the bound holds on a motor where no non-privileged "
+            "entry; saturated = less than 3 dB of headroom, or the best ranked entry not "
+            "told apart from the bound (unknown where the bound is beaten on more than 5 % "
+            "of the motors); the bound holds on a motor where no non-privileged "
             "entry scores above it; rank 1 kept = seeds on which every rank-1 entry is "
             "rank 1 again.", "", *lines, ""]
 

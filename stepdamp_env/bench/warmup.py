@@ -4,6 +4,7 @@ is cold), so that the workers inherit them."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 import time
@@ -21,7 +22,19 @@ from ..parallel import pool_map
 from ..params import SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
 
-__all__ = ["warm_up"]
+__all__ = ["warm_up", "compiled_marker"]
+
+
+def compiled_marker() -> str | None:
+    """The file the warm-up leaves once this code, installed where it is, has
+    compiled (None: nothing is cached). Numba keys its cache on the source
+    files' paths too, so a copy of the same code elsewhere (``pip install .``
+    beside ``-e .``, a CI checkout) is cold though its code is not."""
+    where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
+    if not where:
+        return None
+    here = hashlib.sha256(os.path.dirname(os.path.abspath(__file__)).encode()).hexdigest()
+    return os.path.join(where, f"compiled-{here[:16]}")
 
 
 def _warm_plain(system: SystemParams) -> None:
@@ -80,8 +93,7 @@ def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> f
     processes first (they share no compiled code), with a line on stderr if
     ``progress``. Returns the seconds spent."""
     start = time.perf_counter()
-    where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
-    marker = os.path.join(where, "compiled") if where else None
+    marker = compiled_marker()
     cold = marker is None or not os.path.exists(marker)
     if cold and progress:
         print(f"compiling the simulation kernels for this version of the code, once "

@@ -47,10 +47,14 @@ Ranks (paired)
 
 Tables (``tables`` of the board, per suite and split)
     ``headroom_db``: the bound's IQM minus the best ranked row's
-    (``bound_entry`` = ``privileged-bound``); ``saturated``: neither the
-    reference row nor the bound is told apart from the best ranked row by
-    the paired rule; ``bound_check``: the share of motors on which the bound
-    scores at least every non-privileged row, and where it does not.
+    (``bound_entry`` = ``privileged-bound``); ``bound_check``: the share of
+    motors on which the bound scores at least every non-privileged row, and
+    where it does not; ``saturated`` (with ``saturated_why``): where the bound
+    holds on >= ``bound_share_min`` = 95 % of the motors, less than
+    ``saturation_db`` = 3 dB of headroom or a best row the paired rule cannot
+    tell from the bound; None where the bound does not hold (no headroom to
+    measure); ``told_apart``: whether the paired rule tells the best row from
+    the reference and from the bound.
 
 ``--quick`` (CI): v3's quick motors, three catalogue motors, two evaluation
 seeds, 500 resamples.
@@ -133,6 +137,10 @@ class ProtocolV4(ProtocolV3):
     decisive_share: float = 0.95
     min_paired_motors: int = 3
     bound_entry: str = BOUND_ENTRY
+    #: A table whose bound holds on this share of motors has a measured headroom.
+    bound_share_min: float = 0.95
+    #: Less headroom than this (dB) between the bound and the best entry: saturated.
+    saturation_db: float = 3.0
 
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     published_entries: ClassVar[tuple[str, ...] | None] = None
@@ -147,6 +155,10 @@ class ProtocolV4(ProtocolV3):
             raise ParameterError(f"rank_confidence={self.rank_confidence!r} is outside (0, 1)")
         if not 0.5 < self.decisive_share <= 1.0:
             raise ParameterError(f"decisive_share={self.decisive_share!r} is outside (0.5, 1]")
+        if not 0.0 < self.bound_share_min <= 1.0:
+            raise ParameterError(f"bound_share_min={self.bound_share_min!r} is outside (0, 1]")
+        if not (math.isfinite(self.saturation_db) and self.saturation_db >= 0.0):
+            raise ParameterError(f"saturation_db={self.saturation_db!r} is outside [0, inf) dB")
         if not (isinstance(self.min_paired_motors, int) and self.min_paired_motors >= 1):
             raise ParameterError(f"min_paired_motors={self.min_paired_motors!r} is outside "
                                  "[1, inf) (integer)")
@@ -419,6 +431,24 @@ class ProtocolV4(ProtocolV3):
         return (t["motors"] >= self.min_paired_motors and t["iqm"] > 0.0
                 and (t["low"] > 0.0 or t["share"] >= self.decisive_share))
 
+    def _saturated(self, t: Mapping[str, Any]) -> tuple[bool | None, str]:
+        """Whether damping has nothing left to win in a table, and why: the bound
+        must hold on >= ``bound_share_min`` of the motors (else there is no
+        headroom to measure), then less than ``saturation_db`` of headroom, or
+        a best entry the paired rule cannot tell from the bound, is saturated."""
+        b = t["bound_check"]
+        if t["best"] is None or b is None or b["share"] is None:
+            return None, "no bound or no ranked entry in this table"
+        if b["share"] < self.bound_share_min:
+            return None, (f"the bound is beaten on {b['motors'] - b['holds']} of {b['motors']} "
+                          "motors: no headroom is measured against it")
+        if t["headroom_db"] < self.saturation_db:
+            return True, f"headroom {t['headroom_db']:.1f} dB < {self.saturation_db:g} dB"
+        if not t["told_apart"].get("bound", False):
+            return True, "the best entry is not told apart from the bound"
+        return False, (f"headroom {t['headroom_db']:.1f} dB, the best entry told apart from "
+                       "the bound")
+
     def _table(self, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         ranked = [r for r in rows if r.get("rank") is not None]
         contenders = [r for r in ranked if r["spec"] != REFERENCE_POLICY]
@@ -431,13 +461,9 @@ class ProtocolV4(ProtocolV3):
             out["headroom_db"] = bound["attenuation_db"]["iqm"] - best["attenuation_db"]["iqm"]
         else:
             out["headroom_db"] = None
-        if best is not None:
-            apart = {name: self._beats(best, r) or self._beats(r, best)
-                     for name, r in (("reference", ref), ("bound", bound)) if r is not None}
-            out["saturated"] = bool(apart) and not any(apart.values())
-            out["saturated_against"] = sorted(apart)
-        else:
-            out["saturated"], out["saturated_against"] = None, []
+        out["told_apart"] = {name: self._beats(best, r) or self._beats(r, best)
+                             for name, r in (("reference", ref), ("bound", bound))
+                             if r is not None and best is not None}
         if bound is not None:
             others = [r for r in rows if not (r["reference"] or r["privileged"])]
             beaten = []
@@ -454,6 +480,7 @@ class ProtocolV4(ProtocolV3):
                                   "beaten_on": beaten}
         else:
             out["bound_check"] = None
+        out["saturated"], out["saturated_why"] = self._saturated(out)
         seeds = sorted({s for r in ranked for s in r.get("rank_by_seed", {})})
         if seeds and best is not None:
             leader = [r for r in ranked if r["rank"] == 1]
