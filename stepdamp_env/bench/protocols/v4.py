@@ -384,8 +384,7 @@ class ProtocolV4(ProtocolV3):
                 b["effect_db"][a["name"]] = {"median": -eff["median"],
                                              "ci": [-eff["ci"][1], -eff["ci"][0]]}
 
-    @staticmethod
-    def _notes(rows: list[dict[str, Any]]) -> None:
+    def _notes(self, rows: list[dict[str, Any]]) -> None:
         """Each row's ``notes``, stated from the table's own data."""
         none = next((r for r in rows if r["spec"] == REFERENCE_POLICY and not r["reference"]),
                     None)
@@ -403,9 +402,14 @@ class ProtocolV4(ProtocolV3):
                                  f"{none['step_losses']['runs']}")
                 else:
                     notes.append("loses every run")
-            if r["learned"] and r["coverage"] < 1.0:
-                notes.append(f"trained on {r['coverage']:.0%} of this table's cells"
-                             + (" (too few to be ranked)" if r["zero_shot"] else ""))
+            n = r["cells"]["split"]
+            if r["learned"] and r["coverage"] == 0.0:
+                notes.append("not trained for this suite or these speeds: none of the "
+                             f"table's {n} cells lies in its training")
+            elif r["learned"] and r["coverage"] < 1.0:
+                notes.append(f"trained on {round(r['coverage'] * n)} of the table's {n} cells"
+                             + (f" (under {self.coverage_min:.0%}: unranked)"
+                                if r["zero_shot"] else ""))
             errors = [x["error"] for x in r.get("runs", []) if x.get("error")]
             if errors:
                 notes.append(f"could not run in {len(errors)} of {sl['runs']} runs, each "
