@@ -40,8 +40,9 @@ def test_a_held_run_never_scores_below_a_lost_run_of_the_same_cell():
     assert p.run_db(_run(True, None), _run(True, 5.0), 2.0) == 0.0
     assert p.run_db(_run(False, 4.0), _run(True, 5.0), 2.0) == 0.0
     assert p.run_db(_run(False, 0.2), _run(True, 5.0), 2.0) == pytest.approx(20.0)
-    # No held run of `none` on that motor and seed: no score.
+    # No held run of `none` on that motor and seed: no score, held or lost.
     assert math.isnan(p.run_db(_run(False, 0.2), _run(True, 5.0), math.nan))
+    assert math.isnan(p.run_db(_run(True, None), _run(True, 5.0), math.nan))
 
 
 def test_coverage_counts_the_cells_whose_speed_the_training_covered():
@@ -194,4 +195,5 @@ def test_v4_on_a_users_motors_runs_and_checks_its_bound_there(tmp_path):
     board = json.loads((out / "leaderboard.json").read_text())
     (t,) = board["tables"]
     assert t["split"] == "custom" and t["bound_check"]["motors"] == 2
+    assert t["saturated"] is None and "fewer than the 3" in t["saturated_why"]
     assert "bound holds on" in (out / "LEADERBOARD_open-loop.md").read_text()

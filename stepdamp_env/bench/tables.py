@@ -98,7 +98,7 @@ def table_facts_line(t: Mapping[str, Any]) -> str:
     """One table's facts (v4's ``tables``): cells, headroom, saturation, the
     bound per motor, rank stability over the evaluation seeds."""
     parts = [f"cells scored {t['cells']['scored']} of {t['cells']['split']}"]
-    if t.get("headroom_db") is not None:
+    if t.get("headroom_db") is not None and math.isfinite(t["headroom_db"]):
         parts.append(f"headroom {t['headroom_db']:+.1f} dB (bound minus `{t['best']}`)")
     if "saturated" in t:
         word = {True: "saturated", False: "not saturated", None: "saturation unknown"}
@@ -122,21 +122,24 @@ def render_table_facts(board: Mapping[str, Any]) -> list[str]:
     tables = board.get("tables")
     if not tables:
         return []
+    p = board["protocol"]
     lines = ["| suite, split | best ranked | headroom (dB) | saturated | bound holds "
              "(motors) | rank 1 kept (seeds) |", "|---|---|---|---|---|---|"]
     for t in tables:
         b, r = t.get("bound_check"), t.get("rank_stability")
         lines.append(
             f"| {t['suite']}, {t['split']} | {t['best'] or '-'} | "
-            + (f"{t['headroom_db']:+.1f}" if t.get("headroom_db") is not None else "-") + " | "
-            + {True: "yes", False: "no", None: "unknown (bound beaten)"}[t.get("saturated")]
-            + " | "
+            + (f"{t['headroom_db']:+.1f}" if t.get("headroom_db") is not None
+               and math.isfinite(t["headroom_db"]) else "-") + " | "
+            + {True: "yes", False: "no", None: f"unknown: {t.get('saturated_why', '')}"}[
+                t.get("saturated")] + " | "
             + (f"{b['holds']}/{b['motors']}" if b else "-") + " | "
             + (f"{r['rank_1_kept_on_seeds']}/{r['seeds']}" if r else "-") + " |")
-    return ["Per table: headroom = the bound (`privileged-bound`) minus the best ranked "
-            "entry; saturated = less than 3 dB of headroom, or the best ranked entry not "
-            "told apart from the bound (unknown where the bound is beaten on more than 5 % "
-            "of the motors); the bound holds on a motor where no non-privileged "
+    return [f"Per table: headroom = the bound (`{p.get('bound_entry')}`) minus the best "
+            f"ranked entry; saturated = less than {p.get('saturation_db')} dB of headroom, or "
+            "the best ranked entry not told apart from the bound (unknown where the bound "
+            f"holds on fewer than {p.get('bound_share_min', 0.95):.0%} of the motors); the "
+            "bound holds on a motor where no non-privileged "
             "entry scores above it; rank 1 kept = seeds on which every rank-1 entry is "
             "rank 1 again.", "", *lines, ""]
 

@@ -39,11 +39,13 @@ Eligibility, per cell
 Ranks (paired)
     Among ranked rows: J beats K when, on their common motors (>= 3), the IQM
     of the per-motor difference in dB is above 0 and either its 95 % lower
-    bound is above 0 or J scores higher on >= 95 % of the motors
-    (:func:`..stats.paired_ranks`); rank = 1 + the number of rows that beat
-    it, made monotone in the headline (no inversion). Ranks are also computed
-    per evaluation seed: ``rank_stability`` says whether the leader keeps
-    rank 1 on every seed and how far ranks move.
+    bound is above 0 or J scores higher on >= 95 % of the motors, or the
+    board's P(J improves on K) is >= 0.95 (:func:`..stats.paired_ranks`);
+    rank = 1 + the number of rows that beat it, made monotone in the
+    headline (no inversion). Ranks are also computed per evaluation seed
+    (the same rule without P, which the board gives over all seeds):
+    ``rank_stability`` says whether the rank-1 rows keep rank 1 on every
+    seed and how far ranks move.
 
 Tables (``tables`` of the board, per suite and split)
     ``headroom_db``: the bound's IQM minus the best ranked row's
@@ -168,9 +170,9 @@ class ProtocolV4(ProtocolV3):
         out = super().to_dict()
         out["catalogue_motors"] = list(self.catalogue_motors)
         out["rank_rule"] = ("ranks from paired comparisons over motors: an entry shares rank "
-                            "1 only if the leader does not beat it (paired interval or "
-                            f"{self.decisive_share:.0%} of motors), never above a higher "
-                            "score")
+                            "1 only if the leader does not beat it (paired interval, "
+                            f"{self.decisive_share:.0%} of motors or P(improvement) >= "
+                            f"{self.decisive_share:g}), never above a higher score")
         out["headline"] = (
             "attenuation_db as v3 on each table's common cells; a held run never scores "
             "below a lost one (lost -20 dB where 'none' held, 0 dB where it lost; held "
@@ -306,7 +308,10 @@ class ProtocolV4(ProtocolV3):
         """One run's attenuation in dB (module docstring, "Runs")."""
         none_held = none is not None and not none["failed"] and none["metrics"] is not None
         if run["failed"]:
-            return self.failure_db if none_held else 0.0
+            # Where `none` lost and held nothing on this motor and seed, the cell has
+            # no score for any row (a lost run must not outscore a held one).
+            return self.failure_db if none_held else 0.0 if math.isfinite(stand_in) \
+                else math.nan
         own = run["metrics"]["rms_velocity_error_rad_s"] if run["metrics"] else math.nan
         if none_held:
             return attenuation_db(none["metrics"]["rms_velocity_error_rad_s"], own,
@@ -429,11 +434,14 @@ class ProtocolV4(ProtocolV3):
         return out
 
     def _beats(self, a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+        """The ranks' rule (:func:`..stats.paired_ranks`) for one pair of rows."""
         t = paired_difference(a["per_motor_db"], b["per_motor_db"],
                               confidence=self.rank_confidence,
                               resamples=self.bootstrap_resamples, seed=self.bootstrap_seed)
-        return (t["motors"] >= self.min_paired_motors and t["iqm"] > 0.0
-                and (t["low"] > 0.0 or t["share"] >= self.decisive_share))
+        p = a.get("probability_of_improvement", {}).get(b["name"], math.nan)
+        return t["motors"] >= self.min_paired_motors and (
+            (t["iqm"] > 0.0 and (t["low"] > 0.0 or t["share"] >= self.decisive_share))
+            or p >= self.decisive_share)
 
     def _saturated(self, t: Mapping[str, Any]) -> tuple[bool | None, str]:
         """Whether damping has nothing left to win in a table, and why: the bound
@@ -443,6 +451,9 @@ class ProtocolV4(ProtocolV3):
         b = t["bound_check"]
         if t["best"] is None or b is None or b["share"] is None:
             return None, "no bound or no ranked entry in this table"
+        if b["motors"] < self.min_paired_motors:
+            return None, (f"{b['motors']} motors: fewer than the {self.min_paired_motors} the "
+                          "paired rule needs")
         if b["share"] < self.bound_share_min:
             return None, (f"the bound is beaten on {b['motors'] - b['holds']} of {b['motors']} "
                           "motors: no headroom is measured against it")
@@ -456,8 +467,8 @@ class ProtocolV4(ProtocolV3):
     def _table(self, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         ranked = [r for r in rows if r.get("rank") is not None]
         contenders = [r for r in ranked if r["spec"] != REFERENCE_POLICY]
-        best = max(contenders, key=lambda r: (r["attenuation_db"]["iqm"], r["name"]),
-                   default=None)
+        best = min((r for r in contenders if math.isfinite(r["attenuation_db"]["iqm"])),
+                   key=lambda r: (-r["attenuation_db"]["iqm"], r["name"]), default=None)
         ref = next((r for r in rows if r["reference"]), None)
         bound = next((r for r in rows if r["name"] == self.bound_entry), None)
         out: dict[str, Any] = {"cells": rows[0]["cells"], "best": best["name"] if best else None}
@@ -472,6 +483,7 @@ class ProtocolV4(ProtocolV3):
             others = [r for r in rows if not (r["reference"] or r["privileged"])]
             beaten = []
             motors = sorted(bound["per_motor_db"])
+            unscored = sorted({m for r in others for m in r["per_motor_db"]} - set(motors))
             for m in motors:
                 top = max(((r["per_motor_db"].get(m, -math.inf), r["name"]) for r in others),
                           default=(-math.inf, ""))
@@ -481,7 +493,7 @@ class ProtocolV4(ProtocolV3):
             out["bound_check"] = {"entry": self.bound_entry, "motors": len(motors),
                                   "holds": len(motors) - len(beaten),
                                   "share": (1.0 - len(beaten) / len(motors)) if motors else None,
-                                  "beaten_on": beaten}
+                                  "beaten_on": beaten, "no_score_on": unscored}
         else:
             out["bound_check"] = None
         out["saturated"], out["saturated_why"] = self._saturated(out)
