@@ -185,9 +185,6 @@ class ProtocolV4(ProtocolV3):
         """The same protocol with ``count`` evaluation seeds (``--eval-seeds``)."""
         return dataclasses.replace(self, eval_seeds=evaluation_seeds(count))
 
-    def with_splits(self, splits: Sequence[str]) -> "ProtocolV4":
-        return ProtocolV3.with_splits(self, splits)      # type: ignore[return-value]
-
     # -- motors ------------------------------------------------------------------------
     def motors(self) -> tuple[ProtocolMotor, ...]:
         """dev (if run), v3's drawn splits or the custom motors, then the
