@@ -26,6 +26,8 @@
                           (oracle): how far the ripple can fall on this drive
 ``privileged-bound``      oracle-floor's law with its gain and rate chosen per suite on
                           v3's dev split: v3's privileged bound
+``plant-bound``           per run, the best of a portfolio of true-state laws,
+                          rehearsed on the true plant: v4's privileged bound
 ========================  ==========================================================
 
 Every baseline implements the policy contract of :mod:`stepdamp_env.bench.policy`.
@@ -46,10 +48,11 @@ from .feedback import OracleFloor, PrivilegedBound, SensorlessDamping, TunedCons
 from .gain_pair import TunedGainPair
 from .harmonic import AdaptiveFF, DelayCompensatedFF
 from .learning import CalibratedTable, RepetitiveControl
+from .plant_bound import PlantBound
 
 __all__ = ["AdaptiveFF", "DelayCompensatedFF", "VelocityFeedback", "SensorlessDamping",
            "CalibratedTable", "RepetitiveControl", "TunedConstantGain", "TunedGainPair",
-           "OracleFloor", "PrivilegedBound", "BASELINES", "BASELINE_NAMES", "make_baseline",
+           "OracleFloor", "PrivilegedBound", "PlantBound", "BASELINES", "BASELINE_NAMES", "make_baseline",
            "register_policies"]
 
 #: Every baseline but the reference (registered by stepdamp_env.bench), in the
@@ -79,6 +82,9 @@ BASELINES: tuple[tuple[str, Callable[[], Policy], str], ...] = (
     ("oracle-floor", OracleFloor, "exact cancellation and true-state feedback (oracle floor)"),
     ("privileged-bound", PrivilegedBound,
      "oracle-floor's law tuned per suite on v3's dev split (privileged)"),
+    ("plant-bound", PlantBound,
+     "per run, the best of a portfolio of true-state laws rehearsed on the true plant "
+     "(privileged)"),
 )
 BASELINE_NAMES = (REFERENCE_POLICY, *(name for name, _, _ in BASELINES))
 _MAKE = {name: make for name, make, _ in BASELINES}

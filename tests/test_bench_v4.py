@@ -96,7 +96,7 @@ def test_the_catalogue_split_holds_the_real_motors_as_their_own_model():
         quick.with_splits(("custom",))
 
 
-ENTRIES = ["none", "tuned-constant-gain", "tuned-gain-pair", "privileged-bound",
+ENTRIES = ["none", "tuned-constant-gain", "tuned-gain-pair", "plant-bound",
            "ppo-open-loop"]
 
 
@@ -130,7 +130,7 @@ def test_ranks_are_monotone_paired_and_per_seed(board):
         # The facts follow from the rows.
         best = max((e for e in ranked if e["spec"] != "none"),
                    key=lambda e: e["attenuation_db"]["iqm"])
-        bound = next(e for e in rows if e["name"] == "privileged-bound")
+        bound = next(e for e in rows if e["name"] == "plant-bound")
         assert t["best"] == best["name"]
         assert t["headroom_db"] == pytest.approx(bound["attenuation_db"]["iqm"]
                                                  - best["attenuation_db"]["iqm"])
@@ -140,6 +140,9 @@ def test_ranks_are_monotone_paired_and_per_seed(board):
                   if any(o["per_motor_db"].get(m, -math.inf) > v for o in others)}
         assert {x["motor"] for x in b["beaten_on"]} == beaten
         assert b["holds"] == b["motors"] - len(beaten)
+        # plant-bound is a bound per motor here (v3's privileged-bound was not,
+        # on the catalogue motors).
+        assert beaten == set(), (split, b["beaten_on"])
         assert t["rank_stability"]["seeds"] == 2
         if b["holds"] < 0.95 * b["motors"]:
             assert t["saturated"] is None and "bound is beaten" in t["saturated_why"]
@@ -189,11 +192,12 @@ def test_v4_on_a_users_motors_runs_and_checks_its_bound_there(tmp_path):
     path.write_text(json.dumps(items))
     out = tmp_path / "board"
     assert main(["leaderboard", "--protocol", "v4", "--quick", "--motors", str(path),
-                 "--suite", "open-loop", "--entries", "tuned-gain-pair", "privileged-bound",
+                 "--suite", "open-loop", "--entries", "tuned-gain-pair", "plant-bound",
                  "--eval-seeds", "1", "--out", str(out), "--no-plots", "--no-progress",
                  "--workers", "1"]) == 0
     board = json.loads((out / "leaderboard.json").read_text())
     (t,) = board["tables"]
     assert t["split"] == "custom" and t["bound_check"]["motors"] == 2
+    assert t["bound_check"]["holds"] == 2, t["bound_check"]
     assert t["saturated"] is None and "fewer than the 3" in t["saturated_why"]
     assert "bound holds on" in (out / "LEADERBOARD_open-loop.md").read_text()

@@ -233,7 +233,7 @@ class _Learned:
     ("velocity-feedback", "filters run at the agent rate"),
     ("sensorless-damping", "filters run at the agent rate"),
     ("repetitive-control", "changes while it runs"), ("oracle-floor", "oracle"),
-    ("privileged-bound", "oracle")])
+    ("privileged-bound", "oracle"), ("plant-bound", "oracle")])
 def test_entries_that_cannot_be_exported_say_why_in_one_line(entry, why):
     with pytest.raises(ParameterError, match=f"entry '{entry}' cannot be exported: .*{why}") \
             as info:

@@ -131,6 +131,10 @@ class PolicyContext:
         suite: the stepdamp-bench suite the run belongs to (:mod:`.suites`:
             "open-loop", "servo", "mid-band"); left None, the one of ``mode`` on
             the nominal motor's drive (None for a run of no suite).
+        window_s, settle_s, lag_limit_steps: how the runner measures the run
+            (:func:`.runner.run_episode`'s arguments of those names; None where
+            the run has none or they are not given), for an entry that rehearses
+            its run (``plant-bound``).
     """
 
     knowledge: MotorKnowledge
@@ -143,6 +147,9 @@ class PolicyContext:
     current_scale_a: float = 0.0
     accel_rps2: float = DEFAULT_ACCEL_RPS2
     suite: str | None = None
+    window_s: float | None = None
+    settle_s: float | None = None
+    lag_limit_steps: float | None = None
 
     def __post_init__(self) -> None:
         if self.suite is None:          # the one of the mode on the nominal drive
@@ -393,10 +400,13 @@ def policy_env_options(policy: Policy, knowledge: MotorKnowledge) -> dict[str, A
 
 def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: str,
                    speed_rps: float, accel_rps2: float = DEFAULT_ACCEL_RPS2,
-                   suite: str | None = None) -> PolicyContext:
+                   suite: str | None = None, window_s: float | None = None,
+                   settle_s: float | None = None,
+                   lag_limit_steps: float | None = None) -> PolicyContext:
     """The :class:`PolicyContext` of a run with the checked ``options``
     (:func:`policy_env_options`); ``suite`` None: the one of ``mode`` on the
-    nominal motor's drive (:func:`.suites.suite_of`)."""
+    nominal motor's drive (:func:`.suites.suite_of`); the run's measuring
+    settings as :class:`PolicyContext` has them."""
     if suite is None:
         suite = suite_of(mode, knowledge.nominal.drive.drive_mode)
     else:
@@ -412,7 +422,10 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
                            else options["harmonic_scale_nm"]),
         agent_hz=float(options.get("agent_hz", EnvOptions.agent_hz)),
         current_scale_a=float(options["current_scale_a"]),
-        accel_rps2=float(accel_rps2), suite=suite)
+        accel_rps2=float(accel_rps2), suite=suite,
+        window_s=None if window_s is None else float(window_s),
+        settle_s=None if settle_s is None else float(settle_s),
+        lag_limit_steps=None if lag_limit_steps is None else float(lag_limit_steps))
 
 
 assert set(ESTIMATES) <= set(KNOWLEDGE_ESTIMATES)

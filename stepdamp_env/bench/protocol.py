@@ -133,11 +133,15 @@ class Protocol(abc.ABC):
     #: entry registered later would change every other row's comparisons). None:
     #: every registered default entry (the current version, which new entries join).
     published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V0_V2
+    #: Registered entries a current version leaves off its default board (an
+    #: entry another one supersedes there; ``--entries`` still runs it).
+    retired_entries: ClassVar[tuple[str, ...]] = ()
 
     def default_entries(self, names: Sequence[str]) -> list[str]:
         """The registered default entries ``names`` that this version runs by default."""
         keep = self.published_entries
-        return [n for n in names if keep is None or n in keep]
+        return [n for n in names if (keep is None or n in keep)
+                and n not in self.retired_entries]
 
     @abc.abstractmethod
     def motors(self) -> tuple["ProtocolMotor", ...]:

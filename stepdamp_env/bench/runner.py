@@ -204,7 +204,8 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                                                  "rgb_array" if pwm_trace else None,
                                                  lag_limit_steps)
     obs, _ = env.reset(seed=seed)
-    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2, suite))
+    policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2, suite,
+                                window_s, settle_s, lag_limit_steps))
     steps, terminated, reason = 0, False, ""
     trace: list[Any] = []
     while env.time_s < end:
@@ -256,7 +257,8 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         ends[i] = end
         windows.append((start, length))
         contexts.append(policy_context(options, spec.knowledge, mode, spec.speed_rps,
-                                       accel_rps2, suite))
+                                       accel_rps2, suite, window_s, spec.settle_s,
+                                       lag_limit_steps))
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}

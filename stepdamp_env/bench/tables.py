@@ -373,7 +373,8 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
              "Ratio: ripple over `none`'s. Full sweep: mean / worst ratio over every speed. "
              + rank_rule(p, "Rank: entries whose intervals overlap share a rank", ";")
              + " `ref`, `privileged` "
-             "(true state or exact model; `privileged-bound` is the bound) and `zero-shot` "
+             f"(true state or exact model; `{p.get('bound_entry', 'privileged-bound')}` is "
+             "the bound) and `zero-shot` "
              "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
              "of the difference in dB against the best ranked entry, with its interval.", ""]
     for suite in suites or p["suites"]:
