@@ -17,28 +17,37 @@ model through the true current path in open loop and servo, none in the
 mid-band), read the true state:
 
 * ``("zeta", z)``: oracle-floor's law designed for an added damping ratio ``z``
-  at the true holding-spring frequency wn (``z = 0``: the feedforward alone);
+  at the true holding-spring frequency, softened at the rotor's load angle
+  (``z = 0``: the feedforward alone);
 * ``("kv", k)``: feedback on the true speed error only,
-  ``i = k * 2*J*wn/Km * e_w`` (A), which needs no model of the loop's mode and
-  so also damps where wn is not it (servo: the rotor moves in the servo loop).
+  ``i = k * 2*J*wn/Km * e_w`` (A, wn of the unloaded spring: a gain scale),
+  which needs no model of the loop's mode and so also damps where wn is not it
+  (servo: the rotor moves in the servo loop).
 
-The choice is a pure function of the run's plant, mode, suite, speed and ramp:
-it is cached per process, so the evaluation seeds of one cell share one choice
-and a board's numbers do not depend on how its runs are spread over workers.
+In open loop the feedforward and the design take the rotor's static lag from
+all the torque it holds: friction, viscous drag and the load torque
+(oracle-floor's exact model leaves the load out). A law that cannot run on
+a motor (``ParameterError``) is not chosen.
+
+The choice is a pure function of what the rehearsal reads (the plant, the
+exact and nominal models, mode, suite, speed, ramp, measuring window, the
+action's scales and the portfolio): it is cached per process, so the
+evaluation seeds of one cell share one choice and a board's numbers do not
+depend on how its runs are spread over workers.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any, Sequence
 
 import numpy as np
 
+from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.policy import PolicyCard, PolicyContext
 from stepdamp_env.bench.runner import EpisodeSpec, run_episodes
-from stepdamp_env.params import SystemParams
-from stepdamp_env.response import phasors, torque_paths
+from stepdamp_env.params import DETENT_HARMONICS, ParameterError, SystemParams
+from stepdamp_env.response import current_path, phasors
 
 from .feedback import PrivilegedBound
 from .harmonic import harmonic_actions
@@ -59,8 +68,11 @@ _CHOICES: dict[tuple[Any, ...], Law] = {}
 
 
 def _key(context: PolicyContext) -> tuple[Any, ...]:
-    return (repr(context.knowledge.plant), context.mode, context.suite,
-            float(context.speed_rps), float(context.accel_rps2), context.window_s,
+    """Everything a rehearsal reads (the frozen models compare by value)."""
+    k = context.knowledge
+    return (k.plant, k.exact, k.nominal, context.mode, context.suite,
+            float(context.speed_rps), float(context.accel_rps2), float(context.agent_hz),
+            float(context.action_scale), float(context.current_scale_a), context.window_s,
             context.settle_s, context.lag_limit_steps)
 
 
@@ -76,26 +88,39 @@ class PortfolioLaw(PrivilegedBound):
     def _zeta(self, context: PolicyContext) -> float:
         return self.law[1] if self.law[0] == "zeta" else 0.0
 
+    @staticmethod
+    def load_angle(context: PolicyContext, system: SystemParams) -> float:
+        """Nr*delta (rad): how far the rotor trails its open-loop command in
+        electrical angle while it holds its constant torque, friction, viscous
+        drag and load, on the spring ``Km*I*sin(Nr*delta)`` (0 outside open loop;
+        below 0 where the load drives the rotor ahead)."""
+        if context.mode != "open-loop":
+            return 0.0
+        m = system.motor
+        sign = 1.0 if context.speed_rps >= 0.0 else -1.0
+        torque = m.Fs + m.D * 2.0 * math.pi * abs(context.speed_rps) + m.load_torque * sign
+        s = max(-1.0, min(1.0, torque / (m.Km * system.drive.holding_current)))
+        return fm.atan2(s, math.sqrt(1.0 - s * s))
+
     def _feedforward(self, context: PolicyContext, system: SystemParams) -> np.ndarray:
         """The exact detent model through the true current path, with the rotor's
-        static lag from its friction and its constant load torque (which
-        oracle-floor's exact model leaves out)."""
+        static lag from all the torque it holds (:meth:`load_angle`;
+        oracle-floor's exact model takes friction and drag alone, linearised)."""
         model = context.knowledge.exact
-        load = system.motor.load_torque * (1.0 if context.speed_rps >= 0.0 else -1.0)
-        friction = dataclasses.replace(model, Fs=max(0.0, model.Fs + load))
+        m = system.motor
+        w = 2.0 * math.pi * abs(context.speed_rps)
+        lag = self.load_angle(context, system) / m.Nr
+        g = np.array([current_path(system, h * m.Nr * w) * fm.cexp(1j * h * m.Nr * lag)
+                      for h in DETENT_HARMONICS])
         base = phasors(model)
-        g = torque_paths(system, context.mode, context.speed_rps, friction)
         return harmonic_actions(base / g, base, context.action_scale)
 
     def _start(self, context: PolicyContext, system: SystemParams) -> float:
-        """As oracle-floor's, with wn of the holding spring at the rotor's load angle
-        (the spring softens by cos(Nr*lag)) where the rotor hangs on it."""
+        """As oracle-floor's, with wn of the holding spring at the rotor's load
+        angle: the spring softens by cos(Nr*delta) (open loop)."""
         wn = super()._start(context, system)
-        if context.mode != "open-loop":
-            return wn
-        m = system.motor
-        s = (m.Fs + abs(m.load_torque)) / (m.Km * system.drive.holding_current)
-        return wn * math.sqrt(math.sqrt(max(1.0 - min(s, 1.0) ** 2, 1e-6)))
+        c = fm.cos(self.load_angle(context, system))
+        return wn * math.sqrt(max(c, 1e-6))
 
     def configure(self, context: PolicyContext) -> None:
         super().configure(context)
@@ -147,9 +172,12 @@ class PlantBound(PortfolioLaw):
             best = [math.inf] * len(keys)
             chosen: list[Law] = [self.portfolio[0]] * len(keys)
             for law in self.portfolio:
-                results = run_episodes(lambda law=law: PortfolioLaw(law), specs, mode=mode,
-                                       accel_rps2=accel, suite=suite,
-                                       lag_limit_steps=lag_limit, **window)
+                try:
+                    results = run_episodes(lambda law=law: PortfolioLaw(law), specs,
+                                           mode=mode, accel_rps2=accel, suite=suite,
+                                           lag_limit_steps=lag_limit, **window)
+                except ParameterError:      # a law that cannot run here is not chosen
+                    continue
                 for i, r in enumerate(results):
                     rms = math.inf if r.failed or r.metrics is None else \
                         float(r.metrics["rms_velocity_error_rad_s"])

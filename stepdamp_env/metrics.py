@@ -14,7 +14,7 @@ from . import kernel as K
 from .params import ParameterError, SystemParams
 
 __all__ = ["RunMetrics", "metrics_from_accumulators", "merge_accumulators",
-           "merge_accumulator_rows", "new_accumulators"]
+           "merge_accumulator_rows", "new_accumulators", "METRICS_V0_V3"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -44,7 +44,11 @@ def new_accumulators(n: int | None = None) -> np.ndarray:
 class RunMetrics:
     """Metrics of one run over its measuring window (SI units).
 
-    Velocity error is w_cmd - w (rad/s) sampled once per PWM period.
+    Velocity error is w_cmd - w (rad/s) and position error theta_cmd - theta
+    (rad), sampled once per PWM period. ``rms_position_error_steps``: the RMS
+    of the position error over the window, in full steps (the static lag
+    included); ``position_ripple_steps``: its RMS about its window mean (the
+    ripple a constant lag leaves), in full steps.
     """
 
     speed_rps: float
@@ -59,12 +63,24 @@ class RunMetrics:
     rms_injected_current_a: float       # feedforward plus residual q current
     harmonic_amplitude_rad_s: dict[int, float]  # error amplitude at h*Nr*speed
     peak_phase_current_a: float
+    rms_position_error_steps: float
+    position_ripple_steps: float
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
+        """JSON-ready; ``keys``: only these fields (e.g. :data:`METRICS_V0_V3`)."""
         out = asdict(self)
         out["harmonic_amplitude_rad_s"] = {str(h): v for h, v in
                                            self.harmonic_amplitude_rad_s.items()}
-        return out
+        return out if keys is None else {k: out[k] for k in keys}
+
+
+#: The fields a run's metrics held through 0.17 (stepdamp-bench v0-v3 record
+#: only these, so that their records stay as published).
+METRICS_V0_V3 = ("speed_rps", "rms_velocity_error_rad_s", "p2p_velocity_error_rad_s",
+                 "rms_velocity_error_norm", "p2p_velocity_error_norm",
+                 "mean_velocity_error_rad_s", "max_position_lag_rad", "max_position_lag_steps",
+                 "step_loss", "rms_injected_current_a", "harmonic_amplitude_rad_s",
+                 "peak_phase_current_a")
 
 
 def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
@@ -85,6 +101,8 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
         amps[h] = 2.0 / n * fm.hypot(acc[i_s], acc[i_c])
     step = system.motor.full_step_rad
     lag = float(acc[K.ACC.MAX_LAG])
+    p_mean = acc[K.ACC.SUM_P] / n
+    p_ms = acc[K.ACC.SUM_P2] / n
     return RunMetrics(
         speed_rps=float(speed_rps),
         rms_velocity_error_rad_s=rms,
@@ -98,4 +116,7 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
         rms_injected_current_a=math.sqrt(acc[K.ACC.SUM_IFF2] / n),
         harmonic_amplitude_rad_s=amps,
         peak_phase_current_a=float(acc[K.ACC.MAX_CURRENT]),
+        rms_position_error_steps=math.sqrt(p_ms) / step,
+        # Rounding can leave the variance a hair below 0 for a constant error.
+        position_ripple_steps=math.sqrt(max(p_ms - p_mean * p_mean, 0.0)) / step,
     )

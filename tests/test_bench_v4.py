@@ -152,6 +152,23 @@ def test_ranks_are_monotone_paired_and_per_seed(board):
 
 
 @pytest.mark.slow
+def test_rows_score_the_position_ripple_beside_the_velocity(board):
+    for e in board["entries"]:
+        pos = e["position_attenuation_db"]
+        if e["name"] == "none":
+            assert pos["iqm"] == 0.0
+        assert set(e["per_motor_position_db"]) <= set(e["per_motor_db"])
+        for r in e["runs"]:
+            if r["metrics"] is not None:
+                assert r["metrics"]["position_ripple_steps"] >= 0.0
+    # Damping the velocity ripple damps the position ripple with it.
+    rows = {(e["name"], e["split"]): e for e in board["entries"]}
+    for split in ("interpolation", "extrapolation", "catalogue"):
+        assert rows[("tuned-gain-pair", split)]["position_attenuation_db"]["iqm"] > 10.0
+    assert "position ripple (dB)" in render_suite_page(board, "open-loop")
+
+
+@pytest.mark.slow
 def test_learned_rows_carry_their_coverage_and_are_ranked_by_it(board):
     for e in board["entries"]:
         assert 0.0 <= e["coverage"] <= 1.0

@@ -61,16 +61,30 @@ def test_the_law_it_runs_is_the_best_of_its_rehearsal_whatever_the_order():
 def test_its_feedforward_carries_the_lag_of_a_load_torque():
     # With a load of a third of the holding torque the rotor trails its command:
     # the detent it feels is shifted, and a feedforward that ignores that
-    # (oracle-floor's exact model, privileged-bound) leaves ripple.
+    # (oracle-floor's exact model, privileged-bound) leaves ripple. No feedback
+    # (zeta 0): the feedforwards alone differ.
     system, know = _case()
     system, know = _case(load_torque=0.3 * system.motor.Km * system.drive.holding_current)
     speed = system.predicted_resonances_rps()[4]
-    law = pb.PortfolioLaw(("zeta", 2.0))
-    old = PrivilegedBound({s: (2.0, 5000.0, "delay-comp")
+    law = pb.PortfolioLaw(("zeta", 0.0))
+    old = PrivilegedBound({s: (0.0, 5000.0, "delay-comp")
                            for s in ("open-loop", "servo", "mid-band")})
     new_rms, old_rms = (_rms(run_episode(p, know, system, mode="open-loop", speed_rps=speed,
                                          seed=1, window_s=WINDOW_S)) for p in (law, old))
     assert new_rms < 0.5 * old_rms, (new_rms, old_rms)
+
+
+def test_the_load_angle_holds_the_torque_on_the_spring():
+    # Km*I*sin(Nr*delta) = Fs + D*w + load (the load opposes positive rotation).
+    system, know = _case()
+    system, know = _case(load_torque=0.4 * system.motor.Km * system.drive.holding_current)
+    m, i = system.motor, system.drive.holding_current
+    law = pb.PortfolioLaw(("zeta", 0.0))
+    for speed in (0.5, -0.5):
+        angle = law.load_angle(_context(law, know, speed), system)
+        held = m.Fs + m.D * 2.0 * math.pi * 0.5 + m.load_torque * math.copysign(1.0, speed)
+        assert m.Km * i * math.sin(angle) == pytest.approx(held, rel=1e-12)
+    assert law.load_angle(_context(law, know, 0.5, mode="servo"), system) == 0.0
 
 
 def test_a_bad_portfolio_is_a_one_line_error():

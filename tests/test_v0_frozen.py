@@ -63,7 +63,10 @@ def _spot_run(job):
     result = run_episode(resolve_policy(_CURRENT_NAME.get(spec, spec)).make(), _SPOT["knowledge"][motor_name],
                          motor.system, mode=suite, speed_rps=speed, seed=F.FULL_SPOT_SEED,
                          accel_rps2=p.accel_rps2, window_s=p.window_s)
-    return result.record(motor.name, F.FULL_SPOT_SEED, speed, motor.speed_labels[speed_index])
+    record = result.record(motor.name, F.FULL_SPOT_SEED, speed, motor.speed_labels[speed_index])
+    if record["metrics"] is not None:       # the metrics v0 records (as its boards do)
+        record["metrics"] = {k: record["metrics"][k] for k in p.run_metrics}
+    return record
 
 
 @pytest.mark.slow

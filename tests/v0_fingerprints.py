@@ -128,11 +128,14 @@ def measured_rollout(seed: int = 5) -> dict[str, Any]:
     zero = np.zeros(env.action_space.shape, dtype=np.float32)
     while env.time_s < 0.35:
         env.step(zero)
-    return env.run_metrics().to_dict()
+    from stepdamp_env.metrics import METRICS_V0_V3
+
+    return env.run_metrics().to_dict(METRICS_V0_V3)
 
 
 def simulate_fingerprints() -> dict[str, str]:
     from stepdamp_env import get_preset, simulate
+    from stepdamp_env.metrics import METRICS_V0_V3
     from stepdamp_env.simulation import RunSettings, SpeedProfile
 
     out = {}
@@ -145,7 +148,7 @@ def simulate_fingerprints() -> dict[str, str]:
         res = simulate(system.replace(current_noise_a=0.01),
                        profile=SpeedProfile(speed_rps=speed), settings=settings, trace=True)
         h = _Hash()
-        h.add(res.metrics.to_dict(), *[res.trace[k] for k in sorted(res.trace)])
+        h.add(res.metrics.to_dict(METRICS_V0_V3), *[res.trace[k] for k in sorted(res.trace)])
         out[name] = h.hexdigest()
     return out
 

@@ -213,10 +213,14 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
             # then says which could not (the others give the batch's numbers).
             results = [alone(e) for e in specs]
     records = []
+    keep = protocol.run_metrics
     for (i, seed, j), spec, result in zip(batch.runs, specs, results):
         motor = motors[i]
-        records.append(result.record(motor.name, seed, spec.speed_rps,
-                                     motor.speeds(batch.suite).labels[j], batch.training_seed))
+        record = result.record(motor.name, seed, spec.speed_rps,
+                               motor.speeds(batch.suite).labels[j], batch.training_seed)
+        if keep is not None and record["metrics"] is not None:
+            record["metrics"] = {k: record["metrics"][k] for k in keep}
+        records.append(record)
     return records
 
 

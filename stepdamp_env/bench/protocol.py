@@ -19,6 +19,7 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
+from ..metrics import METRICS_V0_V3
 from ..params import ParameterError
 from .suites import SUITES_BY_NAME, SuiteField, suite_names
 
@@ -133,6 +134,9 @@ class Protocol(abc.ABC):
     #: entry registered later would change every other row's comparisons). None:
     #: every registered default entry (the current version, which new entries join).
     published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V0_V2
+    #: The run metrics a board records (``RunMetrics`` fields); None: all of them.
+    #: v0-v3 keep the fields they were published with.
+    run_metrics: ClassVar[tuple[str, ...] | None] = METRICS_V0_V3
     #: Registered entries a current version leaves off its default board (an
     #: entry another one supersedes there; ``--entries`` still runs it).
     retired_entries: ClassVar[tuple[str, ...]] = ()

@@ -385,13 +385,17 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
             best = next((e for e in rows if e.get("rank") == 1), None)
             facts = [t for t in board.get("tables", ())
                      if t["suite"] == suite and t["split"] == split]
+            # v4 on: the position ripple's attenuation beside the velocity's.
+            pos = any("position_attenuation_db" in e for e in rows)
             lines += [f"## {suite}, {split}", "", *(
                 [table_facts_line(facts[0]), ""] if facts else []),
-                      "| rank | entry | attenuation (dB) | gap closed | ratio | success | "
+                      "| rank | entry | attenuation (dB) | "
+                      + ("position ripple (dB) | " if pos else "")
+                      + "gap closed | ratio | success | "
                       "full sweep mean / worst | effect vs "
                       f"{best['name'] if best else '-'} (dB) | P(better than it) | "
                       "training seeds | knowledge |",
-                      "|---|---|---|---|---|---|---|---|---|---|---|"]
+                      "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if pos else "")]
             for e in rows:
                 fs = e["full_sweep"]
                 eff = e.get("effect_db", {}).get(best["name"]) if best and e is not best \
@@ -407,7 +411,8 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
                         if e.get("reference") else entry_knowledge(e))
                 lines.append(
                     f"| {row_rank(e)} | {e['name']} | {format_db(e['attenuation_db'])} | "
-                    f"{format_db(e['gap_closed'])} | {format_db(e['ratio'])} | "
+                    + (f"{format_db(e['position_attenuation_db'])} | " if pos else "")
+                    + f"{format_db(e['gap_closed'])} | {format_db(e['ratio'])} | "
                     f"{e['success_rate']:.2f} | {fs['mean']:.3g} / {fs['worst']:.3g} | "
                     f"{effect} | {'-' if poi is None else f'{poi:.2f}'} | {seeds} | {know} |")
             lines.append("")

@@ -219,6 +219,8 @@ ACC = layout("Accumulators", """
     SUM_E2_ALL    sum of squared velocity error over all samples
     COUNT_ALL
     SUM_IFF2_ALL
+    SUM_P         sum of the position error theta_cmd - theta in the window (rad)
+    SUM_P2        sum of its square
 """)
 
 # ---------------------------------------------------------------------------

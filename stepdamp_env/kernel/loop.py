@@ -179,7 +179,8 @@ def merge_rows(totals, parts):
                 t[ACC.MIN_E] = p[ACC.MIN_E]
                 t[ACC.MAX_E] = p[ACC.MAX_E]
         for j in (ACC.COUNT, ACC.SUM_E, ACC.SUM_E2, ACC.SUM_IFF2, ACC.H1_S, ACC.H1_C, ACC.H2_S, ACC.H2_C,
-                  ACC.H4_S, ACC.H4_C, ACC.SUM_E2_ALL, ACC.COUNT_ALL, ACC.SUM_IFF2_ALL):
+                  ACC.H4_S, ACC.H4_C, ACC.SUM_E2_ALL, ACC.COUNT_ALL, ACC.SUM_IFF2_ALL,
+                  ACC.SUM_P, ACC.SUM_P2):
             t[j] += p[j]
         if p[ACC.MAX_LAG] > t[ACC.MAX_LAG]:
             t[ACC.MAX_LAG] = p[ACC.MAX_LAG]

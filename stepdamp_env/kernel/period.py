@@ -81,8 +81,8 @@ def law_current(lw, e_w, e_theta, s1, c1, dt, lanes=None):
 def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
     """The metrics ``m`` (:class:`.layout.Metrics`) with the sample at time ``t``
     (s) of the period's start: plant state ``x``, :class:`.layout.Sample` ``obs``.
-    In the window (``t >= win_start``) the velocity error's moments and its
-    lock-in sums on the detent harmonics h*Nr*w_ref*t (``ref_rate`` = Nr*w_ref,
+    In the window (``t >= win_start``) the velocity error's moments, the
+    position error's first two moments, and the velocity error's lock-in sums on the detent harmonics h*Nr*w_ref*t (``ref_rate`` = Nr*w_ref,
     timed from the window start, the angle evaluated afresh each sample, so no
     rounding accumulates). Returns (metrics, whether the lock-in angle left
     the lanes' range)."""
@@ -91,8 +91,9 @@ def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
     in_win = t >= win_start
     ref = ref_rate * (t - win_start)
     (count, sum_e, sum_e2, min_e, max_e, sum_iff2, h1s, h1c, h2s, h2c, h4s, h4c,
-     max_lag, max_i, sum_e2_all, n_all, sum_iff2_all) = m
-    max_lag = max(max_lag, abs(obs.theta_cmd - x[0]))
+     max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2) = m
+    perr = obs.theta_cmd - x[0]
+    max_lag = max(max_lag, abs(perr))
     max_i = max(max_i, abs(x[2]), abs(x[3]))
     sum_e2_all += err * err
     sum_iff2_all += iq_inj * iq_inj
@@ -114,8 +115,10 @@ def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
         h2c = h2c + err * c2 if in_win else h2c
         h4s = h4s + err * s4 if in_win else h4s
         h4c = h4c + err * c4 if in_win else h4c
+        sum_p = sum_p + perr if in_win else sum_p
+        sum_p2 = sum_p2 + perr * perr if in_win else sum_p2
     return (Metrics(count, sum_e, sum_e2, min_e, max_e, sum_iff2, h1s, h1c, h2s, h2c, h4s, h4c,
-                    max_lag, max_i, sum_e2_all, n_all, sum_iff2_all),
+                    max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2),
             in_win & ((abs(ref) >= 1e6) | (ref != ref)))
 
 

@@ -148,6 +148,8 @@ class ProtocolV4(ProtocolV3):
 
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     published_entries: ClassVar[tuple[str, ...] | None] = None
+    #: Every run metric, the position error's too.
+    run_metrics: ClassVar[tuple[str, ...] | None] = None
     #: v3's bound, superseded here by ``plant-bound`` (BOUND_ENTRY).
     retired_entries: ClassVar[tuple[str, ...]] = ("privileged-bound",)
     #: ``--eval-seeds`` may change how many evaluation seeds run.
@@ -299,10 +301,38 @@ class ProtocolV4(ProtocolV3):
         row["attenuation_db"] = att
         row["ratio"] = ratio
         row.update(db_row_fields(runs, keys, cell_db, ratios, ratio, motor_db, ratio_of_db))
+        row.update(self._position_scores(runs, none, common, stats))
         row["runs"] = runs
         row["_cells"] = (cell_db, cell_motor)
         row["_seed_motor_db"] = seed_motor_db
         return row
+
+    def _position_scores(self, runs: Sequence[Mapping[str, Any]],
+                         none: Mapping[tuple, Mapping[str, Any]], common: frozenset,
+                         stats: Mapping[str, Any]) -> dict[str, Any]:
+        """``position_attenuation_db`` (IQM over motors [interval]) and
+        ``per_motor_position_db``: the velocity score's rule on the position
+        ripple (``position_ripple_steps``, the RMS position error about its window
+        mean). Cells where ``none`` did not hold have no position score."""
+        cells: dict[tuple[str, Any], list[float]] = {}
+        for r in runs:
+            n = none.get((r["motor"], r["seed"], r["speed_rps"]))
+            if (r["motor"], float(r["speed_rps"])) not in common \
+                    or r["speed_label"].startswith("off") or n is None or n["failed"] \
+                    or n["metrics"] is None or "position_ripple_steps" not in n["metrics"]:
+                continue
+            db = self.failure_db if r["failed"] or r["metrics"] is None else attenuation_db(
+                n["metrics"]["position_ripple_steps"], r["metrics"]["position_ripple_steps"],
+                self.failure_db)
+            if math.isfinite(db):     # a cell: a motor and training seed, as the velocity's
+                cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
+        keys = sorted(cells, key=str)
+        cell_db = [float(np.mean(cells[k])) for k in keys]
+        cell_motor = [k[0] for k in keys]
+        per_motor = {m: float(np.mean([v for v, k in zip(cell_db, cell_motor) if k == m]))
+                     for m in sorted(set(cell_motor))}
+        return {"position_attenuation_db": motor_mean_bootstrap(cell_db, cell_motor, **stats),
+                "per_motor_position_db": per_motor}
 
     def run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
                stand_in: float) -> float:
