@@ -48,7 +48,10 @@ class RunMetrics:
     (rad), sampled once per PWM period. ``rms_position_error_steps``: the RMS
     of the position error over the window, in full steps (the static lag
     included); ``position_ripple_steps``: its RMS about its window mean (the
-    ripple a constant lag leaves), in full steps.
+    ripple a constant lag leaves), in full steps, from the window's sums
+    (``E[p^2] - E[p]^2``, which cancels as (lag/ripple)^2 grows: on 20,000
+    synthetic samples 2e-9 relative at 0.22 steps of lag and 3e-4 of ripple,
+    9e-5 at 10 and 1e-4; a run lost past its lag limit is not scored).
     """
 
     speed_rps: float

@@ -133,6 +133,11 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
         if not ok:
             a = (r.get("metrics") or {}).get("rms_velocity_error_rad_s")
             b = (got.get("metrics") or {}).get("rms_velocity_error_rad_s")
-            detail = f"RMS ripple recorded {a!r}, now {b!r}"
+            differ = sorted(k for k in {*r, *got} if not _same(r.get(k), got.get(k)))
+            inner = sorted(k for k in {*(r.get("metrics") or {}), *(got.get("metrics") or {})}
+                           if not _same((r.get("metrics") or {}).get(k),
+                                        (got.get("metrics") or {}).get(k)))
+            detail = (f"RMS ripple recorded {a!r}, now {b!r}; differs in "
+                      f"{', '.join(differ)}" + (f" ({', '.join(inner)})" if inner else ""))
         out.append({"what": where, "reproduces": ok, "detail": detail})
     return out

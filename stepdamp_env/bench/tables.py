@@ -376,7 +376,11 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
              f"(true state or exact model; `{p.get('bound_entry', 'privileged-bound')}` is "
              "the bound) and `zero-shot` "
              "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
-             "of the difference in dB against the best ranked entry, with its interval.", ""]
+             "of the difference in dB against the best ranked entry, with its interval."
+             + (" Position ripple: the same score of the RMS position error about its "
+                "window mean (v4 on; ranks stay on the velocity)."
+                if any("position_attenuation_db" in e for e in board["entries"]) else ""),
+             ""]
     for suite in suites or p["suites"]:
         for split in p["splits"]:
             rows = entry_rows(board, suite, split)

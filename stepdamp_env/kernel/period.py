@@ -82,7 +82,8 @@ def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
     """The metrics ``m`` (:class:`.layout.Metrics`) with the sample at time ``t``
     (s) of the period's start: plant state ``x``, :class:`.layout.Sample` ``obs``.
     In the window (``t >= win_start``) the velocity error's moments, the
-    position error's first two moments, and the velocity error's lock-in sums on the detent harmonics h*Nr*w_ref*t (``ref_rate`` = Nr*w_ref,
+    position error's first two moments, and the velocity error's lock-in
+    sums on the detent harmonics h*Nr*w_ref*t (``ref_rate`` = Nr*w_ref,
     timed from the window start, the angle evaluated afresh each sample, so no
     rounding accumulates). Returns (metrics, whether the lock-in angle left
     the lanes' range)."""

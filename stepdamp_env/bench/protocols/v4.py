@@ -93,6 +93,8 @@ CATALOGUE_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__
                               "catalogue.json")
 #: The privileged entry that stands for what damping can reach (``headroom_db``).
 BOUND_ENTRY = "plant-bound"
+#: The run metric of the position score (``position_attenuation_db``).
+POSITION_METRIC = "position_ripple_steps"
 #: How many evaluation seeds ``--eval-seeds`` may ask for.
 MAX_EVAL_SEEDS = 20
 
@@ -234,7 +236,7 @@ class ProtocolV4(ProtocolV3):
                 continue
             none = {(r["motor"], r["seed"], r["speed_rps"]): r
                     for r in by_entry[(REFERENCE_POLICY, suite)]}
-            stand_in = self._stand_ins(none)
+            stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
             for split in self.splits:
                 cells = sorted({(m.name, float(v)) for m in motors if m.split == split
                                 for v, lbl in zip(*m.speeds(suite))
@@ -311,20 +313,17 @@ class ProtocolV4(ProtocolV3):
                          none: Mapping[tuple, Mapping[str, Any]], common: frozenset,
                          stats: Mapping[str, Any]) -> dict[str, Any]:
         """``position_attenuation_db`` (IQM over motors [interval]) and
-        ``per_motor_position_db``: the velocity score's rule on the position
-        ripple (``position_ripple_steps``, the RMS position error about its window
-        mean). Cells where ``none`` did not hold have no position score."""
+        ``per_motor_position_db``: the velocity score's rules (:meth:`run_db`,
+        its stand-ins, cells and motors) on the position ripple
+        (``position_ripple_steps``, the RMS position error about its window mean)."""
+        stand_in = self._stand_ins_of(none, POSITION_METRIC)
         cells: dict[tuple[str, Any], list[float]] = {}
         for r in runs:
             n = none.get((r["motor"], r["seed"], r["speed_rps"]))
-            if (r["motor"], float(r["speed_rps"])) not in common \
-                    or r["speed_label"].startswith("off") or n is None or n["failed"] \
-                    or n["metrics"] is None or "position_ripple_steps" not in n["metrics"]:
-                continue
-            db = self.failure_db if r["failed"] or r["metrics"] is None else attenuation_db(
-                n["metrics"]["position_ripple_steps"], r["metrics"]["position_ripple_steps"],
-                self.failure_db)
-            if math.isfinite(db):     # a cell: a motor and training seed, as the velocity's
+            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan),
+                             POSITION_METRIC)
+            if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
+                    and not r["speed_label"].startswith("off"):
                 cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
         keys = sorted(cells, key=str)
         cell_db = [float(np.mean(cells[k])) for k in keys]
@@ -334,19 +333,31 @@ class ProtocolV4(ProtocolV3):
         return {"position_attenuation_db": motor_mean_bootstrap(cell_db, cell_motor, **stats),
                 "per_motor_position_db": per_motor}
 
+    @staticmethod
+    def _stand_ins_of(none: Mapping[tuple, Mapping[str, Any]], metric: str
+                      ) -> dict[tuple[str, int], float]:
+        """v3's stand-ins (``_stand_ins``) of another run metric."""
+        got: dict[tuple[str, int], list[float]] = {}
+        for (motor, seed, _), r in none.items():
+            if r["metrics"] is not None and not r["speed_label"].startswith("off") \
+                    and not r["failed"] and metric in r["metrics"]:
+                got.setdefault((motor, seed), []).append(r["metrics"][metric])
+        return {k: float(np.mean(v)) for k, v in got.items()}
+
     def run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
-               stand_in: float) -> float:
-        """One run's attenuation in dB (module docstring, "Runs")."""
-        none_held = none is not None and not none["failed"] and none["metrics"] is not None
+               stand_in: float, metric: str = "rms_velocity_error_rad_s") -> float:
+        """One run's attenuation in dB (module docstring, "Runs") of ``metric``
+        (the velocity ripple; the position ripple, ``POSITION_METRIC``)."""
+        none_held = none is not None and not none["failed"] and none["metrics"] is not None \
+            and metric in none["metrics"]
         if run["failed"]:
             # Where `none` lost and held nothing on this motor and seed, the cell has
             # no score for any row (a lost run must not outscore a held one).
             return self.failure_db if none_held else 0.0 if math.isfinite(stand_in) \
                 else math.nan
-        own = run["metrics"]["rms_velocity_error_rad_s"] if run["metrics"] else math.nan
+        own = run["metrics"].get(metric, math.nan) if run["metrics"] else math.nan
         if none_held:
-            return attenuation_db(none["metrics"]["rms_velocity_error_rad_s"], own,
-                                  self.failure_db)
+            return attenuation_db(none["metrics"][metric], own, self.failure_db)
         return attenuation_db(stand_in, own, 0.0)
 
     def _gap(self, rows: list[dict[str, Any]]) -> None:
