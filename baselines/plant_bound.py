@@ -151,7 +151,10 @@ class PlantBound(PortfolioLaw):
     def choice(self, context: PolicyContext) -> Law:
         """The law ``plant-bound`` runs in ``context`` (selected on first use)."""
         self._select([context])
-        return _CHOICES[(self.portfolio, *_key(context))]
+        return _CHOICES[self._cache_key(context)]
+
+    def _cache_key(self, context: PolicyContext) -> tuple[Any, ...]:
+        return (self.portfolio, *_key(context))
 
     def _select(self, contexts: Sequence[PolicyContext]) -> None:
         """Run the portfolio on the contexts whose choice is not yet known."""
@@ -159,7 +162,7 @@ class PlantBound(PortfolioLaw):
         for c in contexts:
             if c.knowledge.plant is None:
                 raise ValueError(f"{self.name} needs MotorKnowledge.plant (the true plant)")
-            key = (self.portfolio, *_key(c))
+            key = self._cache_key(c)
             if key not in _CHOICES:
                 todo.setdefault((c.mode, c.suite, float(c.accel_rps2), c.window_s,
                                  c.lag_limit_steps), {})[key] = c
@@ -191,5 +194,5 @@ class PlantBound(PortfolioLaw):
         super().reset_batch(contexts)
 
     def configure(self, context: PolicyContext) -> None:
-        self.law = _CHOICES[(self.portfolio, *_key(context))]
+        self.law = _CHOICES[self._cache_key(context)]
         super().configure(context)
