@@ -83,10 +83,12 @@ REFERENCE_TASK: dict[str, Any] = {
     "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
 }
 
-#: What ``stepdamp train --suite`` sets on top of the task for each stepdamp-bench v3
-#: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`).
+#: What ``stepdamp train --suite`` sets on top of the task for each constant-speed
+#: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`; v4's moves suite
+#: has no training task yet).
 SUITE_TASKS: dict[str, dict[str, Any]] = {name: copy.deepcopy(dict(s.training_task))
-                                          for name, s in SUITES_BY_NAME.items()}
+                                          for name, s in SUITES_BY_NAME.items()
+                                          if s.profile == "constant"}
 
 
 def suite_task(env_kwargs: dict[str, Any], suite: str) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from stepdamp_env import fixedmath as fm
 from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        RowPolicy, estimate_model)
-from stepdamp_env.bench.suites import nearest_suite, suite_of
+from stepdamp_env.bench.suites import nearest_suite, suite_of, tuned_suite
 from stepdamp_env.env import EnvOptionsV1, TaskV1
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.env.registration import ENV_ID_V1
@@ -172,7 +172,7 @@ class VelocityFeedback(_FeedbackOnFF):
 
     card = PolicyCard(sensors="encoder (velocity estimate, position error), currents",
                       model="nominal (law), identified (feedforward)",
-                      suites=("open-loop", "mid-band"),
+                      suites=("open-loop", "mid-band", "moves"),
                       not_in_suites="the servo's own loop is velocity feedback already "
                                     "(eq. 15): a second one on top retunes the servo (and, "
                                     "designed for the open-loop spring, loses steps there)")
@@ -238,7 +238,7 @@ class SensorlessDamping(_FeedbackOnFF):
 
     card = PolicyCard(sensors="currents + winding voltages (no encoder)",
                       model="nominal (law), identified (feedforward), winding R, L",
-                      suites=("open-loop", "mid-band"),
+                      suites=("open-loop", "mid-band", "moves"),
                       not_in_suites="a servo closes its loop on an encoder: sensorless "
                                     "damping is for open-loop drives")
     velocity_estimator = "back-emf"
@@ -405,7 +405,7 @@ class PrivilegedBound(OracleFloor):
     def _run_settings(self, context: PolicyContext) -> tuple[float, float, str]:
         plant = context.knowledge.plant
         drive = (plant if plant is not None else context.knowledge.nominal).drive.drive_mode
-        suite = context.suite or nearest_suite(context.mode, drive)
+        suite = tuned_suite(context.suite or nearest_suite(context.mode, drive), self.settings)
         if suite not in self.settings:
             raise ParameterError(f"{self.name}: no settings for suite {suite!r} (tuned "
                                  f"for {sorted(self.settings)})")

@@ -21,7 +21,7 @@ from typing import Mapping
 import numpy as np
 
 from stepdamp_env.bench.policy import PolicyCard, PolicyContext
-from stepdamp_env.bench.suites import nearest_suite
+from stepdamp_env.bench.suites import nearest_suite, tuned_suite
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
 
@@ -68,7 +68,7 @@ class TunedGainPair:
 
     def reset(self, context: PolicyContext) -> None:
         drive = context.knowledge.nominal.drive.drive_mode
-        suite = context.suite or nearest_suite(context.mode, drive)
+        suite = tuned_suite(context.suite or nearest_suite(context.mode, drive), self.pairs)
         if suite not in self.pairs:
             raise ParameterError(f"{self.name}: no gains for suite {suite!r} (tuned for "
                                  f"{sorted(self.pairs)})")

@@ -73,7 +73,8 @@ def _key(context: PolicyContext) -> tuple[Any, ...]:
     return (k.plant, k.exact, k.nominal, context.mode, context.suite,
             float(context.speed_rps), float(context.accel_rps2), float(context.agent_hz),
             float(context.action_scale), float(context.current_scale_a), context.window_s,
-            context.settle_s, context.lag_limit_steps)
+            context.settle_s, context.lag_limit_steps, context.profile,
+            float(context.distance_rev))
 
 
 class PortfolioLaw(PrivilegedBound):
@@ -169,7 +170,8 @@ class PlantBound(PortfolioLaw):
         for (mode, suite, accel, window_s, lag_limit), group in todo.items():
             keys = list(group)
             specs = [EpisodeSpec(group[k].knowledge, group[k].knowledge.plant,
-                                 group[k].speed_rps, SELECTION_SEED, group[k].settle_s)
+                                 group[k].speed_rps, SELECTION_SEED, group[k].settle_s,
+                                 profile=group[k].profile, distance_rev=group[k].distance_rev)
                      for k in keys]
             window = {} if window_s is None else {"window_s": window_s}
             best = [math.inf] * len(keys)

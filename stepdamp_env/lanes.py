@@ -138,12 +138,13 @@ def control_lanes(w, law):
         x = load_plant(w, at, n)
         period, cs, v_next, obs = load_controller(w, at, n, w[ROW.SIN * n + d], w[ROW.COS * n + d])
         m = load_metrics(w, ROW.AC * n + d, n)
-        win_start, ref_rate = c[CONFIG.WINDOW_START], c[CONFIG.NR] * c[CONFIG.REF_SPEED]
+        win_start, win_end = c[CONFIG.WINDOW_START], c[CONFIG.WINDOW_END]
+        ref_rate = c[CONFIG.NR] * c[CONFIG.REF_SPEED]
         if law is not None:
             lw, u = law_input(load_law(w, ROW.LW * n + d, n), u, cs, obs, q[CTRL.DT], n)
             store_law(w, ROW.LW * n + d, n, lw)
         cs, v, v_next, obs, m, off_path = control_period(period, x, cs, v_next, obs, m, q, u,
-                                                         win_start, ref_rate, n)
+                                                         win_start, win_end, ref_rate, n)
         store_controller(w, at, n, period + 1.0, cs, v_next, obs)
         store_metrics(w, ROW.AC * n + d, n, m)
         w[ROW.VA * n + d] = v[0]

@@ -52,6 +52,9 @@ class RunMetrics:
     (``E[p^2] - E[p]^2``, which cancels as (lag/ripple)^2 grows: on 20,000
     synthetic samples 2e-9 relative at 0.22 steps of lag and 3e-4 of ripple,
     9e-5 at 10 and 1e-4; a run lost past its lag limit is not scored).
+    ``run_position_error_steps``: the RMS of the position error over every
+    sample of the run, not only the window (for a point-to-point move: the
+    move and its settling), in full steps.
     """
 
     speed_rps: float
@@ -68,6 +71,7 @@ class RunMetrics:
     peak_phase_current_a: float
     rms_position_error_steps: float
     position_ripple_steps: float
+    run_position_error_steps: float
 
     def to_dict(self, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
         """JSON-ready; ``keys``: only these fields (e.g. :data:`METRICS_V0_V3`)."""
@@ -122,4 +126,5 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
         rms_position_error_steps=math.sqrt(p_ms) / step,
         # Rounding can leave the variance a hair below 0 for a constant error.
         position_ripple_steps=math.sqrt(max(p_ms - p_mean * p_mean, 0.0)) / step,
+        run_position_error_steps=math.sqrt(acc[K.ACC.SUM_P2_ALL] / acc[K.ACC.COUNT_ALL]) / step,
     )

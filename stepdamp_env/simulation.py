@@ -26,7 +26,7 @@ from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, System
                      fastest_plant_mode, required_substeps)
 
 __all__ = ["check_converged", "MODES", "BASE_CONTROLLERS", "DEFAULT_ACCEL_RPS2", "MIN_ACCEL_RPS2",
-           "MAX_DURATION_S", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
+           "MAX_DURATION_S", "PROFILE_KINDS", "MOVE_KINDS", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
            "run_length_error", "run_periods_chunked", "SpeedProfile", "RunSettings", "RunMetrics",
            "RunResult", "build_config", "check_integrable", "initial_state", "new_accumulators",
            "metrics_from_accumulators", "merge_accumulators", "merge_accumulator_rows", "simulate"]
@@ -39,6 +39,11 @@ BASE_CONTROLLERS = ("none", "patent-ff")
 VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST.LOWPASS, "kalman": K.VEL_EST.KALMAN,
                        "back-emf": K.VEL_EST.BACK_EMF}
 TWO_PI = 2.0 * math.pi
+#: SpeedProfile kinds: a constant speed after a ramp, and the point-to-point moves.
+PROFILE_KINDS = ("constant", "move", "s-curve")
+MOVE_KINDS = ("move", "s-curve")
+PROFILE_CODES = {"constant": K.PROFILE.CONSTANT, "move": K.PROFILE.MOVE,
+                 "s-curve": K.PROFILE.S_CURVE}
 # Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
 DEFAULT_ACCEL_RPS2 = 50.0
 # Smallest command acceleration (rev/s^2) of `stepdamp ... --accel` and of the envs'
@@ -76,6 +81,10 @@ class SpeedProfile:
     (signed) and hold it; the ramp keeps an open-loop start-up from losing steps.
     ``kind="move"``: a trapezoidal point-to-point move of ``distance_rev``
     (signed) at up to ``speed_rps``, triangular if the distance is too short.
+    ``kind="s-curve"``: the same move with half-cosine ramps (bounded jerk)
+    whose peak acceleration is ``accel_rps2``; each ramp lasts
+    ``pi*speed/(2*accel)`` and covers the distance a constant-acceleration ramp
+    of that duration would.
     """
 
     speed_rps: float
@@ -84,7 +93,7 @@ class SpeedProfile:
     distance_rev: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_choice("kind", self.kind, ("constant", "move"))
+        _check_choice("kind", self.kind, PROFILE_KINDS)
         for name in ("speed_rps", "distance_rev"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
@@ -95,7 +104,7 @@ class SpeedProfile:
                 f"speed_rps={self.speed_rps!r} is outside its allowed range: 0 (at rest) or "
                 "1e-6 <= |speed_rps| <= 1000")
         _check_positive("accel_rps2", self.accel_rps2)
-        if self.kind == "move":
+        if self.kind in MOVE_KINDS:
             _check_positive("speed_rps (magnitude of a move)", abs(self.speed_rps))
         if not math.isfinite(self.distance_rev):
             raise ParameterError(f"distance_rev must be finite, got {self.distance_rev!r}")
@@ -104,27 +113,48 @@ class SpeedProfile:
 
     @property
     def ramp_s(self) -> float:
-        """Time to reach the command speed (s)."""
-        return abs(self.speed_rps) / self.accel_rps2
+        """Time a ramp to the command speed takes (s)."""
+        v, a = abs(self.speed_rps), self.accel_rps2
+        return 0.5 * math.pi * v / a if self.kind == "s-curve" else v / a
+
+    def cruise(self) -> tuple[float, float]:
+        """(start, length) in s of a move's cruise at its top speed (length 0 for
+        a move too short to reach it); for ``constant``: (ramp_s, inf)."""
+        if self.kind == "constant":
+            return self.ramp_s, math.inf
+        v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
+        ramps = v * v / a if self.kind == "move" else 0.5 * math.pi * v * v / a
+        if ramps >= d:
+            return 0.5 * self.duration_s(), 0.0
+        return self.ramp_s, (d - ramps) / v
 
     def duration_s(self) -> float:
         """Time the move takes (s); for ``constant`` the ramp time."""
         if self.kind == "constant":
             return self.ramp_s
         v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
+        if self.kind == "s-curve":
+            if 0.5 * math.pi * v * v / a > d:
+                return math.pi * math.sqrt(2.0 * a * d / math.pi) / a
+            return d / v + 0.5 * math.pi * v / a
         if v * v / a > d:
             return 2.0 * math.sqrt(d / a)
         return d / v + v / a
 
 
-def max_move_distance_rev(speed_rps: float, accel_rps2: float, time_s: float) -> float:
-    """Longest move (rev) at top speed ``|speed_rps|`` and ``accel_rps2`` that lasts
-    at most ``time_s`` (the inverse of :meth:`SpeedProfile.duration_s`)."""
+def max_move_distance_rev(speed_rps: float, accel_rps2: float, time_s: float,
+                          kind: str = "move") -> float:
+    """Longest move (rev) of ``kind`` ("move" or "s-curve") at top speed
+    ``|speed_rps|`` and ``accel_rps2`` that lasts at most ``time_s`` (the
+    inverse of :meth:`SpeedProfile.duration_s`)."""
     v, a = abs(speed_rps), accel_rps2
     if not time_s > 0.0:
         return 0.0
-    if time_s >= 2.0 * v / a:           # reaches its top speed: trapezoidal
-        return v * (time_s - v / a)
+    ramp = 0.5 * math.pi * v / a if kind == "s-curve" else v / a
+    if time_s >= 2.0 * ramp:            # reaches its top speed
+        return v * (time_s - ramp)
+    if kind == "s-curve":               # peak speed a*time/pi
+        return a * time_s * time_s / (2.0 * math.pi)
     return a * time_s * time_s / 4.0    # triangular
 
 
@@ -210,7 +240,7 @@ def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunS
     """(start, length) of the measuring window in s: after the ramp and the
     settling for a constant speed; from the start through the settling for a move."""
     settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
-    if profile.kind == "move":
+    if profile.kind in MOVE_KINDS:
         # The whole move and its settling: after it the rotor rests, nothing to measure.
         return 0.0, profile.duration_s() + settle
     start = profile.duration_s() + settle
@@ -222,8 +252,9 @@ def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunS
 
 
 def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSettings,
-                 window_start_s: float = 0.0) -> np.ndarray:
-    """The kernel's configuration vector (see ``kernel.CONFIG``)."""
+                 window_start_s: float = 0.0, window_end_s: float = math.inf) -> np.ndarray:
+    """The kernel's configuration vector (see ``kernel.CONFIG``); the metrics
+    window is ``[window_start_s, window_end_s)`` (s)."""
     m, d, sv = system.motor, system.drive, system.servo
     check_integrable(system, settings.substeps, profile.speed_rps)
     c = np.zeros(len(K.CONFIG))
@@ -258,11 +289,12 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     # Stiction band: the speed friction alone removes in one plant step, so a
     # zero crossing within a step is caught at the next step's start.
     c[K.CONFIG.W_STICK] = m.Fs / m.J * dt / settings.substeps
-    c[K.CONFIG.PROFILE] = K.PROFILE.CONSTANT if profile.kind == "constant" else K.PROFILE.MOVE
+    c[K.CONFIG.PROFILE] = PROFILE_CODES[profile.kind]
     c[K.CONFIG.SPEED] = TWO_PI * profile.speed_rps
     c[K.CONFIG.ACCEL] = TWO_PI * profile.accel_rps2
     c[K.CONFIG.DISTANCE] = TWO_PI * profile.distance_rev
     c[K.CONFIG.WINDOW_START] = window_start_s
+    c[K.CONFIG.WINDOW_END] = window_end_s
     c[K.CONFIG.REF_SPEED] = TWO_PI * abs(profile.speed_rps)
     c[K.CONFIG.I_NOISE] = d.current_noise_a
     c[K.CONFIG.I_OFFSET_A] = d.current_offset_a
@@ -418,9 +450,9 @@ def run_length_error(system: SystemParams, profile: SpeedProfile, settings: RunS
     settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
     v, a = abs(profile.speed_rps), profile.accel_rps2
     cap = f"past the {MAX_DURATION_S:g} s a run may last"
-    if profile.kind == "move":
+    if profile.kind in MOVE_KINDS:
         time_s = profile.duration_s()
-        d_max = max_move_distance_rev(v, a, MAX_DURATION_S - settle)
+        d_max = max_move_distance_rev(v, a, MAX_DURATION_S - settle, profile.kind)
         return (f"{n['distance_rev']}={profile.distance_rev:g} is a move of {time_s:.6g} s at "
                 f"{n['speed_rps']}={profile.speed_rps:g} and {n['accel_rps2']}={a:g}; with "
                 f"{settle:.3g} s of settling it runs {time_s + settle:.6g} s, {cap}: allowed "

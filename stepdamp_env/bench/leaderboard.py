@@ -188,15 +188,18 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
                 knowledge = protocol_knowledge(motor, seed, knowledge.identified, protocol)
             kept[key] = (motor, knowledge)
         motor, knowledge = kept[key]
-        specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j], seed,
-                                 motor.settle_s(batch.suite)))
+        specs.append(EpisodeSpec(knowledge, motor.system, motor.speeds(batch.suite).speeds_rps[j],
+                                 seed, motor.settle_s(batch.suite),
+                                 **protocol.run_command(motors[i], batch.suite, j)))
     def alone(e: EpisodeSpec) -> EpisodeResult:
         try:
             return run_episode(_make(batch.spec, batch.training_seed), e.knowledge, e.system,
                                mode=mode, speed_rps=e.speed_rps, seed=e.seed,
-                               accel_rps2=protocol.accel_rps2, window_s=protocol.window_s,
+                               accel_rps2=protocol.accel_rps2 if e.accel_rps2 is None
+                               else e.accel_rps2, window_s=protocol.window_s,
                                settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit(),
-                               suite=batch.suite)
+                               suite=batch.suite, profile=e.profile,
+                               distance_rev=e.distance_rev)
         except RUN_ERRORS as exc:
             return could_not_run(exc)
 

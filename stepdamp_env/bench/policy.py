@@ -12,6 +12,8 @@ leaderboard runs every policy through :func:`stepdamp_env.bench.runner.run_episo
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Protocol as TypingProtocol, Sequence, runtime_checkable
 
@@ -135,6 +137,11 @@ class PolicyContext:
             (:func:`.runner.run_episode`'s arguments of those names; None where
             the run has none or they are not given), for an entry that rehearses
             its run (``plant-bound``).
+        profile, distance_rev: the command: "constant" (the ramp to
+            ``speed_rps``, then held), or a point-to-point move of
+            ``distance_rev`` (rev) at up to ``speed_rps``, "move" (trapezoid) or
+            "s-curve" (half-cosine ramps), whose ramps' peak acceleration is
+            ``accel_rps2`` (the ``moves`` suite).
     """
 
     knowledge: MotorKnowledge
@@ -150,6 +157,8 @@ class PolicyContext:
     window_s: float | None = None
     settle_s: float | None = None
     lag_limit_steps: float | None = None
+    profile: str = "constant"
+    distance_rev: float = 0.0
 
     def __post_init__(self) -> None:
         if self.suite is None:          # the one of the mode on the nominal drive
@@ -161,7 +170,9 @@ class PolicyContext:
     @property
     def ramp_s(self) -> float:
         """Duration of the start-up ramp (s)."""
-        return abs(self.speed_rps) / self.accel_rps2
+        v = abs(self.speed_rps)
+        return 0.5 * math.pi * v / self.accel_rps2 if self.profile == "s-curve" else \
+            v / self.accel_rps2
 
 
 @runtime_checkable
@@ -402,7 +413,8 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
                    speed_rps: float, accel_rps2: float = DEFAULT_ACCEL_RPS2,
                    suite: str | None = None, window_s: float | None = None,
                    settle_s: float | None = None,
-                   lag_limit_steps: float | None = None) -> PolicyContext:
+                   lag_limit_steps: float | None = None, profile: str = "constant",
+                   distance_rev: float = 0.0) -> PolicyContext:
     """The :class:`PolicyContext` of a run with the checked ``options``
     (:func:`policy_env_options`); ``suite`` None: the one of ``mode`` on the
     nominal motor's drive (:func:`.suites.suite_of`); the run's measuring
@@ -425,7 +437,8 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
         accel_rps2=float(accel_rps2), suite=suite,
         window_s=None if window_s is None else float(window_s),
         settle_s=None if settle_s is None else float(settle_s),
-        lag_limit_steps=None if lag_limit_steps is None else float(lag_limit_steps))
+        lag_limit_steps=None if lag_limit_steps is None else float(lag_limit_steps),
+        profile=profile, distance_rev=float(distance_rev))
 
 
 assert set(ESTIMATES) <= set(KNOWLEDGE_ESTIMATES)

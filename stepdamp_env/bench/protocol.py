@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
 from ..metrics import METRICS_V0_V3
 from ..params import ParameterError
-from .suites import SUITES_BY_NAME, SuiteField, suite_names
+from .suites import SUITES_BY_NAME, SUITES_THROUGH_V3, SuiteField
 
 if TYPE_CHECKING:
     from ..params import SystemParams
@@ -49,8 +49,8 @@ PROTOCOL_NAME = "stepdamp-bench"
 TRAINING_SEED_LIMIT = 1_000_000
 #: v0's and v1's suites.
 SUITES = tuple(name for name, s in SUITES_BY_NAME.items() if s.since == "v0")
-#: Every suite of any protocol (:mod:`.suites`): v2 adds the voltage-mode drive's mid-band.
-ALL_SUITES = suite_names()
+#: Every suite of v2 and v3 (:mod:`.suites`): v2 adds the voltage-mode drive's mid-band.
+ALL_SUITES = SUITES_THROUGH_V3
 #: The env mode a suite runs in, and its drive_mode (live views of :mod:`.suites`).
 SUITE_MODE = SuiteField("mode")
 SUITE_DRIVE_MODE = SuiteField("drive_mode")
@@ -193,6 +193,13 @@ class Protocol(abc.ABC):
         judged by their final slip (:func:`.runner.lost_steps`); None (the
         default): a lag past one full step ends the run as a step loss."""
         return None
+
+    def run_command(self, motor: "ProtocolMotor", suite: str, index: int) -> dict[str, Any]:
+        """How the run of a suite's ``index``-th speed on ``motor`` is commanded,
+        as :class:`.runner.EpisodeSpec` fields beyond the speed ({}: a ramp at
+        ``accel_rps2`` to the speed, then held; v4's moves suite: a move's
+        ``profile``, ``distance_rev`` and ``accel_rps2``)."""
+        return {}
 
     def reference_motor(self, motor: "ProtocolMotor", suite: str) -> "ProtocolMotor | None":
         """The motor a suite's ``reference`` row runs policy ``none`` on: the same

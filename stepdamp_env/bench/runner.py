@@ -25,11 +25,13 @@ from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
 from ..env.v1 import StepperDampV1Env
 from ..params import ParameterError, SystemParams
-from ..simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, measuring_window
+from ..simulation import (DEFAULT_ACCEL_RPS2, MOVE_KINDS, RunSettings, SpeedProfile,
+                          default_settle_s, measuring_window)
 from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
                      policy_env_options)
 
 __all__ = ["EpisodeResult", "EpisodeSpec", "run_episode", "run_episodes", "episode_window",
+           "move_window",
            "RUN_ERRORS", "could_not_run",
            "lost_steps"]
 
@@ -133,10 +135,21 @@ def episode_window(system: SystemParams, speed_rps: float, accel_rps2: float,
                             RunSettings(window_s=window_s, settle_s=settle_s))
 
 
+def move_window(system: SystemParams, profile: SpeedProfile, settle_s: float | None = None
+                ) -> tuple[float, float, float]:
+    """A point-to-point move's (window start, window length, run end) in s:
+    the window is its cruise at top speed (from the end of the first ramp, so
+    what the ramp through lower resonances excites is measured), the run ends
+    ``settle_s`` (default: the core's settling) after the move."""
+    settle = default_settle_s(system) if settle_s is None else float(settle_s)
+    start, length = profile.cruise()
+    return start, length, profile.duration_s() + settle
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """Where one episode of :func:`run_episodes` runs (see :func:`run_episode`
-    for the fields)."""
+    for the fields; ``accel_rps2`` None: the batch's)."""
 
     knowledge: MotorKnowledge
     system: SystemParams
@@ -145,6 +158,9 @@ class EpisodeSpec:
     settle_s: float | None = None
     measure_from_s: float | None = None
     until_s: float | None = None
+    profile: str = "constant"
+    distance_rev: float = 0.0
+    accel_rps2: float | None = None
 
 
 def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
@@ -152,13 +168,27 @@ def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, wind
               ) -> tuple[Any, float, float, float, dict[str, Any]]:
     """The episode's env (not reset), window (start, length), end time and options."""
     system = spec.system
-    start, length = episode_window(system, spec.speed_rps, accel_rps2, window_s, spec.settle_s)
-    if spec.measure_from_s is not None:
-        start, length = float(spec.measure_from_s), float(window_s)
+    if spec.accel_rps2 is not None:
+        accel_rps2 = spec.accel_rps2
     options = policy_env_options(policy, spec.knowledge)
-    protocol_options = {} if lag_limit_steps is None else {"lag_limit_steps": lag_limit_steps}
-    # Half a PWM period of slack: time_s is a float multiple of the period.
-    end = start + length - 0.5 / system.drive.pwm_hz if spec.until_s is None else spec.until_s
+    protocol_options: dict[str, Any] = {} if lag_limit_steps is None else \
+        {"lag_limit_steps": lag_limit_steps}
+    slack = 0.5 / system.drive.pwm_hz   # time_s is a float multiple of the period
+    if spec.profile in MOVE_KINDS:
+        profile = SpeedProfile(speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
+                               kind=spec.profile, distance_rev=spec.distance_rev)
+        start, length, end = move_window(system, profile, spec.settle_s)
+        end -= slack
+        protocol_options.update(profile=spec.profile, distance_rev=spec.distance_rev,
+                                measure_until_s=start + length)
+    else:
+        start, length = episode_window(system, spec.speed_rps, accel_rps2, window_s,
+                                       spec.settle_s)
+        if spec.measure_from_s is not None:
+            start, length = float(spec.measure_from_s), float(window_s)
+        end = start + length - slack
+    if spec.until_s is not None:
+        end = spec.until_s
     env: Any
     if policy_env_id(policy) == ENV_ID_V1:
         env = StepperDampV1Env(motor=system, nominal=spec.knowledge.nominal, mode=mode,
@@ -179,7 +209,8 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 until_s: float | None = None,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
                 pwm_trace: bool = False, lag_limit_steps: float | None = None,
-                suite: str | None = None) -> EpisodeResult:
+                suite: str | None = None, profile: str = "constant",
+                distance_rev: float = 0.0) -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` (or in ``StepperDamp-v1`` if its
     ``env_id`` says so: the drive's ``nominal`` model is then the knowledge's) on
     the true plant ``system``.
@@ -198,14 +229,20 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     ``lag_limit_steps`` (stepdamp-bench v3): the env's lag limit, and the run
     is judged by its final slip (:func:`lost_steps`). ``suite``: the policy's
     ``PolicyContext.suite`` (None: the one of ``mode`` on the nominal drive).
+    ``profile`` "move" or "s-curve": a point-to-point move of ``distance_rev``
+    at up to ``speed_rps`` (``accel_rps2`` its ramps' peak acceleration),
+    measured over its cruise and run until ``settle_s`` after it ends
+    (:func:`move_window`; ``window_s`` and ``measure_from_s`` do not apply).
     """
-    spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s)
+    spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s,
+                       profile, float(distance_rev))
     env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
                                                  "rgb_array" if pwm_trace else None,
                                                  lag_limit_steps)
     obs, _ = env.reset(seed=seed)
     policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2, suite,
-                                window_s, settle_s, lag_limit_steps))
+                                window_s, settle_s, lag_limit_steps, profile,
+                                float(distance_rev)))
     steps, terminated, reason = 0, False, ""
     trace: list[Any] = []
     while env.time_s < end:
@@ -256,9 +293,10 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         envs.append(env)
         ends[i] = end
         windows.append((start, length))
-        contexts.append(policy_context(options, spec.knowledge, mode, spec.speed_rps,
-                                       accel_rps2, suite, window_s, spec.settle_s,
-                                       lag_limit_steps))
+        contexts.append(policy_context(
+            options, spec.knowledge, mode, spec.speed_rps,
+            accel_rps2 if spec.accel_rps2 is None else spec.accel_rps2, suite, window_s,
+            spec.settle_s, lag_limit_steps, spec.profile, spec.distance_rev))
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}

@@ -13,16 +13,19 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Iterator, Mapping
+from typing import Any, Collection, Iterator, Mapping
 
 from ..params import ParameterError
 
 __all__ = ["Suite", "SUITES_BY_NAME", "register_suite", "get_suite", "suite_names", "suite_of",
-           "nearest_suite", "SuiteField", "MODES", "DRIVE_MODES"]
+           "nearest_suite", "tuned_suite", "SuiteField", "MODES", "DRIVE_MODES", "PROFILES",
+           "SUITES_THROUGH_V3"]
 
 #: The env's modes and the drive's current controls a suite may pair.
 MODES = ("open-loop", "servo")
 DRIVE_MODES = ("current", "voltage")
+#: A suite's command: a constant speed, or point-to-point moves.
+PROFILES = ("constant", "moves")
 
 
 @dataclass(frozen=True)
@@ -44,6 +47,11 @@ class Suite:
             1.58-10.79) widened by x0.8 and x1.2 (open loop: the reference task's
             own draw, which covers its resonances). Chosen on the dev split,
             never on a scored one.
+        profile: the command: "constant" (a ramp to each speed, then held) or
+            "moves" (point-to-point moves cruising at each speed, v4's moves
+            suite: the protocol gives each cell's ramp shape and acceleration).
+        tuning: the suite whose tuned settings an entry tuned per suite uses
+            here when it has none of its own (None: none; it cannot run).
     """
 
     name: str
@@ -54,6 +62,8 @@ class Suite:
     reference: str
     since: str
     training_task: Mapping[str, Any] = field(default_factory=dict)
+    profile: str = "constant"
+    tuning: str | None = None
 
     def __post_init__(self) -> None:
         # A copy of its own, read-only at the top (the builders deep-copy what they use).
@@ -68,7 +78,8 @@ SUITES_BY_NAME: Mapping[str, Suite] = MappingProxyType(_SUITES)
 
 def register_suite(suite: Suite) -> None:
     """Add a suite (its name new and not "all"; its mode and drive one of
-    :data:`MODES` and :data:`DRIVE_MODES`, a pair no suite has yet). Processes
+    :data:`MODES` and :data:`DRIVE_MODES`, its profile one of :data:`PROFILES`;
+    mode, drive and profile together a triple no suite has yet). Processes
     forked later see it; a spawned or Ray worker registers it again."""
     if not isinstance(suite.name, str) or not suite.name or suite.name == "all":
         raise ParameterError(f"suite name {suite.name!r}: a non-empty name other than 'all'")
@@ -76,12 +87,20 @@ def register_suite(suite: Suite) -> None:
         raise ParameterError(f"suite {suite.name!r}: mode {suite.mode!r} must be one of "
                              f"{list(MODES)}, drive_mode {suite.drive_mode!r} one of "
                              f"{list(DRIVE_MODES)}")
+    if suite.profile not in PROFILES:
+        raise ParameterError(f"suite {suite.name!r}: profile {suite.profile!r} must be one of "
+                             f"{list(PROFILES)}")
     if suite.name in _SUITES:
         raise ParameterError(f"suite {suite.name!r} is registered twice")
-    taken = suite_of(suite.mode, suite.drive_mode)
+    taken = next((s.name for s in _SUITES.values() if (s.mode, s.drive_mode, s.profile)
+                  == (suite.mode, suite.drive_mode, suite.profile)), None)
     if taken is not None:
         raise ParameterError(f"suite {suite.name!r}: mode {suite.mode!r} on the "
-                             f"{suite.drive_mode!r} drive is suite {taken!r} already")
+                             f"{suite.drive_mode!r} drive with profile {suite.profile!r} is "
+                             f"suite {taken!r} already")
+    if suite.tuning is not None and suite.tuning not in _SUITES:
+        raise ParameterError(f"suite {suite.name!r}: tuning {suite.tuning!r} is not a "
+                             f"registered suite {list(_SUITES)}")
     _SUITES[suite.name] = suite
 
 
@@ -128,10 +147,20 @@ def nearest_suite(mode: str, drive_mode: str) -> str | None:
 
 
 def suite_of(mode: str, drive_mode: str) -> str | None:
-    """The suite a run of ``mode`` on a ``drive_mode`` drive belongs to (None if
-    none: a servo on the voltage-mode drive)."""
+    """The constant-speed suite a run of ``mode`` on a ``drive_mode`` drive
+    belongs to (None if none: a servo on the voltage-mode drive)."""
     return next((s.name for s in SUITES_BY_NAME.values()
-                 if (s.mode, s.drive_mode) == (mode, drive_mode)), None)
+                 if (s.mode, s.drive_mode, s.profile) == (mode, drive_mode, "constant")), None)
+
+
+def tuned_suite(suite: str, tuned: Collection[str]) -> str:
+    """The suite whose settings an entry tuned for the suites ``tuned`` uses in
+    ``suite``: its own, else the suite's ``tuning`` (the moves suite: the
+    open-loop suite's); ``suite`` itself if neither was tuned."""
+    if suite in tuned:
+        return suite
+    fallback = SUITES_BY_NAME[suite].tuning if suite in SUITES_BY_NAME else None
+    return fallback if fallback is not None and fallback in tuned else suite
 
 
 # The suites of v0-v3.
@@ -153,3 +182,14 @@ for _suite in (
            "overrides": {"drive_mode": "voltage"}}),
 ):
     register_suite(_suite)
+#: The suites v0-v3 know (frozen: a later suite never joins their boards).
+SUITES_THROUGH_V3 = tuple(_SUITES)
+
+# v4's.
+register_suite(Suite(
+    "moves", "open-loop", "current",
+    "point-to-point moves through the resonances: ramps (trapezoid and S-curve) that "
+    "pass the lower resonances, a cruise at a resonant speed, the stop and its settling",
+    "moves cruising at the open-loop headline speeds f2 and f1, each as a trapezoid and "
+    "as an S-curve", "the same motor without torque harmonics", "v4",
+    profile="moves", tuning="open-loop"))

@@ -379,7 +379,12 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
              "of the difference in dB against the best ranked entry, with its interval."
              + (" Position ripple: the same score of the RMS position error about its "
                 "window mean (v4 on; ranks stay on the velocity)."
-                if any("position_attenuation_db" in e for e in board["entries"]) else ""),
+                if any("position_attenuation_db" in e for e in board["entries"]) else "")
+             + (" Moves (v4): the attenuation is the velocity ripple over each move's "
+                "cruise; the position column scores the RMS position error about the "
+                "command over the whole move and its settling."
+                if any(e.get("position_metric") == "run_position_error_steps"
+                       for e in board["entries"]) else ""),
              ""]
     for suite in suites or p["suites"]:
         for split in p["splits"]:
@@ -394,7 +399,9 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
             lines += [f"## {suite}, {split}", "", *(
                 [table_facts_line(facts[0]), ""] if facts else []),
                       "| rank | entry | attenuation (dB) | "
-                      + ("position ripple (dB) | " if pos else "")
+                      + ((("position error over the move (dB) | "
+                           if any(e.get("position_metric") == "run_position_error_steps"
+                                  for e in rows) else "position ripple (dB) | ")) if pos else "")
                       + "gap closed | ratio | success | "
                       "full sweep mean / worst | effect vs "
                       f"{best['name'] if best else '-'} (dB) | P(better than it) | "

@@ -60,6 +60,9 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
     p.add_argument("--move", type=number(float, -1e6, 1e6), default=None, metavar="REV",
                    help="point-to-point move of this many revolutions, measured from its start "
                         "through its settling (default: constant speed)")
+    p.add_argument("--ramp", choices=("trapezoid", "s-curve"), default="trapezoid",
+                   help="a --move's ramps: trapezoid (constant acceleration --accel) or "
+                        "s-curve (half-cosine ramps of peak acceleration --accel: bounded jerk)")
     p.add_argument("--duration", type=number(float, 0, MAX_DURATION_S, low_open=True),
                    default=None,
                    metavar="SECONDS", help="simulated time (default: ramp + settle + 0.5 s window)")
@@ -273,9 +276,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         if abs(args.move) < step_rev:
             raise ParameterError(f"--move {args.move:g}: shorter than one full step, nothing to "
                                  f"measure; allowed |move| >= {step_rev:g} rev")
-        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel, kind="move",
+        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel,
+                               kind="s-curve" if args.ramp == "s-curve" else "move",
                                distance_rev=args.move)
     else:
+        if args.ramp != "trapezoid":
+            raise ParameterError(f"--ramp {args.ramp}: only a --move has ramps to shape "
+                                 "(a constant speed ramps at --accel)")
         profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel)
     # Bounded work, checked before anything runs: the run lasts at most --duration's cap.
     start, length = measuring_window(system, profile, settings)
@@ -330,7 +337,7 @@ def _run_record(args: argparse.Namespace, system: Any, result: Any) -> dict[str,
     s = result.settings
     return {"motor": system.name, "mode": s.mode, "base_controller": s.base_controller,
             "speed_rps": result.profile.speed_rps, "accel_rps2": result.profile.accel_rps2,
-            "move_rev": args.move, "substeps": s.substeps, "noise_seed": s.noise_seed,
+            "move_rev": args.move, "profile": result.profile.kind, "substeps": s.substeps, "noise_seed": s.noise_seed,
             "duration_s": result.duration_s, "window_start_s": result.window_start_s,
             **{k: v for k, v in result.metrics.to_dict().items() if k != "speed_rps"},
             "parameters": system.to_dict()}

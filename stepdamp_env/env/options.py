@@ -10,7 +10,8 @@ import numpy as np
 
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import BASE_CONTROLLERS as _CORE_BASE_CONTROLLERS
-from ..simulation import DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
+from ..simulation import (DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, MOVE_KINDS, PROFILE_KINDS,
+                          VELOCITY_ESTIMATORS)
 from .layout import ACTION_MODES
 from .registration import ENV_ID
 
@@ -120,6 +121,9 @@ class EnvOptions:
     substeps: int = 1
     velocity_estimator: str = "lowpass"
     measure_from_s: float | None = None
+    measure_until_s: float | None = None
+    profile: str = "constant"
+    distance_rev: float = 0.0
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID) -> "EnvOptions":
@@ -162,6 +166,18 @@ class EnvOptions:
         check_choice("velocity_estimator", self.velocity_estimator, tuple(VELOCITY_ESTIMATORS))
         if self.measure_from_s is not None:
             check_number("measure_from_s", self.measure_from_s, 0.0, 1e6)
+        if self.measure_until_s is not None:
+            low = 0.0 if self.measure_from_s is None else float(self.measure_from_s)
+            check_number("measure_until_s", self.measure_until_s, low, 1e6, low_open=True)
+        check_choice("profile", self.profile, PROFILE_KINDS)
+        if self.profile in MOVE_KINDS:
+            check_number("distance_rev", abs(self.distance_rev)
+                         if isinstance(self.distance_rev, (int, float, np.number))
+                         and not isinstance(self.distance_rev, bool) else self.distance_rev,
+                         0.0, 1e6, low_open=True)
+        elif self.distance_rev != 0.0:
+            raise ParameterError(f"distance_rev={self.distance_rev!r} needs profile 'move' or "
+                                 "'s-curve' (a constant speed has no distance)")
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise _bad("substeps", self.substeps, "[1, 1000] (integer)")
@@ -243,7 +259,15 @@ OPTIONS_DOC = """
       currents; added in 0.4.0, v0's rollouts with the other two are unchanged).
     * ``measure_from_s`` (None; scalar env only): open the simulation core's
       measuring window at this time (s) so that ``env.run_metrics()`` returns the
-      core's metrics of the episode (used by the leaderboard).
+      core's metrics of the episode (used by the leaderboard);
+      ``measure_until_s`` (None: open to the episode's end) closes it (s, after
+      ``measure_from_s``).
+    * ``profile`` ("constant"): the command, "constant" (the ramp to the speed,
+      then held), or a point-to-point move of ``distance_rev`` (0.0; rev, signed)
+      at up to the speed: "move" (constant-acceleration ramps of
+      ``accel_rps2``, a trapezoid) or "s-curve" (half-cosine ramps of peak
+      acceleration ``accel_rps2``: bounded jerk). After a move the command
+      rests at its end. Added in 0.18.0; the defaults give earlier rollouts.
     * Sensor noise and offsets are motor-file fields (``current_noise_a``,
       ``current_offset_a``, ``current_offset_b``, via ``overrides``); each
       episode draws its own noise seed.

@@ -165,6 +165,20 @@ class EpisodeSampler(EnvTask):
         lo, hi = o.speed_range_rps
         return float(rng.uniform(lo, hi)), 0
 
+    def profile(self, speed_rps: float) -> SpeedProfile:
+        """The episode's command at ``speed_rps`` (the options' profile)."""
+        o = self._options
+        return SpeedProfile(speed_rps=speed_rps, accel_rps2=o.accel_rps2, kind=o.profile,
+                            distance_rev=o.distance_rev)
+
+    def window(self) -> tuple[float, float]:
+        """The core's metrics window (start, end) in s. Without measure_from_s
+        none: the env reads per-step sums only, and the window's lock-in sums
+        would cost a sincos per PWM period."""
+        o = self._options
+        return (math.inf if o.measure_from_s is None else float(o.measure_from_s),
+                math.inf if o.measure_until_s is None else float(o.measure_until_s))
+
     # -- the task ------------------------------------------------------------------
     law_actions = False
     max_episode_steps = None            # the time limit is the env's (gym's TimeLimit)
@@ -187,11 +201,7 @@ class EpisodeSampler(EnvTask):
         settings = RunSettings(mode=o.mode, base_controller=o.base_controller, substeps=int(o.substeps),
                                estimate=estimate, velocity_estimator=o.velocity_estimator,
                                noise_seed=noise_seed)
-        profile = SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2)
-        # Without measure_from_s no metrics window: the env reads per-step sums
-        # only, and the window's lock-in sums would cost a sincos per PWM period.
-        window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
-        c[:] = build_config(system, profile, settings, window_start_s=window)
+        c[:] = build_config(system, self.profile(speed), settings, *self.window())
         s[:] = initial_state(c)
         par[C.PARAM.FULL_STEP] = system.motor.full_step_rad
         par[C.PARAM.LAG_LIMIT] = o.lag_limit_steps * system.motor.full_step_rad

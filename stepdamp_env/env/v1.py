@@ -20,7 +20,7 @@ from .. import kernel as K
 from ..params import FeedforwardModel, SystemParams
 from ..motorfile import load_system
 from ..response import phasors, torque_paths
-from ..simulation import (RunSettings, SpeedProfile, build_config, initial_state,
+from ..simulation import (RunSettings, build_config, initial_state,
                           merge_accumulators)
 from . import compiled as C
 from . import v1_compiled as V
@@ -146,9 +146,7 @@ class TaskV1(EnvTask):
         settings = RunSettings(mode=o.mode, base_controller="patent-ff" if o.base_controller != "none"
                                else "none", substeps=int(o.substeps), estimate=estimate,
                                velocity_estimator=o.velocity_estimator, noise_seed=noise_seed)
-        window = math.inf if o.measure_from_s is None else float(o.measure_from_s)
-        c[:] = build_config(system, SpeedProfile(speed_rps=speed, accel_rps2=o.accel_rps2),
-                            settings, window_start_s=window)
+        c[:] = build_config(system, d.profile(speed), settings, *d.window())
         if o.base_controller == "ff-delay-comp":
             c[list(_FF_COLUMNS)] = self.base_coefficients(estimate, speed)
         s[:] = initial_state(c)

@@ -125,6 +125,9 @@ class EnvOptionsV1:
     substeps: int = 1
     velocity_estimator: str = "lowpass"
     measure_from_s: float | None = None
+    measure_until_s: float | None = None
+    profile: str = "constant"
+    distance_rev: float = 0.0
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> "EnvOptionsV1":
@@ -178,7 +181,8 @@ class EnvOptionsV1:
             current_limit_factor=self.current_limit_factor,
             lag_limit_steps=self.lag_limit_steps, privileged=self.privileged,
             substeps=self.substeps, velocity_estimator=self.velocity_estimator,
-            measure_from_s=self.measure_from_s)
+            measure_from_s=self.measure_from_s, measure_until_s=self.measure_until_s,
+            profile=self.profile, distance_rev=self.distance_rev)
 
     @property
     def max_episode_steps(self) -> int:
@@ -196,7 +200,8 @@ OPTIONS_DOC_V1 = """
     ``speed_range_rps``, ``resonance_prob``, ``resonance_spread``,
     ``accel_rps2``, ``agent_hz``, ``harmonic_scale_nm``, ``current_scale_a``,
     ``current_limit_factor``, ``lag_limit_steps``, ``privileged``, ``substeps``,
-    ``velocity_estimator``, ``measure_from_s`` (see ``StepperDamp-v0``). New or
+    ``velocity_estimator``, ``measure_from_s``, ``measure_until_s``, ``profile``,
+    ``distance_rev`` (see ``StepperDamp-v0``). New or
     changed in v1:
 
     * ``base_controller`` ("ff-delay-comp"): the drive's model-based damping under

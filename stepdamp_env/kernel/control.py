@@ -14,7 +14,7 @@ from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST, Controll
 from .plant import harmonic_series, inverse_park_sc, park_sc, pi_output, pi_update, svpwm_legs
 
 __all__ = ["splitmix64", "uniform_pair", "gaussian_pair", "quantise", "constant_speed_command",
-           "move_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params",
+           "move_command", "s_curve_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params",
            "feedforward_torque", "sense_currents", "estimate_velocity", "current_command",
            "voltage_drive", "current_loop", "control_step"]
 
@@ -110,15 +110,48 @@ def move_command(t, speed, accel, distance):
 
 
 @_jit_inline
+def s_curve_command(t, speed, accel, distance):
+    """Position (rad) and speed (rad/s) at time t (s) of :func:`command`'s kind 2:
+    a move of ``distance`` (signed) at up to |speed| whose ramps are half
+    cosines, v = vmax*(1 - cos(pi*t/T))/2 with T = pi*vmax/(2*accel): the
+    acceleration rises and falls smoothly to its peak ``accel`` (bounded jerk,
+    an S-curve); each ramp covers vmax*T/2. Too short for vmax: the peak speed
+    is lowered to sqrt(2*accel*d/pi) (no cruise)."""
+    sgn = 1.0 if distance >= 0.0 else -1.0
+    d = abs(distance)
+    vmax = abs(speed)
+    if math.pi * vmax * vmax / (2.0 * accel) > d:
+        vmax = math.sqrt(2.0 * accel * d / math.pi)
+    t_acc = math.pi * vmax / (2.0 * accel)
+    d_acc = 0.5 * vmax * t_acc
+    t_flat = (d - 2.0 * d_acc) / vmax if vmax > 0.0 else 0.0
+    k = math.pi / t_acc if t_acc > 0.0 else 0.0
+    if t < t_acc:
+        return (sgn * 0.5 * vmax * (t - math.sin(k * t) / k),
+                sgn * 0.5 * vmax * (1.0 - math.cos(k * t)))
+    if t < t_acc + t_flat:
+        return sgn * (d_acc + vmax * (t - t_acc)), sgn * vmax
+    td = t - t_acc - t_flat
+    if td < t_acc:
+        return (sgn * (d - d_acc + 0.5 * vmax * (td + math.sin(k * td) / k)),
+                sgn * 0.5 * vmax * (1.0 + math.cos(k * td)))
+    return sgn * d, 0.0
+
+
+@_jit_inline
 def command(t, kind, speed, accel, distance):
     """Position (rad) and speed (rad/s) command at time t (s).
 
     kind 0: from rest with acceleration ``accel`` up to ``speed`` (signed), then held.
     kind 1: trapezoidal (or triangular) move of ``distance`` (signed) at up to |speed|.
+    kind 2: the same move with half-cosine ramps of peak acceleration ``accel``
+    (:func:`s_curve_command`).
     """
     if kind == PROFILE.CONSTANT:
         return constant_speed_command(t, speed, accel)
-    return move_command(t, speed, accel, distance)
+    if kind == PROFILE.MOVE:
+        return move_command(t, speed, accel, distance)
+    return s_curve_command(t, speed, accel, distance)
 
 
 #: The drive variant that runs in SIMD lanes (:mod:`stepdamp_env.lanes`): open

@@ -56,10 +56,11 @@ CONFIG = layout("Config", """
     FF_C4
     SUBSTEPS      RK4 steps per PWM period
     W_STICK       stiction velocity band (rad/s)
-    PROFILE       a PROFILE code: CONSTANT (speed after a ramp) or MOVE (point to point)
+    PROFILE       a PROFILE code: CONSTANT (speed after a ramp), MOVE or S_CURVE (point
+                  to point)
     SPEED         command speed (rad/s, signed)
     ACCEL         command acceleration (rad/s^2, > 0)
-    DISTANCE      move distance (rad, signed), profile 1 only
+    DISTANCE      move distance (rad, signed), moves only
     WINDOW_START  metrics window start (s)
     REF_SPEED     speed whose harmonics the metrics lock on to (rad/s)
     I_NOISE       current-sensor noise, standard deviation per sample (A)
@@ -77,6 +78,7 @@ CONFIG = layout("Config", """
     DRIVE_MODE    a DRIVE code: CURRENT (DQ PI loops) or VOLTAGE (winding-model voltages)
     R_EST         the voltage-mode drive's model of the winding: resistance (Ohm)
     L_EST         and inductance (H)
+    WINDOW_END    metrics window end (s; inf: the window stays open)
 """)
 
 # Codes of the float fields that select a variant.
@@ -95,7 +97,8 @@ MODE = layout("Mode", """
 """)
 PROFILE = layout("Profile", """
     CONSTANT   constant speed after a ramp
-    MOVE       point-to-point move
+    MOVE       point-to-point move, trapezoidal speed (constant-acceleration ramps)
+    S_CURVE    point-to-point move, sinusoidal ramps (jerk-limited, an S-curve)
 """)
 
 # ---------------------------------------------------------------------------
@@ -221,6 +224,7 @@ ACC = layout("Accumulators", """
     SUM_IFF2_ALL
     SUM_P         sum of the position error theta_cmd - theta in the window (rad)
     SUM_P2        sum of its square
+    SUM_P2_ALL    sum of the squared position error over all samples (rad^2)
 """)
 
 # ---------------------------------------------------------------------------

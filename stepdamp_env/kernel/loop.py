@@ -74,6 +74,7 @@ def _advance(c, s, acc, u_arr, lw, n_periods, trace, trace_every):
     h = q[CTRL.DT] / n_sub
     w_stick = c[CONFIG.W_STICK]
     win_start = c[CONFIG.WINDOW_START]
+    win_end = c[CONFIG.WINDOW_END]
     ref_rate = c[CONFIG.NR] * c[CONFIG.REF_SPEED]
     x = load_plant(s, 0, 1)
     sin_prev, cos_prev = sincos(s[STATE.PARK_ANGLE])
@@ -86,7 +87,7 @@ def _advance(c, s, acc, u_arr, lw, n_periods, trace, trace_every):
         if lw is not None:
             law_state, u_period = law_input(law_state, u, cs, obs, q[CTRL.DT], None)
         cs, v, v_next, obs, m, _ = control_period(period, x, cs, v_next, obs, m, q, u_period,
-                                                  win_start, ref_rate, None)
+                                                  win_start, win_end, ref_rate, None)
         if rows < trace.shape[0] and i % trace_every == 0:
             row = trace[rows]
             (row[TRACE.T], row[TRACE.THETA], row[TRACE.OMEGA], row[TRACE.THETA_CMD],
@@ -180,7 +181,7 @@ def merge_rows(totals, parts):
                 t[ACC.MAX_E] = p[ACC.MAX_E]
         for j in (ACC.COUNT, ACC.SUM_E, ACC.SUM_E2, ACC.SUM_IFF2, ACC.H1_S, ACC.H1_C, ACC.H2_S, ACC.H2_C,
                   ACC.H4_S, ACC.H4_C, ACC.SUM_E2_ALL, ACC.COUNT_ALL, ACC.SUM_IFF2_ALL,
-                  ACC.SUM_P, ACC.SUM_P2):
+                  ACC.SUM_P, ACC.SUM_P2, ACC.SUM_P2_ALL):
             t[j] += p[j]
         if p[ACC.MAX_LAG] > t[ACC.MAX_LAG]:
             t[ACC.MAX_LAG] = p[ACC.MAX_LAG]

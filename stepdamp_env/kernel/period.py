@@ -78,10 +78,11 @@ def law_current(lw, e_w, e_theta, s1, c1, dt, lanes=None):
 # The period
 # ---------------------------------------------------------------------------
 @_jit_inline
-def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
+def accumulate(m, t, x, obs, win_start, win_end, ref_rate, lanes):
     """The metrics ``m`` (:class:`.layout.Metrics`) with the sample at time ``t``
     (s) of the period's start: plant state ``x``, :class:`.layout.Sample` ``obs``.
-    In the window (``t >= win_start``) the velocity error's moments, the
+    Over all samples the largest lag and current, the velocity error's and the
+    position error's squares. In the window (``win_start <= t < win_end``) the velocity error's moments, the
     position error's first two moments, and the velocity error's lock-in
     sums on the detent harmonics h*Nr*w_ref*t (``ref_rate`` = Nr*w_ref,
     timed from the window start, the angle evaluated afresh each sample, so no
@@ -89,11 +90,12 @@ def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
     the lanes' range)."""
     err = obs.omega_cmd - x[1]
     iq_inj = obs.iq_ff
-    in_win = t >= win_start
+    in_win = (t >= win_start) & (t < win_end)
     ref = ref_rate * (t - win_start)
     (count, sum_e, sum_e2, min_e, max_e, sum_iff2, h1s, h1c, h2s, h2c, h4s, h4c,
-     max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2) = m
+     max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2, sum_p2_all) = m
     perr = obs.theta_cmd - x[0]
+    sum_p2_all += perr * perr
     max_lag = max(max_lag, abs(perr))
     max_i = max(max_i, abs(x[2]), abs(x[3]))
     sum_e2_all += err * err
@@ -119,7 +121,7 @@ def accumulate(m, t, x, obs, win_start, ref_rate, lanes):
         sum_p = sum_p + perr if in_win else sum_p
         sum_p2 = sum_p2 + perr * perr if in_win else sum_p2
     return (Metrics(count, sum_e, sum_e2, min_e, max_e, sum_iff2, h1s, h1c, h2s, h2c, h4s, h4c,
-                    max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2),
+                    max_lag, max_i, sum_e2_all, n_all, sum_iff2_all, sum_p, sum_p2, sum_p2_all),
             in_win & ((abs(ref) >= 1e6) | (ref != ref)))
 
 
@@ -137,7 +139,7 @@ def law_input(lw, u, cs, obs, dt, lanes):
 
 
 @_jit_inline
-def control_period(period, x, cs, v_next, obs, m, q, u, win_start, ref_rate, lanes):
+def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_rate, lanes):
     """The sample, control and metrics of PWM period ``period`` (the damping
     law, if any, is in ``u``: :func:`law_input`).
 
@@ -161,7 +163,7 @@ def control_period(period, x, cs, v_next, obs, m, q, u, win_start, ref_rate, lan
     # What this period applies is, at the next sample, the period that just ended.
     cs = ControllerState(cs.int_d, cs.int_q, cs.theta_fb_prev, cs.omega_fb, cs.pos_int,
                          cs.theta_est, cs.ia_prev, cs.ib_prev, va, vb)
-    m, ref_off = accumulate(m, t, x, obs, win_start, ref_rate, lanes)
+    m, ref_off = accumulate(m, t, x, obs, win_start, win_end, ref_rate, lanes)
     off_path = (abs(obs.angle) >= 1e6) | (obs.angle != obs.angle) | ref_off
     return cs, (va, vb), v_next, obs, m, off_path
 

@@ -60,6 +60,20 @@ Tables (``tables`` of the board, per suite and split)
     measure); ``told_apart``: whether the paired rule tells the best row from
     the reference and from the bound.
 
+The moves suite (v4 on; :mod:`..moves`)
+    Point-to-point moves on the open-loop current drive: per motor a
+    trapezoid and an S-curve (half-cosine ramps) cruising at each of the two
+    fastest open-loop headline speeds, so that the ramps pass the lower
+    resonances. Acceleration (peak for the S-curve) ``move_accel_rps2`` = 100
+    and ``move_s_curve_accel_rps2`` = 200 rev/s^2 (4,000 and 8,000 mm/s^2 on a
+    40 mm/rev belt pulley), at most ``move_torque_share`` = 0.3 of the holding
+    torque over the inertia. Scored: the velocity ripple over the cruise
+    (``window_s`` rounded up to whole detent periods, from the end of the
+    first ramp); the position column the RMS position error about the command
+    over the whole move and its settling (``run_position_error_steps``; the
+    open-loop settling after the stop); step loss by the final slip.
+    Entries tuned per suite use their open-loop settings (``Suite.tuning``).
+
 ``--quick`` (CI): v3's quick motors, three catalogue motors, two evaluation
 seeds, 500 resamples.
 """
@@ -77,10 +91,12 @@ import numpy as np
 from ...params import ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
-from ..protocol import REFERENCE_POLICY, REFERENCE_ROW, TRAINING_SEED_LIMIT
+from ..moves import move_command, moves_grid
+from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, TRAINING_SEED_LIMIT
 from ..scoring import db_row_fields
-from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_difference, paired_ranks,
+from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_ranks,
                      probability_of_improvement)
+from ..verdicts import table_facts
 from .v1 import QUICK_SETTINGS, ProtocolV1, load_motors_file
 from .v3 import ProtocolV3, attenuation_db, ratio_of_db
 
@@ -95,6 +111,10 @@ CATALOGUE_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__
 BOUND_ENTRY = "plant-bound"
 #: The run metric of the position score (``position_attenuation_db``).
 POSITION_METRIC = "position_ripple_steps"
+#: The moves suite's: the position error over the whole move and its settling.
+MOVE_POSITION_METRIC = "run_position_error_steps"
+#: v4's suites: v3's and the moves.
+SUITES_V4 = ALL_SUITES + ("moves",)
 #: How many evaluation seeds ``--eval-seeds`` may ask for.
 MAX_EVAL_SEEDS = 20
 
@@ -147,8 +167,17 @@ class ProtocolV4(ProtocolV3):
     bound_share_min: float = 0.95
     #: Less headroom than this (dB) between the bound and the best entry: saturated.
     saturation_db: float = 3.0
+    suites: tuple[str, ...] = SUITES_V4
+    #: The moves suite: the trapezoid's acceleration and the S-curve's peak
+    #: (rev/s^2; 4,000 and 8,000 mm/s^2 on a 40 mm/rev belt pulley), each at
+    #: most ``move_torque_share`` of the holding torque over the rotor's (and
+    #: load's) inertia.
+    move_accel_rps2: float = 100.0
+    move_s_curve_accel_rps2: float = 200.0
+    move_torque_share: float = 0.3
 
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
+    known_suites: ClassVar[tuple[str, ...]] = SUITES_V4
     published_entries: ClassVar[tuple[str, ...] | None] = None
     #: Every run metric, the position error's too.
     run_metrics: ClassVar[tuple[str, ...] | None] = None
@@ -169,6 +198,13 @@ class ProtocolV4(ProtocolV3):
             raise ParameterError(f"bound_share_min={self.bound_share_min!r} is outside (0, 1]")
         if not (math.isfinite(self.saturation_db) and self.saturation_db >= 0.0):
             raise ParameterError(f"saturation_db={self.saturation_db!r} is outside [0, inf) dB")
+        for name in ("move_accel_rps2", "move_s_curve_accel_rps2"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 1.0 <= value <= 1e4):
+                raise ParameterError(f"{name}={value!r} is outside [1, 1e4] rev/s^2")
+        if not 0.0 < self.move_torque_share <= 1.0:
+            raise ParameterError(f"move_torque_share={self.move_torque_share!r} is outside "
+                                 "(0, 1]")
         if not (isinstance(self.min_paired_motors, int) and self.min_paired_motors >= 1):
             raise ParameterError(f"min_paired_motors={self.min_paired_motors!r} is outside "
                                  "[1, inf) (integer)")
@@ -192,6 +228,33 @@ class ProtocolV4(ProtocolV3):
     def with_eval_seeds(self, count: int) -> "ProtocolV4":
         """The same protocol with ``count`` evaluation seeds (``--eval-seeds``)."""
         return dataclasses.replace(self, eval_seeds=evaluation_seeds(count))
+
+    # -- the moves suite (:mod:`..moves`) ------------------------------------------------
+    def settle_times(self, system: SystemParams) -> dict[str, float]:
+        """v3's; the moves settle as the open loop does (after the stop)."""
+        out = super().settle_times(system)
+        out["moves"] = out["open-loop"]
+        return out
+
+    def suite_grids(self, system: SystemParams
+                    ) -> tuple[tuple[str, tuple[float, ...], tuple[str, ...]], ...]:
+        """v3's grids, and the moves suite's (:func:`..moves.moves_grid`)."""
+        grids = super().suite_grids(system)
+        if "moves" not in self.suites:
+            return grids
+        speeds, labels = next((v, lb) for s, v, lb in grids if s == "open-loop")
+        return grids + (("moves", *moves_grid(speeds, labels)),)
+
+    def run_command(self, motor: ProtocolMotor, suite: str, index: int) -> dict[str, Any]:
+        """The moves suite's cell ``index`` (:func:`..moves.move_command`): a move
+        cruising for ``window_s``; {} in the other suites."""
+        if suite != "moves":
+            return {}
+        grid = motor.speeds(suite)
+        return move_command(motor.system, grid.speeds_rps[index], grid.labels[index],
+                            {"trapezoid": self.move_accel_rps2,
+                             "s-curve": self.move_s_curve_accel_rps2},
+                            self.move_torque_share, self.window_s)
 
     # -- motors ------------------------------------------------------------------------
     def motors(self) -> tuple[ProtocolMotor, ...]:
@@ -234,9 +297,10 @@ class ProtocolV4(ProtocolV3):
         for suite in self.suites:
             if (REFERENCE_POLICY, suite) not in by_entry:
                 continue
-            none = {(r["motor"], r["seed"], r["speed_rps"]): r
+            none = {(r["motor"], r["seed"], r["speed_rps"], r["speed_label"]): r
                     for r in by_entry[(REFERENCE_POLICY, suite)]}
             stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
+            position = MOVE_POSITION_METRIC if suite == "moves" else POSITION_METRIC
             for split in self.splits:
                 cells = sorted({(m.name, float(v)) for m in motors if m.split == split
                                 for v, lbl in zip(*m.speeds(suite))
@@ -260,7 +324,7 @@ class ProtocolV4(ProtocolV3):
                     if learned and not row["zero_shot"]:
                         covered.append(mine)
                 common = frozenset(cells).intersection(*covered) if covered else frozenset(cells)
-                scored = [self._score(row, runs, none, stand_in, common, len(cells))
+                scored = [self._score(row, runs, none, stand_in, common, len(cells), position)
                           for row, runs in rows]
                 self._gap(scored)
                 self._compare(scored)
@@ -270,14 +334,14 @@ class ProtocolV4(ProtocolV3):
     def _score(self, row: dict[str, Any], runs: list[dict[str, Any]],
                none: Mapping[tuple, Mapping[str, Any]],
                stand_in: Mapping[tuple[str, int], float], common: frozenset,
-               n_cells: int) -> dict[str, Any]:
+               n_cells: int, position: str = POSITION_METRIC) -> dict[str, Any]:
         """A row's scores on the ``common`` cells (``_cells``, ``_motor_db`` and
         ``_seed_motor_db``: taken off by :meth:`_compare`)."""
         cell_runs: dict[tuple[str, Any], list[float]] = {}
         by_seed: dict[tuple[int, str], list[float]] = {}
         ratios = []
         for r in runs:
-            n = none.get((r["motor"], r["seed"], r["speed_rps"]))
+            n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
             db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
             ratios.append(ratio_of_db(db))
             if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
@@ -303,7 +367,8 @@ class ProtocolV4(ProtocolV3):
         row["attenuation_db"] = att
         row["ratio"] = ratio
         row.update(db_row_fields(runs, keys, cell_db, ratios, ratio, motor_db, ratio_of_db))
-        row.update(self._position_scores(runs, none, common, stats))
+        row["position_metric"] = position
+        row.update(self._position_scores(runs, none, common, stats, position))
         row["runs"] = runs
         row["_cells"] = (cell_db, cell_motor)
         row["_seed_motor_db"] = seed_motor_db
@@ -311,17 +376,19 @@ class ProtocolV4(ProtocolV3):
 
     def _position_scores(self, runs: Sequence[Mapping[str, Any]],
                          none: Mapping[tuple, Mapping[str, Any]], common: frozenset,
-                         stats: Mapping[str, Any]) -> dict[str, Any]:
+                         stats: Mapping[str, Any], metric: str = POSITION_METRIC
+                         ) -> dict[str, Any]:
         """``position_attenuation_db`` (IQM over motors [interval]) and
         ``per_motor_position_db``: the velocity score's rules (:meth:`run_db`,
-        its stand-ins, cells and motors) on the position ripple
-        (``position_ripple_steps``, the RMS position error about its window mean)."""
-        stand_in = self._stand_ins_of(none, POSITION_METRIC)
+        its stand-ins, cells and motors) on the position ``metric``: the ripple
+        (``position_ripple_steps``, the RMS position error about its window
+        mean), in the moves suite the error over the move and its settling
+        (``run_position_error_steps``, the RMS about the command)."""
+        stand_in = self._stand_ins_of(none, metric)
         cells: dict[tuple[str, Any], list[float]] = {}
         for r in runs:
-            n = none.get((r["motor"], r["seed"], r["speed_rps"]))
-            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan),
-                             POSITION_METRIC)
+            n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
+            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan), metric)
             if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
                     and not r["speed_label"].startswith("off"):
                 cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
@@ -338,7 +405,7 @@ class ProtocolV4(ProtocolV3):
                       ) -> dict[tuple[str, int], float]:
         """v3's stand-ins (``_stand_ins``) of another run metric."""
         got: dict[tuple[str, int], list[float]] = {}
-        for (motor, seed, _), r in none.items():
+        for (motor, seed, *_), r in none.items():
             if r["metrics"] is not None and not r["speed_label"].startswith("off") \
                     and not r["failed"] and metric in r["metrics"]:
                 got.setdefault((motor, seed), []).append(r["metrics"][metric])
@@ -472,85 +539,7 @@ class ProtocolV4(ProtocolV3):
             for split in self.splits:
                 rows = [e for e in entries if e["suite"] == suite and e["split"] == split]
                 if rows:
-                    out.append({"suite": suite, "split": split, **self._table(rows)})
-        return out
-
-    def _beats(self, a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
-        """The ranks' rule (:func:`..stats.paired_ranks`) for one pair of rows."""
-        t = paired_difference(a["per_motor_db"], b["per_motor_db"],
-                              confidence=self.rank_confidence,
-                              resamples=self.bootstrap_resamples, seed=self.bootstrap_seed)
-        p = a.get("probability_of_improvement", {}).get(b["name"], math.nan)
-        return t["motors"] >= self.min_paired_motors and (
-            (t["iqm"] > 0.0 and (t["low"] > 0.0 or t["share"] >= self.decisive_share))
-            or p >= self.decisive_share)
-
-    def _saturated(self, t: Mapping[str, Any]) -> tuple[bool | None, str]:
-        """Whether damping has nothing left to win in a table, and why: the bound
-        must hold on >= ``bound_share_min`` of the motors (else there is no
-        headroom to measure), then less than ``saturation_db`` of headroom, or
-        a best entry the paired rule cannot tell from the bound, is saturated."""
-        b = t["bound_check"]
-        if t["best"] is None or b is None or b["share"] is None:
-            return None, "no bound or no ranked entry in this table"
-        if b["motors"] < self.min_paired_motors:
-            return None, (f"{b['motors']} motors: fewer than the {self.min_paired_motors} the "
-                          "paired rule needs")
-        if b["share"] < self.bound_share_min:
-            return None, (f"the bound is beaten on {b['motors'] - b['holds']} of {b['motors']} "
-                          "motors: no headroom is measured against it")
-        if t["headroom_db"] < self.saturation_db:
-            return True, f"headroom {t['headroom_db']:.1f} dB < {self.saturation_db:g} dB"
-        if not t["told_apart"].get("bound", False):
-            return True, "the best entry is not told apart from the bound"
-        return False, (f"headroom {t['headroom_db']:.1f} dB, the best entry told apart from "
-                       "the bound")
-
-    def _table(self, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-        ranked = [r for r in rows if r.get("rank") is not None]
-        contenders = [r for r in ranked if r["spec"] != REFERENCE_POLICY]
-        best = min((r for r in contenders if math.isfinite(r["attenuation_db"]["iqm"])),
-                   key=lambda r: (-r["attenuation_db"]["iqm"], r["name"]), default=None)
-        ref = next((r for r in rows if r["reference"]), None)
-        bound = next((r for r in rows if r["name"] == self.bound_entry), None)
-        out: dict[str, Any] = {"cells": rows[0]["cells"], "best": best["name"] if best else None}
-        if best is not None and bound is not None:
-            out["headroom_db"] = bound["attenuation_db"]["iqm"] - best["attenuation_db"]["iqm"]
-        else:
-            out["headroom_db"] = None
-        out["told_apart"] = {name: self._beats(best, r) or self._beats(r, best)
-                             for name, r in (("reference", ref), ("bound", bound))
-                             if r is not None and best is not None}
-        if bound is not None:
-            others = [r for r in rows if not (r["reference"] or r["privileged"])]
-            beaten = []
-            motors = sorted(bound["per_motor_db"])
-            unscored = sorted({m for r in others for m in r["per_motor_db"]} - set(motors))
-            for m in motors:
-                top = max(((r["per_motor_db"].get(m, -math.inf), r["name"]) for r in others),
-                          default=(-math.inf, ""))
-                if top[0] > bound["per_motor_db"][m]:
-                    beaten.append({"motor": m, "by": top[1],
-                                   "by_db": top[0] - bound["per_motor_db"][m]})
-            out["bound_check"] = {"entry": self.bound_entry, "motors": len(motors),
-                                  "holds": len(motors) - len(beaten),
-                                  "share": (1.0 - len(beaten) / len(motors)) if motors else None,
-                                  "beaten_on": beaten, "no_score_on": unscored}
-        else:
-            out["bound_check"] = None
-        out["saturated"], out["saturated_why"] = self._saturated(out)
-        seeds = sorted({s for r in ranked for s in r.get("rank_by_seed", {})})
-        if seeds and best is not None:
-            leader = [r for r in ranked if r["rank"] == 1]
-            kept = sum(all(r["rank_by_seed"].get(s) == 1 for r in leader) for s in seeds)
-            moves = [abs(r["rank_by_seed"][s] - r["rank"]) for r in ranked for s in seeds
-                     if r["rank_by_seed"].get(s) is not None]
-            out["rank_stability"] = {"seeds": len(seeds),
-                                     "rank_1_kept_on_seeds": kept,
-                                     "mean_rank_change": float(np.mean(moves)) if moves else 0.0,
-                                     "max_rank_change": int(max(moves)) if moves else 0}
-        else:
-            out["rank_stability"] = None
+                    out.append({"suite": suite, "split": split, **table_facts(self, rows)})
         return out
 
 
