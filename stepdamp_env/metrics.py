@@ -54,7 +54,11 @@ class RunMetrics:
     9e-5 at 10 and 1e-4; a run lost past its lag limit is not scored).
     ``run_position_error_steps``: the RMS of the position error over every
     sample of the run, not only the window (for a point-to-point move: the
-    move and its settling), in full steps.
+    move and its settling), in full steps. ``harmonic_phasor_rad_s``: the
+    velocity error's lock-in phasor at each detent harmonic h, (2/n)*(sum
+    e*sin, sum e*cos) of h*Nr*w_ref*(t - window start) (its length is
+    ``harmonic_amplitude_rad_s``): linear in the error, for a law that
+    cancels a harmonic by its measured response (``plant-bound``).
     """
 
     speed_rps: float
@@ -72,12 +76,15 @@ class RunMetrics:
     rms_position_error_steps: float
     position_ripple_steps: float
     run_position_error_steps: float
+    harmonic_phasor_rad_s: dict[int, tuple[float, float]]
 
     def to_dict(self, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
         """JSON-ready; ``keys``: only these fields (e.g. :data:`METRICS_V0_V3`)."""
         out = asdict(self)
         out["harmonic_amplitude_rad_s"] = {str(h): v for h, v in
                                            self.harmonic_amplitude_rad_s.items()}
+        out["harmonic_phasor_rad_s"] = {str(h): list(v) for h, v in
+                                        self.harmonic_phasor_rad_s.items()}
         return out if keys is None else {k: out[k] for k in keys}
 
 
@@ -102,10 +109,11 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
     p2p = acc[K.ACC.MAX_E] - acc[K.ACC.MIN_E]
     w_cmd = TWO_PI * abs(speed_rps)
     norm = w_cmd if w_cmd > 0 else math.nan
-    amps = {}
+    amps, phasors = {}, {}
     for h, (i_s, i_c) in ((1, (K.ACC.H1_S, K.ACC.H1_C)), (2, (K.ACC.H2_S, K.ACC.H2_C)),
                           (4, (K.ACC.H4_S, K.ACC.H4_C))):
         amps[h] = 2.0 / n * fm.hypot(acc[i_s], acc[i_c])
+        phasors[h] = (float(2.0 / n * acc[i_s]), float(2.0 / n * acc[i_c]))
     step = system.motor.full_step_rad
     lag = float(acc[K.ACC.MAX_LAG])
     p_mean = acc[K.ACC.SUM_P] / n
@@ -127,4 +135,5 @@ def metrics_from_accumulators(acc: np.ndarray, system: SystemParams,
         # Rounding can leave the variance a hair below 0 for a constant error.
         position_ripple_steps=math.sqrt(max(p_ms - p_mean * p_mean, 0.0)) / step,
         run_position_error_steps=math.sqrt(acc[K.ACC.SUM_P2_ALL] / acc[K.ACC.COUNT_ALL]) / step,
+        harmonic_phasor_rad_s=phasors,
     )

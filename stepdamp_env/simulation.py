@@ -26,7 +26,7 @@ from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, System
                      fastest_plant_mode, required_substeps)
 
 __all__ = ["check_converged", "MODES", "BASE_CONTROLLERS", "DEFAULT_ACCEL_RPS2", "MIN_ACCEL_RPS2",
-           "MAX_DURATION_S", "PROFILE_KINDS", "MOVE_KINDS", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
+           "MAX_DURATION_S", "PROFILE_KINDS", "RAMPS", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
            "run_length_error", "run_periods_chunked", "SpeedProfile", "RunSettings", "RunMetrics",
            "RunResult", "build_config", "check_integrable", "initial_state", "new_accumulators",
            "metrics_from_accumulators", "merge_accumulators", "merge_accumulator_rows", "simulate"]
@@ -40,10 +40,11 @@ VELOCITY_ESTIMATORS = {"lowpass": K.VEL_EST.LOWPASS, "kalman": K.VEL_EST.KALMAN,
                        "back-emf": K.VEL_EST.BACK_EMF}
 TWO_PI = 2.0 * math.pi
 #: SpeedProfile kinds: a constant speed after a ramp, and the point-to-point moves.
-PROFILE_KINDS = ("constant", "move", "s-curve")
-MOVE_KINDS = ("move", "s-curve")
-PROFILE_CODES = {"constant": K.PROFILE.CONSTANT, "move": K.PROFILE.MOVE,
-                 "s-curve": K.PROFILE.S_CURVE}
+PROFILE_KINDS = ("constant", "move")
+#: A move's ramps: constant acceleration (a trapezoid of speed), or half cosines.
+RAMPS = ("trapezoid", "s-curve")
+PROFILE_CODES = {("constant", "trapezoid"): K.PROFILE.CONSTANT,
+                 ("move", "trapezoid"): K.PROFILE.MOVE, ("move", "s-curve"): K.PROFILE.S_CURVE}
 # Start-up ramp of a constant-speed profile (rev/s^2): fast, yet no open-loop step loss.
 DEFAULT_ACCEL_RPS2 = 50.0
 # Smallest command acceleration (rev/s^2) of `stepdamp ... --accel` and of the envs'
@@ -81,8 +82,8 @@ class SpeedProfile:
     (signed) and hold it; the ramp keeps an open-loop start-up from losing steps.
     ``kind="move"``: a trapezoidal point-to-point move of ``distance_rev``
     (signed) at up to ``speed_rps``, triangular if the distance is too short.
-    ``kind="s-curve"``: the same move with half-cosine ramps (bounded jerk)
-    whose peak acceleration is ``accel_rps2``; each ramp lasts
+    ``ramp="s-curve"`` (a move only): its ramps are half cosines (bounded
+    jerk) whose peak acceleration is ``accel_rps2``; each lasts
     ``pi*speed/(2*accel)`` and covers the distance a constant-acceleration ramp
     of that duration would.
     """
@@ -91,9 +92,14 @@ class SpeedProfile:
     accel_rps2: float = DEFAULT_ACCEL_RPS2
     kind: str = "constant"
     distance_rev: float = 0.0
+    ramp: str = "trapezoid"
 
     def __post_init__(self) -> None:
         _check_choice("kind", self.kind, PROFILE_KINDS)
+        _check_choice("ramp", self.ramp, RAMPS)
+        if self.kind == "constant" and self.ramp != "trapezoid":
+            raise ParameterError(f"ramp={self.ramp!r} needs kind='move' (a constant speed ramps "
+                                 "at a constant acceleration)")
         for name in ("speed_rps", "distance_rev"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
@@ -104,7 +110,7 @@ class SpeedProfile:
                 f"speed_rps={self.speed_rps!r} is outside its allowed range: 0 (at rest) or "
                 "1e-6 <= |speed_rps| <= 1000")
         _check_positive("accel_rps2", self.accel_rps2)
-        if self.kind in MOVE_KINDS:
+        if self.kind == "move":
             _check_positive("speed_rps (magnitude of a move)", abs(self.speed_rps))
         if not math.isfinite(self.distance_rev):
             raise ParameterError(f"distance_rev must be finite, got {self.distance_rev!r}")
@@ -115,7 +121,7 @@ class SpeedProfile:
     def ramp_s(self) -> float:
         """Time a ramp to the command speed takes (s)."""
         v, a = abs(self.speed_rps), self.accel_rps2
-        return 0.5 * math.pi * v / a if self.kind == "s-curve" else v / a
+        return 0.5 * math.pi * v / a if self.ramp == "s-curve" else v / a
 
     def cruise(self) -> tuple[float, float]:
         """(start, length) in s of a move's cruise at its top speed (length 0 for
@@ -123,7 +129,7 @@ class SpeedProfile:
         if self.kind == "constant":
             return self.ramp_s, math.inf
         v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
-        ramps = v * v / a if self.kind == "move" else 0.5 * math.pi * v * v / a
+        ramps = 0.5 * math.pi * v * v / a if self.ramp == "s-curve" else v * v / a
         if ramps >= d:
             return 0.5 * self.duration_s(), 0.0
         return self.ramp_s, (d - ramps) / v
@@ -133,7 +139,7 @@ class SpeedProfile:
         if self.kind == "constant":
             return self.ramp_s
         v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
-        if self.kind == "s-curve":
+        if self.ramp == "s-curve":
             if 0.5 * math.pi * v * v / a > d:
                 return math.pi * math.sqrt(2.0 * a * d / math.pi) / a
             return d / v + 0.5 * math.pi * v / a
@@ -143,17 +149,17 @@ class SpeedProfile:
 
 
 def max_move_distance_rev(speed_rps: float, accel_rps2: float, time_s: float,
-                          kind: str = "move") -> float:
-    """Longest move (rev) of ``kind`` ("move" or "s-curve") at top speed
+                          ramp: str = "trapezoid") -> float:
+    """Longest move (rev) with ``ramp`` ("trapezoid" or "s-curve") at top speed
     ``|speed_rps|`` and ``accel_rps2`` that lasts at most ``time_s`` (the
     inverse of :meth:`SpeedProfile.duration_s`)."""
     v, a = abs(speed_rps), accel_rps2
     if not time_s > 0.0:
         return 0.0
-    ramp = 0.5 * math.pi * v / a if kind == "s-curve" else v / a
-    if time_s >= 2.0 * ramp:            # reaches its top speed
-        return v * (time_s - ramp)
-    if kind == "s-curve":               # peak speed a*time/pi
+    ramp_s = 0.5 * math.pi * v / a if ramp == "s-curve" else v / a
+    if time_s >= 2.0 * ramp_s:          # reaches its top speed
+        return v * (time_s - ramp_s)
+    if ramp == "s-curve":               # peak speed a*time/pi
         return a * time_s * time_s / (2.0 * math.pi)
     return a * time_s * time_s / 4.0    # triangular
 
@@ -240,7 +246,7 @@ def measuring_window(system: SystemParams, profile: SpeedProfile, settings: RunS
     """(start, length) of the measuring window in s: after the ramp and the
     settling for a constant speed; from the start through the settling for a move."""
     settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
-    if profile.kind in MOVE_KINDS:
+    if profile.kind == "move":
         # The whole move and its settling: after it the rotor rests, nothing to measure.
         return 0.0, profile.duration_s() + settle
     start = profile.duration_s() + settle
@@ -289,7 +295,7 @@ def build_config(system: SystemParams, profile: SpeedProfile, settings: RunSetti
     # Stiction band: the speed friction alone removes in one plant step, so a
     # zero crossing within a step is caught at the next step's start.
     c[K.CONFIG.W_STICK] = m.Fs / m.J * dt / settings.substeps
-    c[K.CONFIG.PROFILE] = PROFILE_CODES[profile.kind]
+    c[K.CONFIG.PROFILE] = PROFILE_CODES[(profile.kind, profile.ramp)]
     c[K.CONFIG.SPEED] = TWO_PI * profile.speed_rps
     c[K.CONFIG.ACCEL] = TWO_PI * profile.accel_rps2
     c[K.CONFIG.DISTANCE] = TWO_PI * profile.distance_rev
@@ -349,8 +355,8 @@ def check_converged(system: SystemParams, substeps: int, state: np.ndarray,
     up to twice the integrable one passes (the command's own ripple may pass it).
     """
     d = metrics.to_dict()
-    values = [x for key, v in d.items() if key != "step_loss" and not key.endswith("_norm")
-              for x in (v.values() if isinstance(v, dict) else [v])]
+    values = [float(x) for key, v in d.items() if key != "step_loss" and not key.endswith("_norm")
+              for x in np.ravel(list(v.values()) if isinstance(v, dict) else [v])]
     limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps / system.motor.Nr
     if np.all(np.isfinite(state)) and all(math.isfinite(x) for x in values) \
             and abs(state[K.STATE.OMEGA]) <= 2.0 * limit:
@@ -450,9 +456,9 @@ def run_length_error(system: SystemParams, profile: SpeedProfile, settings: RunS
     settle = default_settle_s(system) if settings.settle_s is None else settings.settle_s
     v, a = abs(profile.speed_rps), profile.accel_rps2
     cap = f"past the {MAX_DURATION_S:g} s a run may last"
-    if profile.kind in MOVE_KINDS:
+    if profile.kind == "move":
         time_s = profile.duration_s()
-        d_max = max_move_distance_rev(v, a, MAX_DURATION_S - settle, profile.kind)
+        d_max = max_move_distance_rev(v, a, MAX_DURATION_S - settle, profile.ramp)
         return (f"{n['distance_rev']}={profile.distance_rev:g} is a move of {time_s:.6g} s at "
                 f"{n['speed_rps']}={profile.speed_rps:g} and {n['accel_rps2']}={a:g}; with "
                 f"{settle:.3g} s of settling it runs {time_s + settle:.6g} s, {cap}: allowed "

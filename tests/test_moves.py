@@ -26,7 +26,8 @@ def _command(kind: int, speed_rps: float, accel_rps2: float, distance_rev: float
 @pytest.mark.parametrize("distance", [3.0, -2.0, 0.05])
 def test_s_curve_integrates_to_its_distance_with_bounded_jerk(distance):
     speed, accel = 2.0, 20.0
-    prof = SpeedProfile(speed_rps=speed, accel_rps2=accel, kind="s-curve", distance_rev=distance)
+    prof = SpeedProfile(speed_rps=speed, accel_rps2=accel, kind="move", ramp="s-curve",
+                        distance_rev=distance)
     ts = np.linspace(0, prof.duration_s() * 1.1, 80001)
     th, w = _command(K.PROFILE.S_CURVE, speed, accel, distance, ts)
     assert th[-1] == pytest.approx(TWO_PI * distance, abs=1e-12)
@@ -49,19 +50,19 @@ def test_s_curve_integrates_to_its_distance_with_bounded_jerk(distance):
     assert abs(th[ts < end * (1 - 1e-3)][-1]) < TWO_PI * abs(distance)
 
 
-@pytest.mark.parametrize("kind", ["move", "s-curve"])
-def test_cruise_and_longest_move_invert_duration(kind):
-    prof = SpeedProfile(speed_rps=1.5, accel_rps2=30.0, kind=kind, distance_rev=2.0)
+@pytest.mark.parametrize("ramp", ["trapezoid", "s-curve"])
+def test_cruise_and_longest_move_invert_duration(ramp):
+    prof = SpeedProfile(speed_rps=1.5, accel_rps2=30.0, kind="move", ramp=ramp, distance_rev=2.0)
     start, length = prof.cruise()
     assert start == pytest.approx(prof.ramp_s)
     assert start * 2 + length == pytest.approx(prof.duration_s())
     ts = np.linspace(start + 1e-6, start + length - 1e-6, 101)
-    code = K.PROFILE.MOVE if kind == "move" else K.PROFILE.S_CURVE
+    code = K.PROFILE.MOVE if ramp == "trapezoid" else K.PROFILE.S_CURVE
     _, w = _command(code, 1.5, 30.0, 2.0, ts)
     assert np.all(w == TWO_PI * 1.5)
     for d in (0.01, 2.0, 40.0):
-        p = SpeedProfile(speed_rps=1.5, accel_rps2=30.0, kind=kind, distance_rev=d)
-        assert max_move_distance_rev(1.5, 30.0, p.duration_s(), kind) == pytest.approx(d)
+        p = SpeedProfile(speed_rps=1.5, accel_rps2=30.0, kind="move", ramp=ramp, distance_rev=d)
+        assert max_move_distance_rev(1.5, 30.0, p.duration_s(), ramp) == pytest.approx(d)
 
 
 def test_a_closed_window_is_a_run_stopped_at_its_end():
@@ -85,7 +86,8 @@ def test_a_closed_window_is_a_run_stopped_at_its_end():
 
 def test_run_position_error_is_the_rms_over_every_sample():
     system = get_preset("patent")
-    prof = SpeedProfile(speed_rps=2.0, accel_rps2=100.0, kind="s-curve", distance_rev=1.0)
+    prof = SpeedProfile(speed_rps=2.0, accel_rps2=100.0, kind="move", ramp="s-curve",
+                        distance_rev=1.0)
     res = simulate(system, profile=prof, settings=RunSettings(), trace=True)
     err = np.asarray(res.trace["theta_cmd"]) - np.asarray(res.trace["theta"])
     want = math.sqrt(np.mean(err ** 2)) / system.motor.full_step_rad
@@ -105,6 +107,22 @@ def test_env_move_options_are_checked():
         StepperDampEnv(profile="move", speed_rps=1.0)
     with pytest.raises(ParameterError, match="measure_until_s"):
         StepperDampEnv(measure_from_s=0.3, measure_until_s=0.2)
+    with pytest.raises(ParameterError, match="measure_until_s needs measure_from_s"):
+        StepperDampEnv(measure_until_s=0.2)
+    with pytest.raises(ParameterError, match="ramp"):
+        StepperDampEnv(ramp="s-curve")
+    with pytest.raises(ParameterError, match=r"0 < \|distance_rev\| <= 1e6"):
+        StepperDampEnv(profile="move", speed_rps=1.0, distance_rev=0.0)
+    with pytest.raises(ParameterError, match="ramp='s-curve' needs kind='move'"):
+        SpeedProfile(speed_rps=1.0, ramp="s-curve")
+
+
+def test_a_move_too_short_to_cruise_is_refused_in_one_line():
+    from stepdamp_env.bench.runner import move_window
+
+    prof = SpeedProfile(speed_rps=2.0, accel_rps2=20.0, kind="move", distance_rev=0.1)
+    with pytest.raises(ParameterError, match="distance_rev=0.1 never reaches"):
+        move_window(get_preset("patent"), prof)
 
 
 def test_the_moves_suite_is_v4s_only():
@@ -132,15 +150,15 @@ def test_v4_moves_cells_cruise_a_whole_window_through_the_lower_resonances():
         ol_speeds, ol_labels = motor.speeds("open-loop")
         headline = sorted(v for v, lb in zip(ol_speeds, ol_labels) if not lb.startswith("off"))
         assert sorted(set(speeds)) == headline[-2:]
-        assert sorted(lb.rsplit("-", 1)[-1] if "trapezoid" in lb else "s-curve"
-                      for lb in labels).count("s-curve") == len(labels) // 2
+        assert [lb.split("-", 1)[1] for lb in labels] == ["trapezoid", "s-curve"] * len(
+            set(speeds))
         m = motor.system.motor
         limit = protocol.move_torque_share * m.Km * motor.system.drive.holding_current / m.J
         for j, v in enumerate(speeds):
             cmd = protocol.run_command(motor, "moves", j)
             assert TWO_PI * cmd["accel_rps2"] <= limit * (1 + 1e-12)
-            prof = SpeedProfile(speed_rps=v, kind=cmd["profile"], accel_rps2=cmd["accel_rps2"],
-                                distance_rev=cmd["distance_rev"])
+            prof = SpeedProfile(speed_rps=v, kind=cmd["profile"], ramp=cmd["ramp"],
+                                accel_rps2=cmd["accel_rps2"], distance_rev=cmd["distance_rev"])
             start, length, end = move_window(motor.system, prof, motor.settle_s("moves"))
             assert start == pytest.approx(prof.ramp_s)
             assert protocol.window_s <= length < protocol.window_s + 1.0 / (m.Nr * v) + 1e-9
@@ -155,8 +173,36 @@ def test_simulate_runs_an_s_curve_move_and_refuses_a_ramp_without_one(capsys):
 
     assert main(["simulate", "--speed", "2", "--move", "1", "--ramp", "s-curve", "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
-    assert record["profile"] == "s-curve" and record["move_rev"] == 1.0
+    assert record["profile"] == "move" and record["ramp"] == "s-curve"
+    assert record["move_rev"] == 1.0
     assert record["run_position_error_steps"] > 0.0
     assert main(["simulate", "--speed", "2", "--ramp", "s-curve"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--ramp" in err
+
+
+@pytest.mark.slow
+def test_a_v4_moves_board_on_a_users_motor_scores_each_ramp_as_a_cell_and_plots(tmp_path):
+    import json
+
+    from stepdamp_env.bench.protocols.v4 import CATALOGUE_PATH
+    from stepdamp_env.cli import main
+
+    with open(CATALOGUE_PATH, encoding="utf-8") as fh:
+        items = [m for m in json.load(fh) if m["name"] == "qsh4218-35-10-027"]
+    path = tmp_path / "mine.json"
+    path.write_text(json.dumps(items))
+    out = tmp_path / "board"
+    assert main(["leaderboard", "--protocol", "v4", "--quick", "--motors", str(path),
+                 "--suite", "moves", "--entries", "tuned-gain-pair", "plant-bound",
+                 "--eval-seeds", "1", "--out", str(out), "--no-progress", "--workers", "1"]) == 0
+    board = json.loads((out / "leaderboard.json").read_text())
+    (motor,) = board["protocol"]["motors"]
+    labels = motor["grids"]["moves"]["speed_labels"]
+    (t,) = board["tables"]
+    assert t["cells"]["split"] == len(labels) == 4
+    assert t["bound_check"]["holds"] == 1, t["bound_check"]
+    runs = [r for e in board["entries"] if e["name"] == "none" for r in e["runs"]]
+    assert sorted(r["speed_label"] for r in runs) == sorted(labels)
+    assert all(r["window_s"] >= 0.3 for r in runs)
+    assert (out / "velocity_error_moves.png").stat().st_size > 10_000

@@ -337,6 +337,8 @@ def assert_metrics_finite(metrics) -> None:
             # the CLI refuses --speed 0.
             continue
         vals = v.values() if isinstance(v, dict) else [v]
+        # A phasor is a [re, im] pair of floats.
+        vals = [y for x in vals for y in (x if isinstance(x, list) else [x])]
         for x in vals:
             assert isinstance(x, (float, np.floating)) and math.isfinite(x), (key, x, d)
 

@@ -252,6 +252,55 @@ def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
     save_figure(fig, path)
 
 
+def plot_move_traces(board: Mapping[str, Any], suite: str, path: str,
+                     protocol: Protocol) -> None:
+    """Velocity error against time through each move of a moves suite (v4), from
+    the start to the end of the settling, sampled every PWM period: ``none``
+    against the best entry, representative motor and seed; the cruise (the
+    scored window) shaded."""
+    rows = _suite_rows(board, suite)
+    best = best_eligible(rows)
+    shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
+    styles = policy_styles([e["name"] for e in rows])
+    motor = protocol_motors(protocol)[0].for_suite(suite)
+    seed = protocol.eval_seeds[0]
+    knowledge = _knowledge(board, motor, seed, protocol)
+    speeds, labels = motor.speeds(suite)
+    plt = pyplot()
+    fig, axes = plt.subplots(len(speeds), 1, squeeze=False,
+                             figsize=(9, 2.3 * len(speeds) + 0.4))
+    for j, ax in enumerate(axes[:, 0]):
+        command = protocol.run_command(motor, suite, j)
+        cruise = None
+        for e in shown:
+            def sample(env: Any, obs: np.ndarray, start: float) -> np.ndarray:
+                return env.step_trace.copy()
+
+            r = run_episode(resolve_policy(e["spec"]).make(), knowledge, motor.system,
+                            mode=SUITE_MODE[suite], speed_rps=float(speeds[j]), seed=seed,
+                            window_s=protocol.window_s, settle_s=motor.settle_s(suite),
+                            lag_limit_steps=protocol.lag_limit(), suite=suite,
+                            on_step=sample, pwm_trace=True, **command)
+            tr = np.concatenate(r.trace) if r.trace else np.zeros((0, len(K.TRACE)))
+            err = tr[:, K.TRACE.OMEGA_CMD] - tr[:, K.TRACE.OMEGA]
+            what = "lost steps" if r.failed else \
+                f"cruise RMS {r.metrics['rms_velocity_error_rad_s']:.3g} rad/s"
+            ax.plot(tr[:, K.TRACE.T] * 1e3, err, lw=0.7, color=styles[e["name"]][0],
+                    label=f"{e['name']} ({what})")
+            cruise = (r.window_start_s, r.window_start_s + r.window_s)
+        if cruise is not None:
+            ax.axvspan(cruise[0] * 1e3, cruise[1] * 1e3, color="0.9", zorder=0)
+        finish_trace_axes(ax, "w_cmd - w (rad/s)",
+                          f"{labels[j]}: cruise {speeds[j]:.3g} rev/s, "
+                          f"{command['accel_rps2']:.3g} rev/s^2 "
+                          f"({'peak' if command['ramp'] == 's-curve' else 'constant'})",
+                          title_size=9)
+    axes[-1, 0].set_xlabel("time from the move's start (ms), one sample per PWM period; "
+                           "shaded: the cruise (scored)")
+    fig.suptitle(f"Velocity error through the moves: {motor.name}, seed {seed}", fontsize=10)
+    save_figure(fig, path)
+
+
 def plot_performance_profile(board: Mapping[str, Any], path: str) -> None:
     """Performance profiles (v1): per suite and split, the fraction of an entry's
     cells whose headline is at or below tau, against tau (log axis); higher and

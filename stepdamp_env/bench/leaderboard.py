@@ -199,7 +199,7 @@ def _run_batch(batch: LeaderboardBatch) -> list[dict[str, Any]]:
                                else e.accel_rps2, window_s=protocol.window_s,
                                settle_s=e.settle_s, lag_limit_steps=protocol.lag_limit(),
                                suite=batch.suite, profile=e.profile,
-                               distance_rev=e.distance_rev)
+                               distance_rev=e.distance_rev, ramp=e.ramp)
         except RUN_ERRORS as exc:
             return could_not_run(exc)
 

@@ -137,11 +137,11 @@ class PolicyContext:
             (:func:`.runner.run_episode`'s arguments of those names; None where
             the run has none or they are not given), for an entry that rehearses
             its run (``plant-bound``).
-        profile, distance_rev: the command: "constant" (the ramp to
-            ``speed_rps``, then held), or a point-to-point move of
-            ``distance_rev`` (rev) at up to ``speed_rps``, "move" (trapezoid) or
-            "s-curve" (half-cosine ramps), whose ramps' peak acceleration is
-            ``accel_rps2`` (the ``moves`` suite).
+        profile, distance_rev, ramp: the command: "constant" (the ramp to
+            ``speed_rps``, then held), or "move": a point-to-point move of
+            ``distance_rev`` (rev) at up to ``speed_rps`` whose ramps are
+            "trapezoid" (constant acceleration) or "s-curve" (half cosines),
+            of peak acceleration ``accel_rps2`` (the ``moves`` suite).
     """
 
     knowledge: MotorKnowledge
@@ -159,6 +159,7 @@ class PolicyContext:
     lag_limit_steps: float | None = None
     profile: str = "constant"
     distance_rev: float = 0.0
+    ramp: str = "trapezoid"
 
     def __post_init__(self) -> None:
         if self.suite is None:          # the one of the mode on the nominal drive
@@ -171,7 +172,7 @@ class PolicyContext:
     def ramp_s(self) -> float:
         """Duration of the start-up ramp (s)."""
         v = abs(self.speed_rps)
-        return 0.5 * math.pi * v / self.accel_rps2 if self.profile == "s-curve" else \
+        return 0.5 * math.pi * v / self.accel_rps2 if self.ramp == "s-curve" else \
             v / self.accel_rps2
 
 
@@ -414,7 +415,7 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
                    suite: str | None = None, window_s: float | None = None,
                    settle_s: float | None = None,
                    lag_limit_steps: float | None = None, profile: str = "constant",
-                   distance_rev: float = 0.0) -> PolicyContext:
+                   distance_rev: float = 0.0, ramp: str = "trapezoid") -> PolicyContext:
     """The :class:`PolicyContext` of a run with the checked ``options``
     (:func:`policy_env_options`); ``suite`` None: the one of ``mode`` on the
     nominal motor's drive (:func:`.suites.suite_of`); the run's measuring
@@ -438,7 +439,7 @@ def policy_context(options: Mapping[str, Any], knowledge: MotorKnowledge, mode: 
         window_s=None if window_s is None else float(window_s),
         settle_s=None if settle_s is None else float(settle_s),
         lag_limit_steps=None if lag_limit_steps is None else float(lag_limit_steps),
-        profile=profile, distance_rev=float(distance_rev))
+        profile=profile, distance_rev=float(distance_rev), ramp=ramp)
 
 
 assert set(ESTIMATES) <= set(KNOWLEDGE_ESTIMATES)

@@ -21,10 +21,12 @@ from ..io import atomic_path, read_json, write_json, write_text
 from ..params import ParameterError
 
 # The text and the figures live in .tables and .figures; their names are kept here too.
-from .figures import (HIGHLIGHTED, highlighted_rows, plot_overview, plot_performance_profile,
+from .figures import (HIGHLIGHTED, highlighted_rows, plot_move_traces, plot_overview,
+                      plot_performance_profile,
                       plot_resonance_traces, plot_ripple, policy_styles, trace_run)
 from .protocol import Protocol
 from .provenance import board_fingerprint
+from .suites import get_suite
 from .tables import (best_eligible, entry_knowledge, entry_line, entry_rows, format_summary,
                      has_splits, render_ladder, render_markdown, render_per_motor, render_results,
                      render_suite_page, row_notes, scored_in_db, splits, suite_page)
@@ -137,6 +139,11 @@ def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
             plot_overview(board, os.path.join(out_dir, "overview.png"), protocol)
             written.append("overview.png")
         for suite in board["protocol"]["suites"]:
+            if get_suite(suite).profile == "move":      # v4's moves: through each move
+                plot_move_traces(board, suite, os.path.join(out_dir, f"velocity_error_{suite}.png"),
+                                 protocol)
+                written.append(f"velocity_error_{suite}.png")
+                continue
             for name, plot in ((f"ripple_vs_speed_{suite}.png", plot_ripple),
                                (f"velocity_error_resonances_{suite}.png", None)):
                 if plot is None:

@@ -104,7 +104,7 @@ _RECORD_KEYS = frozenset(("motor", "seed", "speed_rps", "speed_label", "terminat
 def resumed_batch(path: str, batch: LeaderboardBatch, motors: Sequence[ProtocolMotor]
              ) -> list[dict[str, Any]] | None:
     """A kept batch's records if they are whole, match their checksum and are the
-    batch's very runs (motor, seed, speed); else None (run again)."""
+    batch's very runs (motor, seed, speed and its label); else None (run again)."""
     key = os.path.basename(path)[:-len(".json")]
     records = read_checked_json(path, key, "resume batch")
     if not isinstance(records, list) or len(records) != len(batch.runs):
@@ -113,7 +113,8 @@ def resumed_batch(path: str, batch: LeaderboardBatch, motors: Sequence[ProtocolM
         if not (isinstance(r, dict) and _RECORD_KEYS <= r.keys()
                 and isinstance(r["metrics"], (dict, type(None)))
                 and r["motor"] == motors[i].name and r["seed"] == seed
-                and r["speed_rps"] == motors[i].speeds(batch.suite).speeds_rps[j]):
+                and r["speed_rps"] == motors[i].speeds(batch.suite).speeds_rps[j]
+                and r["speed_label"] == motors[i].speeds(batch.suite).labels[j]):
             print(f"stepdamp: note: resume batch {path!r} does not hold its runs; running "
                   "them again", file=sys.stderr)
             return None

@@ -25,7 +25,7 @@ from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
 from ..env.v1 import StepperDampV1Env
 from ..params import ParameterError, SystemParams
-from ..simulation import (DEFAULT_ACCEL_RPS2, MOVE_KINDS, RunSettings, SpeedProfile,
+from ..simulation import (DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile,
                           default_settle_s, measuring_window)
 from .policy import (MotorKnowledge, Policy, batch_policy, policy_context, policy_env_id,
                      policy_env_options)
@@ -140,9 +140,15 @@ def move_window(system: SystemParams, profile: SpeedProfile, settle_s: float | N
     """A point-to-point move's (window start, window length, run end) in s:
     the window is its cruise at top speed (from the end of the first ramp, so
     what the ramp through lower resonances excites is measured), the run ends
-    ``settle_s`` (default: the core's settling) after the move."""
+    ``settle_s`` (default: the core's settling) after the move. A move too
+    short to reach its top speed has no cruise to measure: a one-line error."""
     settle = default_settle_s(system) if settle_s is None else float(settle_s)
     start, length = profile.cruise()
+    if not length > 0.0:
+        ramps = profile.speed_rps * profile.ramp_s
+        raise ParameterError(f"distance_rev={profile.distance_rev!r} never reaches the top speed "
+                             f"{profile.speed_rps!r} rev/s: nothing to measure; allowed "
+                             f"|distance_rev| > {abs(ramps):.6g} rev (both ramps)")
     return start, length, profile.duration_s() + settle
 
 
@@ -161,6 +167,7 @@ class EpisodeSpec:
     profile: str = "constant"
     distance_rev: float = 0.0
     accel_rps2: float | None = None
+    ramp: str = "trapezoid"
 
 
 def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
@@ -174,13 +181,14 @@ def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, wind
     protocol_options: dict[str, Any] = {} if lag_limit_steps is None else \
         {"lag_limit_steps": lag_limit_steps}
     slack = 0.5 / system.drive.pwm_hz   # time_s is a float multiple of the period
-    if spec.profile in MOVE_KINDS:
+    if spec.profile == "move":
         profile = SpeedProfile(speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
-                               kind=spec.profile, distance_rev=spec.distance_rev)
+                               kind=spec.profile, distance_rev=spec.distance_rev,
+                               ramp=spec.ramp)
         start, length, end = move_window(system, profile, spec.settle_s)
         end -= slack
-        protocol_options.update(profile=spec.profile, distance_rev=spec.distance_rev,
-                                measure_until_s=start + length)
+        protocol_options.update(profile=spec.profile, ramp=spec.ramp,
+                                distance_rev=spec.distance_rev, measure_until_s=start + length)
     else:
         start, length = episode_window(system, spec.speed_rps, accel_rps2, window_s,
                                        spec.settle_s)
@@ -210,7 +218,7 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
                 on_step: Callable[[StepperDampEnv, np.ndarray, float], Any] | None = None,
                 pwm_trace: bool = False, lag_limit_steps: float | None = None,
                 suite: str | None = None, profile: str = "constant",
-                distance_rev: float = 0.0) -> EpisodeResult:
+                distance_rev: float = 0.0, ramp: str = "trapezoid") -> EpisodeResult:
     """Run ``policy`` in ``StepperDamp-v0`` (or in ``StepperDamp-v1`` if its
     ``env_id`` says so: the drive's ``nominal`` model is then the knowledge's) on
     the true plant ``system``.
@@ -229,20 +237,21 @@ def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams,
     ``lag_limit_steps`` (stepdamp-bench v3): the env's lag limit, and the run
     is judged by its final slip (:func:`lost_steps`). ``suite``: the policy's
     ``PolicyContext.suite`` (None: the one of ``mode`` on the nominal drive).
-    ``profile`` "move" or "s-curve": a point-to-point move of ``distance_rev``
-    at up to ``speed_rps`` (``accel_rps2`` its ramps' peak acceleration),
+    ``profile`` "move": a point-to-point move of ``distance_rev`` at up to
+    ``speed_rps`` with ``ramp`` "trapezoid" or "s-curve" (``accel_rps2`` its
+    ramps' peak acceleration),
     measured over its cruise and run until ``settle_s`` after it ends
     (:func:`move_window`; ``window_s`` and ``measure_from_s`` do not apply).
     """
     spec = EpisodeSpec(knowledge, system, speed_rps, seed, settle_s, measure_from_s, until_s,
-                       profile, float(distance_rev))
+                       profile, float(distance_rev), ramp=ramp)
     env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
                                                  "rgb_array" if pwm_trace else None,
                                                  lag_limit_steps)
     obs, _ = env.reset(seed=seed)
     policy.reset(policy_context(options, knowledge, mode, speed_rps, accel_rps2, suite,
                                 window_s, settle_s, lag_limit_steps, profile,
-                                float(distance_rev)))
+                                float(distance_rev), ramp))
     steps, terminated, reason = 0, False, ""
     trace: list[Any] = []
     while env.time_s < end:
@@ -296,7 +305,7 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
         contexts.append(policy_context(
             options, spec.knowledge, mode, spec.speed_rps,
             accel_rps2 if spec.accel_rps2 is None else spec.accel_rps2, suite, window_s,
-            spec.settle_s, lag_limit_steps, spec.profile, spec.distance_rev))
+            spec.settle_s, lag_limit_steps, spec.profile, spec.distance_rev, spec.ramp))
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}

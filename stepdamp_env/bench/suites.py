@@ -25,7 +25,7 @@ __all__ = ["Suite", "SUITES_BY_NAME", "register_suite", "get_suite", "suite_name
 MODES = ("open-loop", "servo")
 DRIVE_MODES = ("current", "voltage")
 #: A suite's command: a constant speed, or point-to-point moves.
-PROFILES = ("constant", "moves")
+PROFILES = ("constant", "move")
 
 
 @dataclass(frozen=True)
@@ -47,9 +47,10 @@ class Suite:
             1.58-10.79) widened by x0.8 and x1.2 (open loop: the reference task's
             own draw, which covers its resonances). Chosen on the dev split,
             never on a scored one.
-        profile: the command: "constant" (a ramp to each speed, then held) or
-            "moves" (point-to-point moves cruising at each speed, v4's moves
-            suite: the protocol gives each cell's ramp shape and acceleration).
+        profile: the command (a :class:`..simulation.SpeedProfile` kind):
+            "constant" (a ramp to each speed, then held) or "move" (point-to-point
+            moves cruising at each speed, v4's moves suite: the protocol gives
+            each cell's ramp and acceleration, ``Protocol.run_command``).
         tuning: the suite whose tuned settings an entry tuned per suite uses
             here when it has none of its own (None: none; it cannot run).
     """
@@ -192,4 +193,4 @@ register_suite(Suite(
     "pass the lower resonances, a cruise at a resonant speed, the stop and its settling",
     "moves cruising at the open-loop headline speeds f2 and f1, each as a trapezoid and "
     "as an S-curve", "the same motor without torque harmonics", "v4",
-    profile="moves", tuning="open-loop"))
+    profile="move", tuning="open-loop"))

@@ -73,8 +73,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"stepdamp {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        # A second Ctrl-C during the interpreter's shutdown would print a traceback.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # A second Ctrl-C during the interpreter's shutdown would print a traceback; a
+        # caller in the same process (argv given) keeps its own Ctrl-C.
+        if argv is None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         resume = " (run the same command again to resume)" if args.command == "leaderboard" \
             else ""
         # On a line of its own: a progress bar may hold the cursor at the end of its line.

@@ -276,9 +276,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         if abs(args.move) < step_rev:
             raise ParameterError(f"--move {args.move:g}: shorter than one full step, nothing to "
                                  f"measure; allowed |move| >= {step_rev:g} rev")
-        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel,
-                               kind="s-curve" if args.ramp == "s-curve" else "move",
-                               distance_rev=args.move)
+        profile = SpeedProfile(speed_rps=args.speed, accel_rps2=args.accel, kind="move",
+                               ramp=args.ramp, distance_rev=args.move)
     else:
         if args.ramp != "trapezoid":
             raise ParameterError(f"--ramp {args.ramp}: only a --move has ramps to shape "
@@ -337,7 +336,8 @@ def _run_record(args: argparse.Namespace, system: Any, result: Any) -> dict[str,
     s = result.settings
     return {"motor": system.name, "mode": s.mode, "base_controller": s.base_controller,
             "speed_rps": result.profile.speed_rps, "accel_rps2": result.profile.accel_rps2,
-            "move_rev": args.move, "profile": result.profile.kind, "substeps": s.substeps, "noise_seed": s.noise_seed,
+            "move_rev": args.move, "profile": result.profile.kind,
+            "ramp": result.profile.ramp, "substeps": s.substeps, "noise_seed": s.noise_seed,
             "duration_s": result.duration_s, "window_start_s": result.window_start_s,
             **{k: v for k, v in result.metrics.to_dict().items() if k != "speed_rps"},
             "parameters": system.to_dict()}

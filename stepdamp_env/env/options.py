@@ -10,7 +10,7 @@ import numpy as np
 
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..simulation import BASE_CONTROLLERS as _CORE_BASE_CONTROLLERS
-from ..simulation import (DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, MOVE_KINDS, PROFILE_KINDS,
+from ..simulation import (DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, PROFILE_KINDS, RAMPS,
                           VELOCITY_ESTIMATORS)
 from .layout import ACTION_MODES
 from .registration import ENV_ID
@@ -123,6 +123,7 @@ class EnvOptions:
     measure_from_s: float | None = None
     measure_until_s: float | None = None
     profile: str = "constant"
+    ramp: str = "trapezoid"
     distance_rev: float = 0.0
 
     @classmethod
@@ -167,17 +168,21 @@ class EnvOptions:
         if self.measure_from_s is not None:
             check_number("measure_from_s", self.measure_from_s, 0.0, 1e6)
         if self.measure_until_s is not None:
-            low = 0.0 if self.measure_from_s is None else float(self.measure_from_s)
-            check_number("measure_until_s", self.measure_until_s, low, 1e6, low_open=True)
+            if self.measure_from_s is None:
+                raise ParameterError("measure_until_s needs measure_from_s (the window it "
+                                     "closes)")
+            check_number("measure_until_s", self.measure_until_s, float(self.measure_from_s),
+                         1e6, low_open=True)
         check_choice("profile", self.profile, PROFILE_KINDS)
-        if self.profile in MOVE_KINDS:
-            check_number("distance_rev", abs(self.distance_rev)
-                         if isinstance(self.distance_rev, (int, float, np.number))
-                         and not isinstance(self.distance_rev, bool) else self.distance_rev,
-                         0.0, 1e6, low_open=True)
-        elif self.distance_rev != 0.0:
-            raise ParameterError(f"distance_rev={self.distance_rev!r} needs profile 'move' or "
-                                 "'s-curve' (a constant speed has no distance)")
+        check_choice("ramp", self.ramp, RAMPS)
+        distance = check_number("distance_rev", self.distance_rev, -1e6, 1e6)
+        if self.profile == "move" and distance == 0.0:
+            raise ParameterError(f"distance_rev={self.distance_rev!r} is outside its allowed "
+                                 "range for a move: 0 < |distance_rev| <= 1e6 (rev)")
+        if self.profile == "constant" and (distance != 0.0 or self.ramp != "trapezoid"):
+            raise ParameterError(f"distance_rev={self.distance_rev!r}, ramp={self.ramp!r} need "
+                                 "profile='move' (a constant speed has no distance and ramps "
+                                 "at a constant acceleration)")
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise _bad("substeps", self.substeps, "[1, 1000] (integer)")
@@ -263,11 +268,12 @@ OPTIONS_DOC = """
       ``measure_until_s`` (None: open to the episode's end) closes it (s, after
       ``measure_from_s``).
     * ``profile`` ("constant"): the command, "constant" (the ramp to the speed,
-      then held), or a point-to-point move of ``distance_rev`` (0.0; rev, signed)
-      at up to the speed: "move" (constant-acceleration ramps of
-      ``accel_rps2``, a trapezoid) or "s-curve" (half-cosine ramps of peak
-      acceleration ``accel_rps2``: bounded jerk). After a move the command
-      rests at its end. Added in 0.18.0; the defaults give earlier rollouts.
+      then held), or "move": a point-to-point move of ``distance_rev`` (0.0;
+      rev, signed) at up to the speed, whose ``ramp`` ("trapezoid") is
+      "trapezoid" (constant acceleration ``accel_rps2``) or "s-curve"
+      (half-cosine ramps of peak acceleration ``accel_rps2``: bounded jerk).
+      After a move the command rests at its end. Added in 0.18.0; the defaults
+      give earlier rollouts.
     * Sensor noise and offsets are motor-file fields (``current_noise_a``,
       ``current_offset_a``, ``current_offset_b``, via ``overrides``); each
       episode draws its own noise seed.

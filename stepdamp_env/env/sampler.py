@@ -169,7 +169,7 @@ class EpisodeSampler(EnvTask):
         """The episode's command at ``speed_rps`` (the options' profile)."""
         o = self._options
         return SpeedProfile(speed_rps=speed_rps, accel_rps2=o.accel_rps2, kind=o.profile,
-                            distance_rev=o.distance_rev)
+                            distance_rev=o.distance_rev, ramp=o.ramp)
 
     def window(self) -> tuple[float, float]:
         """The core's metrics window (start, end) in s. Without measure_from_s

@@ -127,6 +127,7 @@ class EnvOptionsV1:
     measure_from_s: float | None = None
     measure_until_s: float | None = None
     profile: str = "constant"
+    ramp: str = "trapezoid"
     distance_rev: float = 0.0
 
     @classmethod
@@ -182,7 +183,7 @@ class EnvOptionsV1:
             lag_limit_steps=self.lag_limit_steps, privileged=self.privileged,
             substeps=self.substeps, velocity_estimator=self.velocity_estimator,
             measure_from_s=self.measure_from_s, measure_until_s=self.measure_until_s,
-            profile=self.profile, distance_rev=self.distance_rev)
+            profile=self.profile, ramp=self.ramp, distance_rev=self.distance_rev)
 
     @property
     def max_episode_steps(self) -> int:
@@ -201,7 +202,7 @@ OPTIONS_DOC_V1 = """
     ``accel_rps2``, ``agent_hz``, ``harmonic_scale_nm``, ``current_scale_a``,
     ``current_limit_factor``, ``lag_limit_steps``, ``privileged``, ``substeps``,
     ``velocity_estimator``, ``measure_from_s``, ``measure_until_s``, ``profile``,
-    ``distance_rev`` (see ``StepperDamp-v0``). New or
+    ``ramp``, ``distance_rev`` (see ``StepperDamp-v0``). New or
     changed in v1:
 
     * ``base_controller`` ("ff-delay-comp"): the drive's model-based damping under

@@ -29,7 +29,8 @@ Runs (a held run never scores below a lost run of the same cell)
     damping); no such runs: the cell has no score.
 
 Eligibility, per cell
-    A cell is (motor, headline speed). A learned entry's coverage is the
+    A cell is (motor, headline speed, its label: the moves suite has two
+    cells, a trapezoid and an S-curve, at each speed). A learned entry's coverage is the
     share of the split's cells whose speed its card's ``trained_on`` covers
     for the suite; it is ranked where coverage >= ``coverage_min`` = 0.9,
     else its row is ``zero_shot``. Every row of a table is scored on the
@@ -91,7 +92,7 @@ import numpy as np
 from ...params import ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
-from ..moves import move_command, moves_grid
+from ..moves import cell_command, moves_grid
 from ..protocol import ALL_SUITES, REFERENCE_POLICY, REFERENCE_ROW, TRAINING_SEED_LIMIT
 from ..scoring import db_row_fields
 from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_ranks,
@@ -140,8 +141,8 @@ def catalogue_systems(protocol: ProtocolV1, names: Sequence[str] = ()) -> tuple[
 
 
 def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
-             cells: Sequence[tuple[str, float]]) -> tuple[float, frozenset]:
-    """The share of ``cells`` ((motor, rev/s) pairs) whose speed a learned
+             cells: Sequence[tuple[Any, ...]]) -> tuple[float, frozenset]:
+    """The share of ``cells`` ((motor, rev/s, label) tuples) whose speed a learned
     entry's ``trained_on`` ((suite, lowest rev/s, highest rev/s) ranges) covers
     in ``suite``, and the covered cells."""
     ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
@@ -246,12 +247,12 @@ class ProtocolV4(ProtocolV3):
         return grids + (("moves", *moves_grid(speeds, labels)),)
 
     def run_command(self, motor: ProtocolMotor, suite: str, index: int) -> dict[str, Any]:
-        """The moves suite's cell ``index`` (:func:`..moves.move_command`): a move
+        """The moves suite's cell ``index`` (:func:`..moves.cell_command`): a move
         cruising for ``window_s``; {} in the other suites."""
         if suite != "moves":
             return {}
         grid = motor.speeds(suite)
-        return move_command(motor.system, grid.speeds_rps[index], grid.labels[index],
+        return cell_command(motor.system, grid.speeds_rps[index], grid.labels[index],
                             {"trapezoid": self.move_accel_rps2,
                              "s-curve": self.move_s_curve_accel_rps2},
                             self.move_torque_share, self.window_s)
@@ -302,7 +303,7 @@ class ProtocolV4(ProtocolV3):
             stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
             position = MOVE_POSITION_METRIC if suite == "moves" else POSITION_METRIC
             for split in self.splits:
-                cells = sorted({(m.name, float(v)) for m in motors if m.split == split
+                cells = sorted({(m.name, float(v), lbl) for m in motors if m.split == split
                                 for v, lbl in zip(*m.speeds(suite))
                                 if not lbl.startswith("off")}, key=str)
                 specs = [(REFERENCE_ROW, REFERENCE_ROW, REFERENCE_ROW, {"reference": True})] + [
@@ -344,7 +345,7 @@ class ProtocolV4(ProtocolV3):
             n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
             db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
             ratios.append(ratio_of_db(db))
-            if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
+            if (r["motor"], float(r["speed_rps"]), r["speed_label"]) in common and math.isfinite(db) \
                     and not r["speed_label"].startswith("off"):
                 cell_runs.setdefault((r["motor"], r.get("training_seed")), []).append(db)
                 by_seed.setdefault((r["seed"], r["motor"]), []).append(db)
@@ -389,7 +390,7 @@ class ProtocolV4(ProtocolV3):
         for r in runs:
             n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
             db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan), metric)
-            if (r["motor"], float(r["speed_rps"])) in common and math.isfinite(db) \
+            if (r["motor"], float(r["speed_rps"]), r["speed_label"]) in common and math.isfinite(db) \
                     and not r["speed_label"].startswith("off"):
                 cells.setdefault((r["motor"], r.get("training_seed")), []).append(db)
         keys = sorted(cells, key=str)
