@@ -214,19 +214,28 @@ def _speed_title(label: str) -> str:
     return f"{label[1:]} x f4"
 
 
-def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
-                          protocol: Protocol) -> None:
-    """Velocity error against time over the whole measuring window at the three
-    resonant speeds (v1 servo: at its grid speeds), sampled every PWM period:
-    ``none`` against the best entry (patent Figs. 4-7 style), representative
-    motor and seed."""
+def _trace_subjects(board: Mapping[str, Any], suite: str, protocol: Protocol
+                    ) -> tuple[list[Mapping[str, Any]], dict[str, Any], ProtocolMotor, int,
+                               MotorKnowledge]:
+    """What a trace figure shows: ``none`` and the best entry (and every row's
+    style), on the representative motor as the suite runs it, its first
+    evaluation seed and the knowledge the board's runs had."""
     rows = _suite_rows(board, suite)
     best = best_eligible(rows)
     shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
     styles = policy_styles([e["name"] for e in rows])
     motor = protocol_motors(protocol)[0].for_suite(suite)
     seed = protocol.eval_seeds[0]
-    knowledge = _knowledge(board, motor, seed, protocol)
+    return shown, styles, motor, seed, _knowledge(board, motor, seed, protocol)
+
+
+def plot_resonance_traces(board: Mapping[str, Any], suite: str, path: str,
+                          protocol: Protocol) -> None:
+    """Velocity error against time over the whole measuring window at the three
+    resonant speeds (v1 servo: at its grid speeds), sampled every PWM period:
+    ``none`` against the best entry (patent Figs. 4-7 style), representative
+    motor and seed."""
+    shown, styles, motor, seed, knowledge = _trace_subjects(board, suite, protocol)
     if motor.split is None:                 # v0: the three resonances, in both suites
         points = [(f"h = {h} resonance", v)
                   for h, v in motor.system.predicted_resonances_rps().items()]
@@ -258,13 +267,7 @@ def plot_move_traces(board: Mapping[str, Any], suite: str, path: str,
     the start to the end of the settling, sampled every PWM period: ``none``
     against the best entry, representative motor and seed; the cruise (the
     scored window) shaded."""
-    rows = _suite_rows(board, suite)
-    best = best_eligible(rows)
-    shown = [e for e in rows if e["spec"] == REFERENCE_POLICY] + ([best] if best else [])
-    styles = policy_styles([e["name"] for e in rows])
-    motor = protocol_motors(protocol)[0].for_suite(suite)
-    seed = protocol.eval_seeds[0]
-    knowledge = _knowledge(board, motor, seed, protocol)
+    shown, styles, motor, seed, knowledge = _trace_subjects(board, suite, protocol)
     speeds, labels = motor.speeds(suite)
     plt = pyplot()
     fig, axes = plt.subplots(len(speeds), 1, squeeze=False,
