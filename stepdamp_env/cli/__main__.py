@@ -1,7 +1,5 @@
 """``python -m stepdamp_env.cli``: the ``stepdamp`` command."""
 
-import sys
+from . import run
 
-from . import main
-
-sys.exit(main())
+run()
