@@ -29,10 +29,11 @@ import sys
 import tempfile
 
 __all__ = ["use_user_cache_dir", "user_cache_dir", "active_cache_dir", "code_key",
-           "call_with_frame_room"]
+           "call_with_frame_room", "remove_private_folders"]
 
 _active = ""            # the folder numba caches this package's code in ("" none)
 _told: set[str] = set()  # notes printed, one line each per process
+_private: list[str] = []  # temporary cache folders this process made (removed at exit)
 
 
 def code_key(root: str | None = None) -> str:
@@ -162,6 +163,7 @@ def _fallback(refused: str) -> tuple[str, bool]:
         path = tempfile.mkdtemp(prefix="stepdamp-numba-")      # mode 0700
     except OSError:
         return "", False
+    _private.append(path)
     atexit.register(shutil.rmtree, path, ignore_errors=True)
     os.environ["_STEPDAMP_NUMBA_CACHE_REFUSED"] = refused
     return path, False
@@ -335,3 +337,10 @@ def call_with_frame_room(fn, *args):
     that no compile inside it straddles a frame-stack chunk boundary (see above).
     Before 3.11 (no frame stack) it only allocates one large frame."""
     return _ROOMY(fn, args)
+
+
+def remove_private_folders() -> None:
+    """Remove the temporary cache folders this process made (as at exit), for a
+    process that leaves without the interpreter's shutdown."""
+    for path in _private:
+        shutil.rmtree(path, ignore_errors=True)

@@ -177,6 +177,18 @@ def test_no_protocol_unions_and_versions_told_apart_only_by_the_protocols():
     assert len(found) <= 2, found
 
 
+def test_no_version_is_built_on_another_versions_class():
+    """What versions share lives in shared modules (protocols/drawn.py,
+    decibels.py): editing a frozen version's module cannot change a later one."""
+    from stepdamp_env.bench.protocols import protocol_class, protocol_versions
+
+    classes = {v: protocol_class(v) for v in protocol_versions()}
+    for version, cls in classes.items():
+        borrowed = [c.__name__ for c in cls.__mro__[1:] if c in classes.values()]
+        assert not borrowed, (version, borrowed)
+        assert cls.__module__.endswith("." + version), (version, cls.__module__)
+
+
 def test_layouts_are_declared_not_numbered():
     """At most 12 module-level integer constants in the packages: packed vectors
     are declared once as named layouts (stepdamp_env.fields)."""

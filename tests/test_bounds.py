@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import stepdamp_env.simulation as S
-from stepdamp_env.bench.protocols import v1
+from stepdamp_env.bench.protocols import drawn
 from stepdamp_env import io as sio
 from stepdamp_env import kernel as K
 from stepdamp_env.bench.protocols.v1 import (full_protocol_v1,
@@ -241,7 +241,7 @@ def test_motors_file_duplicates_found_before_validation(tmp_path, monkeypatch):
     assert time.perf_counter() - t0 < 5.0
     assert "\n" not in str(info.value)
     # Without the reading: the names' check alone (was a minute of validation).
-    monkeypatch.setattr(v1, "read_json_file", lambda *a: data)
+    monkeypatch.setattr(drawn, "read_json_file", lambda *a: data)
     t0 = time.perf_counter()
     with pytest.raises(ParameterError, match="must be unique"):
         load_motors_file(str(path), protocol)

@@ -17,6 +17,7 @@ from stepdamp_env.bench.leaderboard import run_leaderboard
 from stepdamp_env.bench.motors import protocol_motors
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, RowPolicy
 from stepdamp_env.bench.protocols.v1 import quick_protocol_v1
+from stepdamp_env.bench.protocols.decibels import DecibelProtocol
 from stepdamp_env.bench.protocols.v3 import ProtocolV3, quick_protocol_v3
 from stepdamp_env.bench.registry import register_policy
 from stepdamp_env.bench.suites import Suite, register_suite
@@ -132,8 +133,9 @@ def test_a_new_suite_is_one_record_and_a_protocol_that_runs_it(registries):
 
 # -- a protocol: one module's worth, one registration -------------------------------------
 @dataclasses.dataclass(frozen=True)
-class ProtocolShortWindow(ProtocolV3):
-    """A throw-away version: v3 with a window of half its length."""
+class ProtocolShortWindow(DecibelProtocol):
+    """A throw-away version built as the recipe says (on the shared class, not
+    on another version's): v3's row with a window of half its length."""
 
     version: str = "v99"
 

@@ -14,7 +14,6 @@ with one line and status 130. Output directories are written as a whole
 from __future__ import annotations
 
 import argparse
-import atexit
 import os
 import signal
 import sys
@@ -90,7 +89,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
-
 def run() -> None:
     """The ``stepdamp`` executable: :func:`main` on the process's arguments, then
     exit with its status. After Ctrl-C (130) the process leaves without the
@@ -103,7 +101,7 @@ def run() -> None:
         sys.exit(status)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        atexit._run_exitfuncs()     # e.g. a private numba cache folder's removal
+        numba_cache.remove_private_folders()
     finally:
         for stream in (sys.stdout, sys.stderr):
             try:

@@ -89,7 +89,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from ...params import ParameterError, SystemParams
+from ...params import Allowed, ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
 from ..moves import cell_command, moves_grid
@@ -98,8 +98,8 @@ from ..scoring import db_row_fields
 from ..stats import (iqm, median_difference, motor_mean_bootstrap, paired_ranks,
                      probability_of_improvement)
 from ..verdicts import table_facts
-from .v1 import QUICK_SETTINGS, ProtocolV1, load_motors_file
-from .v3 import ProtocolV3, attenuation_db, ratio_of_db
+from .decibels import DecibelProtocol, attenuation_db, ratio_of_db
+from .drawn import QUICK_SETTINGS, DrawnProtocol, load_motors_file
 
 __all__ = ["ProtocolV4", "SPLITS", "CATALOGUE_PATH", "full_protocol_v4", "quick_protocol_v4",
            "coverage", "evaluation_seeds", "catalogue_systems"]
@@ -118,6 +118,14 @@ MOVE_POSITION_METRIC = "run_position_error_steps"
 SUITES_V4 = ALL_SUITES + ("moves",)
 #: How many evaluation seeds ``--eval-seeds`` may ask for.
 MAX_EVAL_SEEDS = 20
+#: v4's own settings' ranges: (low, high, low end open, high end open).
+_RANGES = {"coverage_min": (0.0, 1.0, True, False), "rank_confidence": (0.0, 1.0, True, True),
+           "decisive_share": (0.5, 1.0, True, False), "bound_share_min": (0.0, 1.0, True, False),
+           "saturation_db": (0.0, math.inf, False, True),
+           "move_accel_rps2": (1.0, 1e4, False, False),
+           "move_s_curve_accel_rps2": (1.0, 1e4, False, False),
+           "move_torque_share": (0.0, 1.0, True, False),
+           "min_paired_motors": (1, math.inf, False, True)}
 
 
 def evaluation_seeds(count: int) -> tuple[int, ...]:
@@ -127,7 +135,7 @@ def evaluation_seeds(count: int) -> tuple[int, ...]:
     return tuple(TRAINING_SEED_LIMIT + k for k in range(count))
 
 
-def catalogue_systems(protocol: ProtocolV1, names: Sequence[str] = ()) -> tuple[SystemParams, ...]:
+def catalogue_systems(protocol: DrawnProtocol, names: Sequence[str] = ()) -> tuple[SystemParams, ...]:
     """The catalogue's motors (all, or those named, in the file's order), with
     the protocol's sensors where the file gives none."""
     systems = load_motors_file(CATALOGUE_PATH, protocol)
@@ -151,7 +159,7 @@ def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
 
 
 @dataclass(frozen=True)
-class ProtocolV4(ProtocolV3):
+class ProtocolV4(DecibelProtocol):
     """Every setting of ``stepdamp-bench v4`` (module docstring, docs/protocol_v4.md)."""
 
     version: str = "v4"
@@ -159,7 +167,10 @@ class ProtocolV4(ProtocolV3):
     eval_seeds: tuple[int, ...] = evaluation_seeds(3)
     #: The catalogue motors run (empty: every one in the file).
     catalogue_motors: tuple[str, ...] = ()
+    #: A learned entry is ranked where its training covers this share of cells.
     coverage_min: float = 0.9
+    #: Paired ranks: the interval's confidence, the share of motors (or
+    #: P(improvement)) that decides a pair, and the fewest motors a pair needs.
     rank_confidence: float = 0.95
     decisive_share: float = 0.95
     min_paired_motors: int = 3
@@ -189,26 +200,9 @@ class ProtocolV4(ProtocolV3):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not 0.0 < self.coverage_min <= 1.0:
-            raise ParameterError(f"coverage_min={self.coverage_min!r} is outside (0, 1]")
-        if not 0.0 < self.rank_confidence < 1.0:
-            raise ParameterError(f"rank_confidence={self.rank_confidence!r} is outside (0, 1)")
-        if not 0.5 < self.decisive_share <= 1.0:
-            raise ParameterError(f"decisive_share={self.decisive_share!r} is outside (0.5, 1]")
-        if not 0.0 < self.bound_share_min <= 1.0:
-            raise ParameterError(f"bound_share_min={self.bound_share_min!r} is outside (0, 1]")
-        if not (math.isfinite(self.saturation_db) and self.saturation_db >= 0.0):
-            raise ParameterError(f"saturation_db={self.saturation_db!r} is outside [0, inf) dB")
-        for name in ("move_accel_rps2", "move_s_curve_accel_rps2"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 1.0 <= value <= 1e4):
-                raise ParameterError(f"{name}={value!r} is outside [1, 1e4] rev/s^2")
-        if not 0.0 < self.move_torque_share <= 1.0:
-            raise ParameterError(f"move_torque_share={self.move_torque_share!r} is outside "
-                                 "(0, 1]")
-        if not (isinstance(self.min_paired_motors, int) and self.min_paired_motors >= 1):
-            raise ParameterError(f"min_paired_motors={self.min_paired_motors!r} is outside "
-                                 "[1, inf) (integer)")
+        for name, (low, high, low_open, high_open) in _RANGES.items():
+            Allowed(low, high, low_open, high_open, integer=name == "min_paired_motors"
+                    ).check(name, getattr(self, name))
 
     # -- the record --------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -261,7 +255,7 @@ class ProtocolV4(ProtocolV3):
     def motors(self) -> tuple[ProtocolMotor, ...]:
         """dev (if run), v3's drawn splits or the custom motors, then the
         catalogue; their grids as v3's."""
-        drafts = self._dev_motors() + ProtocolV1.motors(self) + self._catalogue()
+        drafts = self._dev_motors() + DrawnProtocol.motors(self) + self._catalogue()
         grids = grids_cached(self, [m.system for m in drafts])
         return tuple(dataclasses.replace(m, speeds_rps=g[0][1], speed_labels=g[0][2], grids=g)
                      for m, g in zip(drafts, grids))
