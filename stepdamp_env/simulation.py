@@ -26,7 +26,7 @@ from .params import (RK4_STABLE_RADIUS, FeedforwardModel, ParameterError, System
                      fastest_plant_mode, required_substeps)
 
 __all__ = ["check_converged", "MODES", "BASE_CONTROLLERS", "DEFAULT_ACCEL_RPS2", "MIN_ACCEL_RPS2",
-           "MAX_DURATION_S", "PROFILE_KINDS", "RAMPS", "max_move_distance_rev", "trace_memory_limit", "check_trace_memory",
+           "MAX_DURATION_S", "PROFILE_KINDS", "RAMPS", "max_move_distance_rev", "ramps_distance_rev", "trace_memory_limit", "check_trace_memory",
            "run_length_error", "run_periods_chunked", "SpeedProfile", "RunSettings", "RunMetrics",
            "RunResult", "build_config", "check_integrable", "initial_state", "new_accumulators",
            "metrics_from_accumulators", "merge_accumulators", "merge_accumulator_rows", "simulate"]
@@ -128,8 +128,8 @@ class SpeedProfile:
         a move too short to reach it); for ``constant``: (ramp_s, inf)."""
         if self.kind == "constant":
             return self.ramp_s, math.inf
-        v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
-        ramps = 0.5 * math.pi * v * v / a if self.ramp == "s-curve" else v * v / a
+        v, d = abs(self.speed_rps), abs(self.distance_rev)
+        ramps = ramps_distance_rev(v, self.accel_rps2, self.ramp)
         if ramps >= d:
             return 0.5 * self.duration_s(), 0.0
         return self.ramp_s, (d - ramps) / v
@@ -139,13 +139,22 @@ class SpeedProfile:
         if self.kind == "constant":
             return self.ramp_s
         v, a, d = abs(self.speed_rps), self.accel_rps2, abs(self.distance_rev)
+        short = ramps_distance_rev(v, a, self.ramp) > d
         if self.ramp == "s-curve":
-            if 0.5 * math.pi * v * v / a > d:
+            if short:
                 return math.pi * math.sqrt(2.0 * a * d / math.pi) / a
             return d / v + 0.5 * math.pi * v / a
-        if v * v / a > d:
+        if short:
             return 2.0 * math.sqrt(d / a)
         return d / v + v / a
+
+
+def ramps_distance_rev(speed_rps: float, accel_rps2: float, ramp: str) -> float:
+    """Distance (rev) a move's two ramps cover, up to |speed_rps| and down again,
+    at (peak) acceleration ``accel_rps2`` (rev/s^2): v^2/a for the trapezoid,
+    pi*v^2/(2a) for the S-curve's half-cosine ramps."""
+    v = abs(speed_rps)
+    return 0.5 * math.pi * v * v / accel_rps2 if ramp == "s-curve" else v * v / accel_rps2
 
 
 def max_move_distance_rev(speed_rps: float, accel_rps2: float, time_s: float,

@@ -13,7 +13,7 @@ import math
 from typing import Any, Sequence
 
 from ..params import SystemParams
-from ..simulation import RAMPS
+from ..simulation import RAMPS, ramps_distance_rev
 
 __all__ = ["moves_grid", "move_accel_rps2", "cell_command"]
 
@@ -52,6 +52,5 @@ def cell_command(system: SystemParams, speed_rps: float, label: str,
     v = float(speed_rps)
     period = 1.0 / (system.motor.Nr * v)
     cruise = math.ceil(cruise_s / period - 1e-9) * period
-    ramps = 0.5 * math.pi * v * v / accel if ramp == "s-curve" else v * v / accel
     return {"profile": "move", "ramp": ramp, "accel_rps2": accel,
-            "distance_rev": ramps + v * cruise}
+            "distance_rev": ramps_distance_rev(v, accel, ramp) + v * cruise}

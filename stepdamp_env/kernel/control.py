@@ -126,15 +126,18 @@ def s_curve_command(t, speed, accel, distance):
     d_acc = 0.5 * vmax * t_acc
     t_flat = (d - 2.0 * d_acc) / vmax if vmax > 0.0 else 0.0
     k = math.pi / t_acc if t_acc > 0.0 else 0.0
+    # fixedmath's sine and cosine: libm's differ in the last bit between CPUs.
     if t < t_acc:
-        return (sgn * 0.5 * vmax * (t - math.sin(k * t) / k),
-                sgn * 0.5 * vmax * (1.0 - math.cos(k * t)))
+        sk, ck = sincos(k * t)
+        return (sgn * 0.5 * vmax * (t - sk / k),
+                sgn * 0.5 * vmax * (1.0 - ck))
     if t < t_acc + t_flat:
         return sgn * (d_acc + vmax * (t - t_acc)), sgn * vmax
     td = t - t_acc - t_flat
     if td < t_acc:
-        return (sgn * (d - d_acc + 0.5 * vmax * (td + math.sin(k * td) / k)),
-                sgn * 0.5 * vmax * (1.0 + math.cos(k * td)))
+        sk, ck = sincos(k * td)
+        return (sgn * (d - d_acc + 0.5 * vmax * (td + sk / k)),
+                sgn * 0.5 * vmax * (1.0 + ck))
     return sgn * d, 0.0
 
 
