@@ -28,11 +28,8 @@ true plant and seed, a table of harmonic torque (h = 1, 2, 4 of the drive's
 angle, N*m) that cancels the periodic ripple the law leaves (the voltage-mode
 drive's mid-band leaves ripple at the detent's second harmonic that no law
 above removes). It measures each harmonic's response: the velocity error's
-lock-in phasor (``RunMetrics.harmonic_phasor_rad_s``) with the sine
-coefficients of all three harmonics probed together by :data:`PROBE_SHARE` of
-the action's scale, then the cosines (two runs: the lock-in over whole
-detent periods tells the harmonics apart, and only each harmonic's own 2x2
-response is used); then
+lock-in phasor (``RunMetrics.harmonic_phasor_rad_s``) with each sine and
+cosine coefficient probed by :data:`PROBE_SHARE` of the action's scale; then
 ``table_steps`` times (2) it sets the table to zero each harmonic's phasor by
 that response (a 2x2 solve per harmonic). The table is kept if its
 rehearsal has less velocity ripple than the law alone (iterative learning
@@ -283,21 +280,21 @@ class PlantBound(PortfolioLaw):
             p = metrics["harmonic_phasor_rad_s"]
             return [float(x) for h in ("1", "2", "4") for x in p[h]]
 
-        # Each harmonic's 2x2 response d(phasor)/d(table), probed on every run at
-        # once: the three sines in one run, the three cosines in another.
+        # The response: column j is d(phasors)/d(table[j]), one coefficient per
+        # probe (probing the three harmonics together held the bound on 14 of the
+        # dev split's 16 mid-band motors, one at a time on 15), on every run at once.
         base = {i: phasors(held[i]) for i in todo}
         delta = {i: PROBE_SHARE * contexts[i].action_scale for i in todo}
         response = {i: [[0.0] * 6 for _ in range(6)] for i in todo}
-        for parity in (0, 1):
-            probe = {i: tuple(delta[i] if m % 2 == parity else 0.0 for m in range(6))
-                     for i in todo}
+        for j in range(6):
+            probe = {i: tuple(delta[i] if m == j else 0.0 for m in range(6)) for i in todo}
             for i, r in rehearse(probe).items():
                 if r.failed or r.metrics is None:       # a probe it cannot take: no table
                     todo.remove(i)
                     continue
                 p = phasors(r.metrics)
                 for m in range(6):
-                    response[i][m][m - m % 2 + parity] = (p[m] - base[i][m]) / delta[i]
+                    response[i][m][j] = (p[m] - base[i][m]) / delta[i]
         table = {i: [0.0] * 6 for i in todo}
         error = dict(base)
         for _ in range(self.table_steps):

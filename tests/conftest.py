@@ -42,6 +42,22 @@ def _warm_lanes(action_mode):
     call_with_frame_room(env.step, np.zeros(env.action_space.shape, dtype=np.float32))
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_logs_in_the_tests_tmp(tmp_path_factory):
+    """SB3's ``learn`` without a logger of its own makes a folder ``SB3-<date>``
+    in the system's temporary folder, one per call (about 280 left in /tmp by
+    earlier runs): here they go below pytest's basetemp."""
+    import os
+
+    before = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3-logs"))
+    yield
+    if before is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = before
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_pyfunc_call(pyfuncitem):
     """Each test runs with room on CPython's frame stack, so that numba compiling
