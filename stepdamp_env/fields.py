@@ -9,6 +9,8 @@ ordered list of field names, each with what it holds and its SI unit:
         OMEGA   shaft speed (rad/s)
     ''')
 
+A name ``NAME[n]`` declares n fields: ``NAME`` (described), then ``NAME_1`` ..
+``NAME_{n-1}``, so that ``v[STATE.NAME + j]`` is entry j.
 ``STATE.OMEGA`` is the field's position (1), ``len(STATE)`` the vector's length,
 ``describe(STATE)`` the names with their descriptions. numba reads a
 module-level layout as a constant, so ``s[STATE.OMEGA]`` compiles exactly as
@@ -40,7 +42,15 @@ def layout(name: str, fields: str) -> Any:
             rows[-1][1] = (rows[-1][1] + " " + line.strip()).strip()
             continue
         parts = line.split(None, 1)
-        rows.append([parts[0], parts[1].strip() if len(parts) > 1 else ""])
+        field, text = parts[0], parts[1].strip() if len(parts) > 1 else ""
+        base, bracket, count = field.partition("[")
+        if not bracket:
+            rows.append([field, text])
+            continue
+        if not (count.endswith("]") and count[:-1].isdigit() and int(count[:-1]) >= 1):
+            raise ValueError(f"layout {name}: {field!r} is not NAME[n] with n >= 1")
+        rows.append([base, text])
+        rows.extend([f"{base}_{j}", ""] for j in range(1, int(count[:-1])))
     names = [r[0] for r in rows]
     if len(set(names)) != len(names):
         raise ValueError(f"layout {name}: a field name repeats")

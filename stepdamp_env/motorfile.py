@@ -79,6 +79,9 @@ REQUIRED = (("phase_resistance_ohm", "R"), ("phase_inductance_H", "L"),
 #: Share of the datasheet's detent torque (the peak of its detent curve) per
 #: harmonic h = 1, 2, 4; the presets' split (stepdamp_env/presets.py).
 DETENT_SPLIT = {1: 0.15, 2: 0.25, 4: 0.60}
+#: A datasheet's L/R past this (s) is refused: catalogue steppers span about
+#: 0.3-10 ms (docs/motors.md), so an inductance typed in mH lands far above it.
+MAX_ELECTRICAL_TIME_CONSTANT_S = 0.1
 #: Mechanical damping ratio D / (2 * sqrt(Km * holding_current * Nr * J)).
 DAMPING_RATIO = 0.02
 #: Coulomb friction as a share of the holding torque.
@@ -168,6 +171,13 @@ def _resolve(values: Mapping[str, Any]) -> _Resolved:
         out["R"] = given["phase_resistance_ohm"]
     if "phase_inductance_H" in given:
         out["L"] = given["phase_inductance_H"]
+        tau = out["L"] / float(out["R"])    # R is required (checked above)
+        if tau > MAX_ELECTRICAL_TIME_CONSTANT_S:
+            raise ParameterError(
+                f"phase_inductance_H={given['phase_inductance_H']:g} gives L/R = {tau:.3g} s; "
+                f"allowed <= {MAX_ELECTRICAL_TIME_CONSTANT_S:g} s (datasheets: 0.3-10 ms). "
+                f"Was it in mH? {given['phase_inductance_H']:g} mH is "
+                f"{given['phase_inductance_H'] * 1e-3:g} H")
     if "J" not in out:
         out["J"] = given["rotor_inertia_kgm2"] + ds("load_inertia_kgm2")
     # The defaults below are shares of the datasheet's holding torque where it is given.
@@ -275,6 +285,18 @@ def _derived(system: SystemParams, name: str) -> float:
     return float(system.derived_dict()[name])
 
 
+def _check_file(text: str) -> bool:
+    """Whether ``text`` names a motor file (it exists, ends in .json or holds a
+    path separator); one that does not exist or is a directory is an error."""
+    if not (text.endswith(".json") or os.path.sep in text or os.path.isfile(text)):
+        return False
+    if os.path.isdir(text):
+        raise ParameterError(f"motor file {text!r} is a directory")
+    if not os.path.isfile(text):
+        raise ParameterError(f"motor file {text!r} does not exist")
+    return True
+
+
 def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescription]:
     """The motors a preset name or a motor file names: one for a preset or a
     motor object, one per item for a list file (``--motors``'s format; an item
@@ -282,6 +304,7 @@ def describe_spec(spec: str, _within: tuple[str, ...] = ()) -> list[MotorDescrip
     if spec in PRESETS:
         return [MotorDescription(get_preset(spec), {}, f"preset {spec}")]
     if not os.path.isfile(spec):
+        _check_file(spec)
         get_preset(spec)        # the one-line error listing the presets
     real = os.path.realpath(spec)
     if len(_within) >= LIMITS.list_file_depth:
@@ -341,11 +364,7 @@ def load_system(spec: str | os.PathLike[str] | Mapping[str, Any] | SystemParams,
             raise ParameterError(f"motor must be a preset name, a motor .json file, a mapping "
                                  f"or SystemParams, got {type(spec).__name__} {show_value(spec)}")
         text = os.fspath(spec)
-        if text.endswith(".json") or os.path.sep in text or os.path.isfile(text):
-            if os.path.isdir(text):
-                raise ParameterError(f"motor file {text!r} is a directory")
-            if not os.path.isfile(text):
-                raise ParameterError(f"motor file {text!r} does not exist")
+        if _check_file(text):
             values = read_json_file(text, "motor file")
             if not isinstance(values, dict):
                 raise ParameterError(f"motor file {text!r} must hold a JSON object")

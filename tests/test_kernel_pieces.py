@@ -132,6 +132,13 @@ def test_layouts_are_dense_and_described():
     assert K.TRACE_UNITS["omega"] == "rad/s" and K.TRACE_NAMES[0] == "t"
     with pytest.raises(ValueError, match="repeats"):
         layout("Bad", "A\nA")
+    rows = layout("Rows", "X  first\nG[3]  gain j (A)\nY")
+    assert type(rows).__name__ == "Rows" and rows.G + 2 == rows.G_2
+    assert type(rows)._fields == ("X", "G", "G_1", "G_2", "Y")
+    assert describe(rows)["G"] == "gain j (A)"
+    for bad in ("G[0]", "G[x]", "G[2"):
+        with pytest.raises(ValueError, match="NAME\\[n\\]"):
+            layout("Bad", bad)
 
 
 def test_detent_torque_is_the_patent_expression_and_minus_gradient_of_potential():

@@ -88,11 +88,20 @@ def test_servo_gains_follow_the_motor():
     ({"rated_current_A": -1.0}, "rated_current_A=-1.0 is outside its allowed range"),
     ({"holding_torque_Nm": "0.4"}, "holding_torque_Nm must be a number"),
     ({"rotor_inertia_kgm": 1e-5}, "unknown parameter(s) ['rotor_inertia_kgm']"),
+    ({"phase_inductance_H": 2.5}, "Was it in mH? 2.5 mH is 0.0025 H"),
 ])
 def test_bad_datasheet_files_are_one_line_errors(extra, words):
     with pytest.raises(ParameterError) as err:
         system_from_mapping({**SHEET, **extra})
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_every_catalogue_motor_passes_the_inductance_check():
+    """The refusal of L/R > 0.1 s leaves every real motor the project knows."""
+    from stepdamp_env.bench.protocols.v4 import ProtocolV4, catalogue_systems
+
+    taus = [s.motor.L / s.motor.R for s in catalogue_systems(ProtocolV4())]
+    assert len(taus) >= 20 and max(taus) < 0.01
 
 
 def test_missing_quantities_are_named():

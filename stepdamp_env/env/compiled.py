@@ -18,8 +18,9 @@ from .. import kernel as K
 from ..fields import layout
 from ..fixedmath import sincos
 
-__all__ = ["OBS_BOUND", "OBS", "PRIVILEGED", "PARAM", "OUT", "KERNEL_FIELDS", "KERNEL_INDEX",
-           "load_actions", "observe"]
+__all__ = ["OBS_BOUND", "OBS", "PRIVILEGED", "PARAM", "OUT", "OUT_FIELDS", "KERNEL_FIELDS", "KERNEL_INDEX",
+           "load_actions", "scale_actions", "observe", "physics_info", "store_clipped", "harmonics", "rms", "first_bad_row",
+           "store_privileged", "step_physics", "write_out"]
 
 _jit = njit(cache=True, error_model="numpy")
 
@@ -58,28 +59,36 @@ PARAM = layout("EpisodeRow", """
     I_LIMIT      unsafe phase current (A)
     CUR_PEN      weight of the injected-current penalty
     TERM_PEN     penalty on termination
-    ACT_SCALE    physical size of action entry j = 1.0 (N*m or A), j = 0 .. 6
-    ACT_SCALE_1
-    ACT_SCALE_2
-    ACT_SCALE_3
-    ACT_SCALE_4
-    ACT_SCALE_5
-    ACT_SCALE_6
+    ACT_SCALE[7] physical size of action entry j = 1.0 (N*m or A)
     LAG_LIMIT    lag past which the episode ends with a step loss (rad)
 """)
 
-# Per-step physical outputs (float64 row).
-OUT = layout("StepOutput", """
+# Per-step physical outputs (float64 row); v1's begin with these.
+OUT_FIELDS = """
     REWARD
     VEL_RMS      rms of w_cmd - w over the step's PWM samples (rad/s)
     LAG          max |theta_cmd - theta| over the step (rad)
-    IINJ_RMS     rms injected q current (feedforward + residual) (A)
+    IINJ_RMS     rms injected q current (the base controller's and the agent's;
+                   v1: and the damping law's) (A)
     PEAK_I       max |phase current| (A)
     STEP_LOSS    1.0 if the lag passed a full step
     OVERCURRENT  1.0 if a phase current passed the limit
     NONFINITE    1.0 if the plant or the observation went non-finite
     TERMINATED   1.0 if any of the three
-""")
+"""
+OUT = layout("StepOutput", OUT_FIELDS)
+
+
+
+def physics_info(out_row: np.ndarray) -> dict:
+    """The info entries of one drive's step from its ``out`` row (OUT's entries)."""
+    return {"velocity_error_rms_rad_s": float(out_row[OUT.VEL_RMS]),
+            "lag_rad": float(out_row[OUT.LAG]),
+            "injected_current_rms_a": float(out_row[OUT.IINJ_RMS]),
+            "peak_current_a": float(out_row[OUT.PEAK_I]),
+            "step_loss": bool(out_row[OUT.STEP_LOSS]),
+            "overcurrent": bool(out_row[OUT.OVERCURRENT])}
+
 
 # The kernel state and accumulator entries the step reads (positions in
 # KERNEL_INDEX), shared by both tasks.
@@ -115,7 +124,7 @@ def _clip(x, bound):
 
 
 @_jit
-def _store(obs, i, j, value, bound):
+def store_clipped(obs, i, j, value, bound):
     """Write ``value`` clipped to +-bound into obs[i, j]; a non-finite one as 0.
     Returns whether it was non-finite."""
     if not math.isfinite(value):
@@ -126,25 +135,93 @@ def _store(obs, i, j, value, bound):
 
 
 @_jit
-def load_actions(a, u, acc, par, offset):
-    """Scale the action rows ``a`` into the input rows ``u`` and zero ``acc``.
+def harmonics(angle):
+    """sin and cos of ``angle`` (rad), of twice and of four times it."""
+    s1, c1 = sincos(angle)
+    s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
+    s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
+    return s1, c1, s2, c2, s4, c4
 
-    Returns the first row that is not finite or has an entry outside [-1, 1]
-    (nothing is changed then), or -1. Rows are indexed in place: per-row views
-    would cost more than the arithmetic.
-    """
+
+@_jit
+def rms(mean_square):
+    """sqrt of a mean square; inf when it is not finite."""
+    return math.sqrt(mean_square) if math.isfinite(mean_square) else math.inf
+
+
+@_jit
+def first_bad_row(a):
+    """The first row of ``a`` with an entry outside [-1, 1] or not finite, or -1."""
     n, k = a.shape
     for i in range(n):
         for j in range(k):
             x = a[i, j]
             if not (-1.0 <= x <= 1.0):      # also catches NaN
                 return i
+    return -1
+
+
+@_jit
+def store_privileged(obs, i, k, s, ix, theta_cmd, omega_cmd, pos_unit, vel_unit, hold, bound):
+    """The PRIVILEGED block of drive i from obs[i, k]; returns whether one was non-finite."""
+    pv = ((theta_cmd - s[i, ix[KERNEL_FIELDS.THETA]]) / pos_unit,
+          (omega_cmd - s[i, ix[KERNEL_FIELDS.OMEGA]]) / vel_unit,
+          s[i, ix[KERNEL_FIELDS.IA]] / hold, s[i, ix[KERNEL_FIELDS.IB]] / hold)
+    nonfinite = False
+    for j in range(len(PRIVILEGED)):
+        nonfinite |= store_clipped(obs, i, k + j, pv[j], bound)
+    return nonfinite
+
+
+@_jit
+def step_physics(acc, i, ix, lag_limit, current_limit):
+    """Drive i's step from its accumulators: (samples, mean square velocity error,
+    mean square injected current, max lag, peak current, step loss, overcurrent)."""
+    n = max(acc[i, ix[KERNEL_FIELDS.COUNT_ALL]], 1.0)
+    lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
+    peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
+    return (n, acc[i, ix[KERNEL_FIELDS.SUM_E2_ALL]] / n, acc[i, ix[KERNEL_FIELDS.SUM_IFF2_ALL]] / n,
+            lag, peak, lag > lag_limit, peak > current_limit)
+
+
+@_jit
+def write_out(out, i, reward, vel_rms, lag, cur_rms, peak, step_loss, overcurrent, nonfinite,
+              terminated):
+    """Row i of ``out`` (OUT's entries; v1's OUT begins with them)."""
+    out[i, OUT.REWARD] = reward
+    out[i, OUT.VEL_RMS] = vel_rms
+    out[i, OUT.LAG] = lag
+    out[i, OUT.IINJ_RMS] = cur_rms
+    out[i, OUT.PEAK_I] = peak
+    out[i, OUT.STEP_LOSS] = 1.0 if step_loss else 0.0
+    out[i, OUT.OVERCURRENT] = 1.0 if overcurrent else 0.0
+    out[i, OUT.NONFINITE] = 1.0 if nonfinite else 0.0
+    out[i, OUT.TERMINATED] = 1.0 if terminated else 0.0
+
+
+@_jit
+def scale_actions(a, dest, offset, par, scale_at, acc):
+    """dest[i, offset + j] = a[i, j] * par[i, scale_at + j] and acc zeroed, for each row;
+    or, if a row is not finite or has an entry outside [-1, 1], nothing changed
+    and that row returned (else -1). Rows are indexed in place: per-row views
+    would cost more than the arithmetic."""
+    bad = first_bad_row(a)
+    if bad >= 0:
+        return bad
+    n, k = a.shape
     for i in range(n):
         for j in range(k):
-            u[i, offset + j] = a[i, j] * par[i, PARAM.ACT_SCALE + j]
+            dest[i, offset + j] = a[i, j] * par[i, scale_at + j]
         for j in range(acc.shape[1]):
             acc[i, j] = 0.0
     return -1
+
+
+@_jit
+def load_actions(a, u, acc, par, offset):
+    """Scale the action rows ``a`` into the input rows ``u`` and zero ``acc``
+    (:func:`scale_actions`); returns the first bad row or -1."""
+    return scale_actions(a, u, offset, par, PARAM.ACT_SCALE, acc)
 
 
 @_jit
@@ -155,10 +232,7 @@ def observe(s, acc, a, par, ix, privileged, obs, out):
         full_step, w_ref, hold = par[i, PARAM.FULL_STEP], par[i, PARAM.W_REF], par[i, PARAM.HOLD]
         theta_fb, omega_fb = s[i, ix[KERNEL_FIELDS.THETA_FB]], s[i, ix[KERNEL_FIELDS.OMEGA_FB]]
         theta_cmd, omega_cmd = s[i, ix[KERNEL_FIELDS.THETA_CMD]], s[i, ix[KERNEL_FIELDS.OMEGA_CMD]]
-        angle = s[i, ix[KERNEL_FIELDS.PARK_ANGLE]]
-        s1, c1 = sincos(angle)
-        s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
-        s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
+        s1, c1, s2, c2, s4, c4 = harmonics(s[i, ix[KERNEL_FIELDS.PARK_ANGLE]])
         # In the order of OBS.
         vals = (
             (theta_cmd - theta_fb) / full_step,
@@ -170,25 +244,17 @@ def observe(s, acc, a, par, ix, privileged, obs, out):
         )
         nonfinite = False
         for j in range(len(OBS)):
-            nonfinite |= _store(obs, i, j, vals[j], bound)
+            nonfinite |= store_clipped(obs, i, j, vals[j], bound)
         k = len(OBS)
         for j in range(a.shape[1]):
             obs[i, k] = a[i, j]
             k += 1
         if privileged:
-            pv = ((theta_cmd - s[i, ix[KERNEL_FIELDS.THETA]]) / full_step,
-                  (omega_cmd - s[i, ix[KERNEL_FIELDS.OMEGA]]) / w_ref,
-                  s[i, ix[KERNEL_FIELDS.IA]] / hold, s[i, ix[KERNEL_FIELDS.IB]] / hold)
-            for j in range(len(PRIVILEGED)):
-                nonfinite |= _store(obs, i, k + j, pv[j], bound)
+            nonfinite |= store_privileged(obs, i, k, s, ix, theta_cmd, omega_cmd, full_step,
+                                          w_ref, hold, bound)
 
-        n = max(acc[i, ix[KERNEL_FIELDS.COUNT_ALL]], 1.0)
-        e2 = acc[i, ix[KERNEL_FIELDS.SUM_E2_ALL]] / n
-        i2 = acc[i, ix[KERNEL_FIELDS.SUM_IFF2_ALL]] / n
-        lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
-        peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
-        step_loss = lag > par[i, PARAM.LAG_LIMIT]
-        overcurrent = peak > par[i, PARAM.I_LIMIT]
+        _, e2, i2, lag, peak, step_loss, overcurrent = step_physics(
+            acc, i, ix, par[i, PARAM.LAG_LIMIT], par[i, PARAM.I_LIMIT])
         # A non-finite plant ends the episode; the reward stays finite.
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)
                 and math.isfinite(peak)):
@@ -199,12 +265,5 @@ def observe(s, acc, a, par, ix, privileged, obs, out):
             reward = -1.0
         if terminated:
             reward -= par[i, PARAM.TERM_PEN]
-        out[i, OUT.REWARD] = reward
-        out[i, OUT.VEL_RMS] = math.sqrt(e2) if math.isfinite(e2) else math.inf
-        out[i, OUT.LAG] = lag
-        out[i, OUT.IINJ_RMS] = math.sqrt(i2) if math.isfinite(i2) else math.inf
-        out[i, OUT.PEAK_I] = peak
-        out[i, OUT.STEP_LOSS] = 1.0 if step_loss else 0.0
-        out[i, OUT.OVERCURRENT] = 1.0 if overcurrent else 0.0
-        out[i, OUT.NONFINITE] = 1.0 if nonfinite else 0.0
-        out[i, OUT.TERMINATED] = 1.0 if terminated else 0.0
+        write_out(out, i, reward, rms(e2), lag, rms(i2), peak, step_loss, overcurrent,
+                  nonfinite, terminated)

@@ -15,7 +15,7 @@ from ..simulation import (DEFAULT_ACCEL_RPS2, MIN_ACCEL_RPS2, MODES, PROFILE_KIN
 from .layout import ACTION_MODES
 from .registration import ENV_ID
 
-__all__ = ["EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
+__all__ = ["DriveOptions", "EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
            "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
            "check_number", "check_choice", "check_pair", "OPTIONS_DOC"]
 
@@ -95,26 +95,23 @@ def check_pair(name: str, value: Any) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
-class EnvOptions:
-    """Validated constructor options of ``StepperDamp-v0``; see :class:`StepperDampEnv`."""
+class DriveOptions:
+    """The options every env version shares: the drive, the motor draws, the
+    episode's command and its measuring window (same names, defaults and checks)."""
 
     motor: Any = "patent"
     overrides: Mapping[str, Any] | None = None
     randomize: bool | Mapping[str, tuple[float, float]] = False
     mode: str = "open-loop"
-    base_controller: str = "patent-ff"
     estimate: str | FeedforwardModel = "exact"
     speed_rps: float | None = None
     speed_range_rps: tuple[float, float] = (0.25, 3.0)
     resonance_prob: float = 0.5
     resonance_spread: float = 0.1
     accel_rps2: float = DEFAULT_ACCEL_RPS2
-    action_mode: str = "harmonic"
     agent_hz: float = 1000.0
     harmonic_scale_nm: float | None = None
     current_scale_a: float | None = None
-    current_penalty: float = 0.1
-    termination_penalty: float = 100.0
     current_limit_factor: float = 3.0
     lag_limit_steps: float = 1.0
     privileged: bool = False
@@ -127,7 +124,7 @@ class EnvOptions:
     distance_rev: float = 0.0
 
     @classmethod
-    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID) -> "EnvOptions":
+    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID) -> "DriveOptions":
         """Options from keyword arguments; unknown names raise ``ValueError``."""
         allowed = list(cls.__dataclass_fields__)
         unknown = sorted(set(kwargs) - set(allowed))
@@ -135,10 +132,13 @@ class EnvOptions:
             raise ParameterError(f"unknown option(s) {unknown} for {env_id}; allowed: {allowed}")
         return cls(**kwargs)
 
-    def __post_init__(self) -> None:
+    def drive_options(self) -> dict[str, Any]:
+        """The shared options by name (to build another version's options)."""
+        return {name: getattr(self, name) for name in DriveOptions.__dataclass_fields__}
+
+    def check_drive(self) -> None:
+        """Raise a ParameterError naming the first shared option out of its range."""
         check_choice("mode", self.mode, tuple(MODES))
-        check_choice("base_controller", self.base_controller, BASE_CONTROLLERS)
-        check_choice("action_mode", self.action_mode, ACTION_MODES)
         if not isinstance(self.estimate, FeedforwardModel):
             if self.estimate not in ESTIMATES:
                 raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
@@ -157,8 +157,6 @@ class EnvOptions:
             check_number("harmonic_scale_nm", self.harmonic_scale_nm, 0.0, 100.0, low_open=True)
         if self.current_scale_a is not None:
             check_number("current_scale_a", self.current_scale_a, 0.0, 100.0, low_open=True)
-        check_number("current_penalty", self.current_penalty, 0.0, 1e6)
-        check_number("termination_penalty", self.termination_penalty, 0.0, 1e9)
         check_number("current_limit_factor", self.current_limit_factor, 1.0, 100.0,
                      low_open=True)
         check_number("lag_limit_steps", self.lag_limit_steps, 1.0, 1e9)
@@ -214,6 +212,23 @@ class EnvOptions:
         if isinstance(self.randomize, Mapping):
             return {k: tuple(map(float, v)) for k, v in self.randomize.items()}
         return dict(DEFAULT_RANDOMIZATION) if self.randomize else {}
+
+
+@dataclass(frozen=True)
+class EnvOptions(DriveOptions):
+    """Validated constructor options of ``StepperDamp-v0``; see :class:`StepperDampEnv`."""
+
+    base_controller: str = "patent-ff"
+    action_mode: str = "harmonic"
+    current_penalty: float = 0.1
+    termination_penalty: float = 100.0
+
+    def __post_init__(self) -> None:
+        check_choice("base_controller", self.base_controller, BASE_CONTROLLERS)
+        check_choice("action_mode", self.action_mode, ACTION_MODES)
+        check_number("current_penalty", self.current_penalty, 0.0, 1e6)
+        check_number("termination_penalty", self.termination_penalty, 0.0, 1e9)
+        self.check_drive()
 
 
 # The options section of the environments' docstrings.

@@ -226,10 +226,4 @@ class EpisodeSampler(EnvTask):
         return drives.s[:, K.STATE.PERIOD] * drives.c[:, K.CONFIG.DT]
 
     def step_info(self, drives: DriveBatch, i: int) -> dict[str, Any]:
-        out = drives.out[i]
-        return {"velocity_error_rms_rad_s": float(out[C.OUT.VEL_RMS]),
-                "lag_rad": float(out[C.OUT.LAG]),
-                "injected_current_rms_a": float(out[C.OUT.IINJ_RMS]),
-                "peak_current_a": float(out[C.OUT.PEAK_I]),
-                "step_loss": bool(out[C.OUT.STEP_LOSS]),
-                "overcurrent": bool(out[C.OUT.OVERCURRENT])}
+        return C.physics_info(drives.out[i])

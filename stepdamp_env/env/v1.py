@@ -188,12 +188,7 @@ class TaskV1(EnvTask):
 
     def step_info(self, drives: DriveBatch, i: int) -> dict[str, Any]:
         out = drives.out[i]
-        return {"velocity_error_rms_rad_s": float(out[V.OUT.VEL_RMS]),
-                "lag_rad": float(out[V.OUT.LAG]),
-                "injected_current_rms_a": float(out[V.OUT.IINJ_RMS]),
-                "damping_current_rms_a": float(out[V.OUT.LAW_RMS]),
-                "peak_current_a": float(out[V.OUT.PEAK_I]),
-                "step_loss": bool(out[V.OUT.STEP_LOSS]), "overcurrent": bool(out[V.OUT.OVERCURRENT]),
+        return {**C.physics_info(out), "damping_current_rms_a": float(out[V.OUT.LAW_RMS]),
                 "time_s": float(drives.t[i] * self.seconds_per_step)}
 
 

@@ -15,7 +15,6 @@ from numba import njit
 
 from .. import kernel as K
 from ..fields import layout
-from ..fixedmath import sincos
 from . import compiled as C
 
 __all__ = ["OBS", "HISTORY", "PARAM", "OUT", "LAW_FIELDS", "LAW_INDEX", "load_actions",
@@ -55,28 +54,12 @@ PARAM = layout("EpisodeRowV1", """
     HOLD         holding current (A)
     I_LIMIT      unsafe phase current (A)
     CUR_PEN      weight of the current penalty
-    ACT_SCALE    physical size of action entry j at 1.0, j = 0 .. 7
-    ACT_SCALE_1
-    ACT_SCALE_2
-    ACT_SCALE_3
-    ACT_SCALE_4
-    ACT_SCALE_5
-    ACT_SCALE_6
-    ACT_SCALE_7
+    ACT_SCALE[8] physical size of action entry j at 1.0
     LAG_LIMIT    lag past which the episode ends with a step loss (rad)
 """)
 
 # Per-step physical outputs (float64 row): v0's, then the damping law's current.
-OUT = layout("StepOutputV1", """
-    REWARD
-    VEL_RMS      rms of w_cmd - w over the step's PWM samples (rad/s)
-    LAG          max |theta_cmd - theta| over the step (rad)
-    IINJ_RMS     rms injected q current (base, residual and law) (A)
-    PEAK_I       max |phase current| (A)
-    STEP_LOSS
-    OVERCURRENT
-    NONFINITE
-    TERMINATED
+OUT = layout("StepOutputV1", C.OUT_FIELDS + """
     LAW_RMS      rms current of the damping law (A)
 """)
 assert OUT._fields[:len(C.OUT)] == C.OUT._fields
@@ -90,42 +73,15 @@ PRIVILEGED = C.PRIVILEGED
 
 
 @_jit
-def _clip(x, bound):
-    if x > bound:
-        return bound
-    if x < -bound:
-        return -bound
-    return x
-
-
-@_jit
-def _store(obs, i, j, value, bound):
-    """obs[i, j] = value clipped to +-bound (0 if non-finite); returns non-finite."""
-    if not math.isfinite(value):
-        obs[i, j] = 0.0
-        return True
-    obs[i, j] = _clip(value, bound)
-    return False
-
-
-@_jit
 def load_actions(a, dest, offset, par, acc, law, lx):
     """Scale the action rows ``a`` into ``dest[:, offset:]`` (kernel inputs or law gains),
     zero the step's accumulators. Returns the first row that is not finite or has
     an entry outside [-1, 1] (nothing changed then), or -1."""
-    n, k = a.shape
-    for i in range(n):
-        for j in range(k):
-            x = a[i, j]
-            if not (-1.0 <= x <= 1.0):      # also catches NaN
-                return i
-    for i in range(n):
-        for j in range(k):
-            dest[i, offset + j] = a[i, j] * par[i, PARAM.ACT_SCALE + j]
-        for j in range(acc.shape[1]):
-            acc[i, j] = 0.0
-        law[i, lx[LAW_FIELDS.SUM_I2]] = 0.0
-    return -1
+    bad = C.scale_actions(a, dest, offset, par, PARAM.ACT_SCALE, acc)
+    if bad < 0:
+        for i in range(a.shape[0]):
+            law[i, lx[LAW_FIELDS.SUM_I2]] = 0.0
+    return bad
 
 
 @_jit
@@ -141,10 +97,7 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
         p_unit, v_unit, c_unit = par[i, PARAM.POS_UNIT], par[i, PARAM.VEL_UNIT], par[i, PARAM.CUR_UNIT]
         theta_fb, omega_fb = s[i, ix[KERNEL_FIELDS.THETA_FB]], s[i, ix[KERNEL_FIELDS.OMEGA_FB]]
         theta_cmd, omega_cmd = s[i, ix[KERNEL_FIELDS.THETA_CMD]], s[i, ix[KERNEL_FIELDS.OMEGA_CMD]]
-        angle = s[i, ix[KERNEL_FIELDS.PARK_ANGLE]]
-        s1, c1 = sincos(angle)
-        s2, c2 = 2.0 * s1 * c1, c1 * c1 - s1 * s1
-        s4, c4 = 2.0 * s2 * c2, c2 * c2 - s2 * s2
+        s1, c1, s2, c2, s4, c4 = C.harmonics(s[i, ix[KERNEL_FIELDS.PARK_ANGLE]])
         vals = (
             (theta_cmd - theta_fb) / p_unit,
             (omega_cmd - omega_fb) / v_unit,
@@ -155,7 +108,7 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
         )
         nonfinite = False
         for j in range(len(OBS)):
-            nonfinite |= _store(obs, i, j, vals[j], bound)
+            nonfinite |= C.store_clipped(obs, i, j, vals[j], bound)
         k = len(OBS)
         for j in range(a.shape[1]):
             obs[i, k] = a[i, j]
@@ -169,41 +122,24 @@ def observe(s, acc, law, a, par, ix, lx, history, context, privileged, bound, re
             history[i, HISTORY.VELOCITY_ERROR] = obs[i, OBS.VELOCITY_ERROR]
         k += n_hist
         for j in range(context.shape[1]):
-            _store(obs, i, k + j, context[i, j], bound)
+            C.store_clipped(obs, i, k + j, context[i, j], bound)
         k += context.shape[1]
         if privileged:
-            hold = par[i, PARAM.HOLD]
-            pv = ((theta_cmd - s[i, ix[KERNEL_FIELDS.THETA]]) / p_unit,
-                  (omega_cmd - s[i, ix[KERNEL_FIELDS.OMEGA]]) / v_unit,
-                  s[i, ix[KERNEL_FIELDS.IA]] / hold, s[i, ix[KERNEL_FIELDS.IB]] / hold)
-            for j in range(len(PRIVILEGED)):
-                nonfinite |= _store(obs, i, k + j, pv[j], bound)
+            nonfinite |= C.store_privileged(obs, i, k, s, ix, theta_cmd, omega_cmd, p_unit,
+                                            v_unit, par[i, PARAM.HOLD], bound)
 
-        n = max(acc[i, ix[KERNEL_FIELDS.COUNT_ALL]], 1.0)
-        e2 = acc[i, ix[KERNEL_FIELDS.SUM_E2_ALL]] / n
-        i2 = acc[i, ix[KERNEL_FIELDS.SUM_IFF2_ALL]] / n
+        n, e2, i2, lag, peak, step_loss, overcurrent = C.step_physics(
+            acc, i, ix, par[i, PARAM.LAG_LIMIT], par[i, PARAM.I_LIMIT])
         l2 = law[i, lx[LAW_FIELDS.SUM_I2]] / n
-        lag = acc[i, ix[KERNEL_FIELDS.MAX_LAG]]
-        peak = acc[i, ix[KERNEL_FIELDS.MAX_CURRENT]]
-        step_loss = lag > par[i, PARAM.LAG_LIMIT]
-        overcurrent = peak > par[i, PARAM.I_LIMIT]
         if not (math.isfinite(e2) and math.isfinite(i2) and math.isfinite(lag)
                 and math.isfinite(peak) and math.isfinite(l2)):
             nonfinite = True
         terminated = step_loss or overcurrent or nonfinite
-        vel_rms = math.sqrt(e2) if math.isfinite(e2) else math.inf
-        cur_rms = math.sqrt(i2) if math.isfinite(i2) else math.inf
+        vel_rms, cur_rms = C.rms(e2), C.rms(i2)
         reward = -min(vel_rms / v_unit, reward_bound) - par[i, PARAM.CUR_PEN] * min(
             cur_rms / c_unit, reward_bound)
         if not math.isfinite(reward):
             reward = -reward_bound * (1.0 + par[i, PARAM.CUR_PEN])
-        out[i, OUT.REWARD] = reward
-        out[i, OUT.VEL_RMS] = vel_rms
-        out[i, OUT.LAG] = lag
-        out[i, OUT.IINJ_RMS] = cur_rms
-        out[i, OUT.PEAK_I] = peak
-        out[i, OUT.STEP_LOSS] = 1.0 if step_loss else 0.0
-        out[i, OUT.OVERCURRENT] = 1.0 if overcurrent else 0.0
-        out[i, OUT.NONFINITE] = 1.0 if nonfinite else 0.0
-        out[i, OUT.TERMINATED] = 1.0 if terminated else 0.0
-        out[i, OUT.LAW_RMS] = math.sqrt(l2) if math.isfinite(l2) else math.inf
+        C.write_out(out, i, reward, vel_rms, lag, cur_rms, peak, step_loss, overcurrent,
+                    nonfinite, terminated)
+        out[i, OUT.LAW_RMS] = C.rms(l2)

@@ -8,12 +8,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..params import FeedforwardModel, ParameterError, SystemParams
+from ..params import ParameterError, SystemParams
 from ..motorfile import load_system
-from ..simulation import DEFAULT_ACCEL_RPS2, MODES, VELOCITY_ESTIMATORS
 from . import v1_compiled as V
 from .layout import ACTION_NAMES, OBSERVATION_NAMES, OBSERVATION_UNITS, PRIVILEGED_NAMES
-from .options import (ESTIMATES, EnvOptions, check_choice, check_number, check_pair)
+from .options import DriveOptions, EnvOptions, check_choice, check_number
 from .registration import ENV_ID_V1
 
 __all__ = ["EnvOptionsV1", "MotorUnits", "BASE_CONTROLLERS_V1", "ACTION_NAMES_V1",
@@ -93,55 +92,30 @@ class MotorUnits:
 
 
 @dataclass(frozen=True)
-class EnvOptionsV1:
+class EnvOptionsV1(DriveOptions):
     """Validated constructor options of ``StepperDamp-v1``; see :class:`StepperDampV1Env`."""
 
-    motor: Any = "patent"
-    overrides: Mapping[str, Any] | None = None
     nominal: Any = None
-    randomize: bool | Mapping[str, tuple[float, float]] = False
-    mode: str = "open-loop"
     base_controller: str = "ff-delay-comp"
-    estimate: str | FeedforwardModel = "exact"
-    speed_rps: float | None = None
-    speed_range_rps: tuple[float, float] = (0.25, 3.0)
-    resonance_prob: float = 0.5
-    resonance_spread: float = 0.1
-    accel_rps2: float = DEFAULT_ACCEL_RPS2
     action_mode: str = "damping-gains"
-    agent_hz: float = 1000.0
     episode_s: float = DEFAULT_EPISODE_S
     history: int = 0
     context: str = "hidden"
-    harmonic_scale_nm: float | None = None
-    current_scale_a: float | None = None
     damping_ratio_scale: float = 0.5
     resonant_rate_scale: float = 0.05
     law_limit_factor: float = 0.5
     current_penalty: float = 0.0
-    current_limit_factor: float = 3.0
-    lag_limit_steps: float = 1.0
-    privileged: bool = False
-    substeps: int = 1
-    velocity_estimator: str = "lowpass"
-    measure_from_s: float | None = None
-    measure_until_s: float | None = None
-    profile: str = "constant"
-    ramp: str = "trapezoid"
-    distance_rev: float = 0.0
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> "EnvOptionsV1":
         """Options from keyword arguments; unknown names raise ``ValueError`` (v0's rule)."""
-        return EnvOptions.from_kwargs.__func__(cls, kwargs, ENV_ID_V1)
+        return super().from_kwargs(kwargs, ENV_ID_V1)
 
     def __post_init__(self) -> None:
         check_choice("base_controller", self.base_controller, BASE_CONTROLLERS_V1)
         check_choice("action_mode", self.action_mode, ACTION_MODES_V1)
         check_choice("context", self.context, CONTEXTS)
-        check_choice("mode", self.mode, tuple(MODES))
-        check_choice("velocity_estimator", self.velocity_estimator, tuple(VELOCITY_ESTIMATORS))
-        check_number("agent_hz", self.agent_hz, 1.0, 1e6)
+        self.check_drive()
         check_number("episode_s", self.episode_s, 0.0, 1e4, low_open=True)
         if isinstance(self.history, bool) or not isinstance(self.history, (int, np.integer)) \
                 or not 0 <= self.history <= 1000:
@@ -151,10 +125,6 @@ class EnvOptionsV1:
         check_number("resonant_rate_scale", self.resonant_rate_scale, 0.0, 100.0, low_open=True)
         check_number("law_limit_factor", self.law_limit_factor, 0.0, 10.0, low_open=True)
         check_number("current_penalty", self.current_penalty, 0.0, 1e3)
-        if self.estimate not in ESTIMATES and not isinstance(self.estimate, FeedforwardModel):
-            raise ParameterError(f"estimate={self.estimate!r} is not one of ['exact', "
-                                 "'nominal'] or a FeedforwardModel")
-        check_pair("speed_range_rps", self.speed_range_rps)
         if self.nominal is not None:
             if not isinstance(self.nominal, (str, SystemParams)):
                 raise ParameterError(f"nominal={self.nominal!r} must be None, a preset name, a "
@@ -163,27 +133,14 @@ class EnvOptionsV1:
                 load_system(self.nominal)
             except ParameterError as exc:
                 raise ParameterError(f"nominal={self.nominal!r}: {exc}") from None
-        # Every option v0 shares is checked by v0's own rules.
-        self.shared()
         if int(round(self.episode_s * self.agent_hz)) < 1:
             raise ParameterError(f"episode_s={self.episode_s!r} is shorter than one agent step "
                                  f"(1/agent_hz = {1.0 / self.agent_hz:.6g} s); allowed: >= 1/agent_hz")
 
     def shared(self) -> EnvOptions:
         """The v0 options of the same drive and episode draws (v0 draws the episodes)."""
-        return EnvOptions(
-            motor=self.motor, overrides=self.overrides, randomize=self.randomize, mode=self.mode,
-            base_controller="patent-ff" if self.base_controller != "none" else "none",
-            estimate=self.estimate, speed_rps=self.speed_rps,
-            speed_range_rps=self.speed_range_rps, resonance_prob=self.resonance_prob,
-            resonance_spread=self.resonance_spread, accel_rps2=self.accel_rps2,
-            action_mode="harmonic+current", agent_hz=self.agent_hz,
-            harmonic_scale_nm=self.harmonic_scale_nm, current_scale_a=self.current_scale_a,
-            current_limit_factor=self.current_limit_factor,
-            lag_limit_steps=self.lag_limit_steps, privileged=self.privileged,
-            substeps=self.substeps, velocity_estimator=self.velocity_estimator,
-            measure_from_s=self.measure_from_s, measure_until_s=self.measure_until_s,
-            profile=self.profile, ramp=self.ramp, distance_rev=self.distance_rev)
+        return EnvOptions(**self.drive_options(), action_mode="harmonic+current",
+                          base_controller="patent-ff" if self.base_controller != "none" else "none")
 
     @property
     def max_episode_steps(self) -> int:
