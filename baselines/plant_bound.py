@@ -49,6 +49,7 @@ depend on how its runs are spread over workers.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Mapping, Sequence
 
@@ -157,6 +158,36 @@ class PortfolioLaw(PrivilegedBound):
             self._action[:6] = np.clip(self._action[:6] + extra, -1.0, 1.0)
 
 
+class _Rehearsal(PortfolioLaw):
+    """Each run its own law and table (``plan``: ``id`` of the run's knowledge ->
+    (law, table or None)): the rehearsals of many laws and tables step in one
+    batch. Rows are independent, so each run's bits are those of its law run
+    alone (``tests/test_plant_bound.py``)."""
+
+    def __init__(self, plan: Mapping[int, tuple[Law, Sequence[float] | None]]) -> None:
+        super().__init__(PORTFOLIO[0])
+        self.plan = plan
+
+    def configure(self, context: PolicyContext) -> None:
+        self.law, table = self.plan[id(context.knowledge)]
+        self.tables = {} if table is None else {_key(context): table}
+        super().configure(context)
+
+
+def _rehearse(specs: Sequence[EpisodeSpec], rows: Sequence[tuple[int, Law, Sequence[float] | None]],
+              run: Mapping[str, Any]) -> list[Any]:
+    """One batch: for each (spec index, law, table) of ``rows``, that spec run with
+    that law and table. Each run gets its own copy of its knowledge (equal by value),
+    by which :class:`_Rehearsal` finds its law."""
+    plan: dict[int, tuple[Law, Sequence[float] | None]] = {}
+    batch = []
+    for i, law, table in rows:
+        knowledge = dataclasses.replace(specs[i].knowledge)
+        plan[id(knowledge)] = (law, table)
+        batch.append(dataclasses.replace(specs[i], knowledge=knowledge))
+    return run_episodes(lambda: _Rehearsal(plan), batch, **run)
+
+
 class PlantBound(PortfolioLaw):
     """``plant-bound`` (privileged): per run, the best law of :data:`PORTFOLIO` on
     the true plant, with its harmonic table (module docstring). ``portfolio``:
@@ -215,15 +246,11 @@ class PlantBound(PortfolioLaw):
                                  ramp=group[k].ramp)
                      for k in keys]
             window = {} if window_s is None else {"window_s": window_s}
+            run = dict(mode=mode, accel_rps2=accel, suite=suite, lag_limit_steps=lag_limit,
+                       **window)
             # Per run, each law's (ripple, portfolio index, metrics) where it held.
             tried: list[list[tuple[float, int, dict[str, Any]]]] = [[] for _ in keys]
-            for n_law, law in enumerate(self.portfolio):
-                try:
-                    results = run_episodes(lambda law=law: PortfolioLaw(law), specs,
-                                           mode=mode, accel_rps2=accel, suite=suite,
-                                           lag_limit_steps=lag_limit, **window)
-                except ParameterError:      # a law that cannot run here is not chosen
-                    continue
+            for n_law, results in self._portfolio_runs(specs, run):
                 for i, r in enumerate(results):
                     if not (r.failed or r.metrics is None):
                         tried[i].append((float(r.metrics["rms_velocity_error_rad_s"]), n_law,
@@ -231,8 +258,6 @@ class PlantBound(PortfolioLaw):
             ranked = [sorted(t, key=lambda x: (x[0], x[1])) for t in tried]
             final = [(ranked[i][0][0], self.portfolio[ranked[i][0][1]], None) if ranked[i]
                      else (math.inf, self.portfolio[0], None) for i in range(len(keys))]
-            run = dict(mode=mode, accel_rps2=accel, suite=suite, lag_limit_steps=lag_limit,
-                       **window)
             for place in range(self.table_laws if self.table_steps else 0):
                 laws = [self.portfolio[ranked[i][place][1]] if len(ranked[i]) > place
                         else self.portfolio[0] for i in range(len(keys))]
@@ -246,6 +271,26 @@ class PlantBound(PortfolioLaw):
                         final[i] = (table_rms, laws[i], table)
             for k, (_, law, table) in zip(keys, final):
                 _CHOICES[k] = (law, table)
+
+    def _portfolio_runs(self, specs: Sequence[EpisodeSpec], run: Mapping[str, Any]
+                        ) -> list[tuple[int, list[Any]]]:
+        """(portfolio index, each spec's result) of every law that can run here: all
+        laws in one batch, or, where one cannot (``ParameterError``), law by law,
+        leaving out those that cannot."""
+        n = len(specs)
+        try:
+            got = _rehearse(specs, [(i, law, None) for law in self.portfolio
+                                    for i in range(n)], run)
+            return [(k, got[k * n:(k + 1) * n]) for k in range(len(self.portfolio))]
+        except ParameterError:
+            pass
+        out = []
+        for k, law in enumerate(self.portfolio):
+            try:
+                out.append((k, run_episodes(lambda law=law: PortfolioLaw(law), specs, **run)))
+            except ParameterError:      # a law that cannot run here is not chosen
+                continue
+        return out
 
     def _tables(self, contexts: Sequence[PolicyContext], specs: Sequence[EpisodeSpec],
                 chosen: Sequence[Law], held: Sequence[dict[str, Any] | None],
@@ -263,18 +308,12 @@ class PlantBound(PortfolioLaw):
         best = list(best)
         if not todo:
             return list(zip(out, best))
-        keys = [_key(c) for c in contexts]
 
         def rehearse(tables: Mapping[int, Sequence[float]]) -> dict[int, Any]:
-            """Each run of ``tables`` (index -> table) with its chosen law."""
-            got: dict[int, Any] = {}
-            for law in sorted({chosen[i] for i in tables}):
-                rows = [i for i in tables if chosen[i] == law]
-                results = run_episodes(
-                    lambda law=law: PortfolioLaw(law, {keys[i]: tables[i] for i in rows}),
-                    [specs[i] for i in rows], **run)
-                got.update(zip(rows, results))
-            return got
+            """Each run of ``tables`` (index -> table) with its chosen law, in one batch."""
+            rows = list(tables)
+            return dict(zip(rows, _rehearse(specs, [(i, chosen[i], tables[i]) for i in rows],
+                                            run)))
 
         def phasors(metrics: Mapping[str, Any]) -> list[float]:
             p = metrics["harmonic_phasor_rad_s"]
@@ -286,15 +325,19 @@ class PlantBound(PortfolioLaw):
         base = {i: phasors(held[i]) for i in todo}
         delta = {i: PROBE_SHARE * contexts[i].action_scale for i in todo}
         response = {i: [[0.0] * 6 for _ in range(6)] for i in todo}
-        for j in range(6):
-            probe = {i: tuple(delta[i] if m == j else 0.0 for m in range(6)) for i in todo}
-            for i, r in rehearse(probe).items():
-                if r.failed or r.metrics is None:       # a probe it cannot take: no table
-                    todo.remove(i)
-                    continue
-                p = phasors(r.metrics)
-                for m in range(6):
-                    response[i][m][j] = (p[m] - base[i][m]) / delta[i]
+        probes = [(j, i) for j in range(6) for i in todo]
+        lost = set()
+        results = _rehearse(specs, [(i, chosen[i], tuple(delta[i] if m == j else 0.0
+                                                         for m in range(6)))
+                                    for j, i in probes], run)
+        for (j, i), r in zip(probes, results):
+            if r.failed or r.metrics is None:       # a probe it cannot take: no table
+                lost.add(i)
+                continue
+            p = phasors(r.metrics)
+            for m in range(6):
+                response[i][m][j] = (p[m] - base[i][m]) / delta[i]
+        todo = [i for i in todo if i not in lost]
         table = {i: [0.0] * 6 for i in todo}
         error = dict(base)
         for _ in range(self.table_steps):
