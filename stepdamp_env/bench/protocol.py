@@ -140,6 +140,11 @@ class Protocol(abc.ABC):
     #: Registered entries a current version leaves off its default board (an
     #: entry another one supersedes there; ``--entries`` still runs it).
     retired_entries: ClassVar[tuple[str, ...]] = ()
+    #: How the report renders and reads its board: rows scored as ripple over
+    #: ``none``'s ("ratio") or as attenuation against the reference row ("dB").
+    headline_unit: ClassVar[str] = "ratio"
+    #: Whether its rows are per split of its motors.
+    rows_per_split: ClassVar[bool] = False
 
     def default_entries(self, names: Sequence[str]) -> list[str]:
         """The registered default entries ``names`` that this version runs by default."""

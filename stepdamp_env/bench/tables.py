@@ -39,8 +39,9 @@ def format_db(s: Mapping[str, Any]) -> str:
 
 
 def scored_in_db(board: Mapping[str, Any]) -> bool:
-    """Whether the board's rows are v3's (attenuation in dB, reference rows)."""
-    return any("attenuation_db" in e for e in board["entries"])
+    """Whether the board's protocol scores rows in dB against its reference row (v3
+    and later: ``Protocol.headline_unit``)."""
+    return protocol_class(board["protocol"]["version"]).headline_unit == "dB"
 
 
 def row_rank(e: Mapping[str, Any]) -> str:
@@ -174,8 +175,9 @@ def entry_line(e: Mapping[str, Any]) -> str:
 
 
 def has_splits(board: Mapping[str, Any]) -> bool:
-    """Whether the board's entries are per split of its motors (v1 and later)."""
-    return "splits" in board["protocol"]
+    """Whether the board's protocol has rows per split of its motors (v1 and later:
+    ``Protocol.rows_per_split``)."""
+    return protocol_class(board["protocol"]["version"]).rows_per_split
 
 
 def splits(board: Mapping[str, Any]) -> list[str | None]:

@@ -84,6 +84,7 @@ class DecibelProtocol(MidBandProtocol):
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     known_suites: ClassVar[tuple[str, ...]] = ALL_SUITES
     records_training_coverage: ClassVar[bool] = True
+    headline_unit: ClassVar[str] = "dB"
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -197,6 +197,7 @@ class DrawnProtocol(Protocol):
     pools_training_seeds: ClassVar[bool] = True
     nominal_on_failed_identification: ClassVar[bool] = True
     min_training_seeds: ClassVar[int] = 5
+    rows_per_split: ClassVar[bool] = True
 
     def motors(self) -> tuple[ProtocolMotor, ...]:
         """Interpolation, then extrapolation, or the custom motors."""
