@@ -267,6 +267,13 @@ def test_bad_arguments_name_the_parameter(tmp_path):
         entry_law("ff-delay-comp", know, mode="sideways")
     with pytest.raises(ParameterError, match="speed_rps=-1.0"):
         entry_law("ff-delay-comp", know, speed_rps=-1.0)
+    from stepdamp_env.analysis import bridge_limit_rps
+
+    top = bridge_limit_rps(know.nominal)
+    with pytest.raises(ParameterError, match=r"speed_rps=.* is above the top speed .*allowed: "
+                                             r"\(0, "):
+        entry_law("ff-delay-comp", know, speed_rps=1.01 * top)
+    assert entry_law("ff-delay-comp", know, speed_rps=0.99 * top).speed_rps == 0.99 * top
     with pytest.raises(ParameterError, match="format='pdf'"):
         export_law(law, "pdf", tmp_path)
     for prefix in ("1law", "my-law", "_law", "double", ""):

@@ -47,6 +47,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .. import fixedmath as fm
+from ..analysis import bridge_limit_rps
 from ..io import write_json, write_text
 from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
@@ -534,6 +535,12 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
     if isinstance(speed, bool) or not isinstance(speed, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(speed) and speed > 0.0):
         raise ParameterError(f"speed_rps={speed!r} is outside its allowed range (0, inf) rev/s")
+    top = bridge_limit_rps(knowledge.nominal)
+    if speed > top:
+        # Past it the drive cannot push the current: a law there is never run.
+        raise ParameterError(f"speed_rps={speed:g} is above the top speed of "
+                             f"{knowledge.nominal.name!r} on its bus ({top:.4g} rev/s, the "
+                             f"bridge circle Vdc/sqrt(2)); allowed: (0, {top:.4g}] rev/s")
     hook = getattr(policy, "firmware_law", None)
     if not isinstance(policy, ZeroAction) and not callable(hook):
         card = policy_card(policy)
