@@ -275,6 +275,7 @@ def plot_move_traces(board: Mapping[str, Any], suite: str, path: str,
     for j, ax in enumerate(axes[:, 0]):
         command = protocol.run_command(motor, suite, j)
         cruise = None
+        moving_until, trace_end = 0.0, 0.0
         for e in shown:
             def sample(env: Any, obs: np.ndarray, start: float) -> np.ndarray:
                 return env.step_trace.copy()
@@ -291,15 +292,23 @@ def plot_move_traces(board: Mapping[str, Any], suite: str, path: str,
             ax.plot(tr[:, K.TRACE.T] * 1e3, err, lw=0.7, color=styles[e["name"]][0],
                     label=f"{e['name']} ({what})")
             cruise = (r.window_start_s, r.window_start_s + r.window_s)
+            moving = np.flatnonzero(tr[:, K.TRACE.OMEGA_CMD] != 0.0)
+            if moving.size:
+                moving_until = max(moving_until, float(tr[moving[-1], K.TRACE.T]))
+            if len(tr):
+                trace_end = max(trace_end, float(tr[-1, K.TRACE.T]))
         if cruise is not None:
             ax.axvspan(cruise[0] * 1e3, cruise[1] * 1e3, color="0.9", zorder=0)
+        if 0.0 < moving_until < trace_end:
+            # The rest after the move is flat: show half the move's length of it.
+            ax.set_xlim(0.0, min(trace_end, 1.5 * moving_until) * 1e3)
         finish_trace_axes(ax, "w_cmd - w (rad/s)",
                           f"{labels[j]}: cruise {speeds[j]:.3g} rev/s, "
                           f"{command['accel_rps2']:.3g} rev/s^2 "
                           f"({'peak' if command['ramp'] == 's-curve' else 'constant'})",
                           title_size=9)
-    axes[-1, 0].set_xlabel("time from the move's start (ms), one sample per PWM period; "
-                           "shaded: the cruise (scored)")
+    axes[-1, 0].set_xlabel("time from the move's start (ms), to half the move's length past "
+                           "its end; shaded: the cruise (scored)")
     fig.suptitle(f"Velocity error through the moves: {motor.name}, seed {seed}", fontsize=10)
     save_figure(fig, path)
 
