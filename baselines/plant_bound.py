@@ -287,7 +287,7 @@ class PlantBound(PortfolioLaw):
         out = []
         for k, law in enumerate(self.portfolio):
             try:
-                out.append((k, run_episodes(lambda law=law: PortfolioLaw(law), specs, **run)))
+                out.append((k, _rehearse(specs, [(i, law, None) for i in range(n)], run)))
             except ParameterError:      # a law that cannot run here is not chosen
                 continue
         return out

@@ -18,9 +18,11 @@ from .. import kernel as K
 from ..fields import layout
 from ..fixedmath import sincos
 
-__all__ = ["OBS_BOUND", "OBS", "PRIVILEGED", "PARAM", "OUT", "OUT_FIELDS", "KERNEL_FIELDS", "KERNEL_INDEX",
-           "load_actions", "scale_actions", "observe", "physics_info", "store_clipped", "harmonics", "rms", "first_bad_row",
-           "store_privileged", "step_physics", "write_out"]
+__all__ = ["OBS_BOUND", "OBS", "PRIVILEGED", "PARAM", "OUT", "OUT_FIELDS", "KERNEL_FIELDS",
+           "KERNEL_INDEX", "load_actions", "observe", "physics_info",
+           # The pieces v1's step shares (env/v1_compiled.py).
+           "scale_actions", "store_clipped", "harmonics", "rms", "store_privileged",
+           "step_physics", "write_out"]
 
 _jit = njit(cache=True, error_model="numpy")
 
@@ -77,7 +79,6 @@ OUT_FIELDS = """
     TERMINATED   1.0 if any of the three
 """
 OUT = layout("StepOutput", OUT_FIELDS)
-
 
 
 def physics_info(out_row: np.ndarray) -> dict:
@@ -150,7 +151,7 @@ def rms(mean_square):
 
 
 @_jit
-def first_bad_row(a):
+def _first_bad_row(a):
     """The first row of ``a`` with an entry outside [-1, 1] or not finite, or -1."""
     n, k = a.shape
     for i in range(n):
@@ -205,7 +206,7 @@ def scale_actions(a, dest, offset, par, scale_at, acc):
     or, if a row is not finite or has an entry outside [-1, 1], nothing changed
     and that row returned (else -1). Rows are indexed in place: per-row views
     would cost more than the arithmetic."""
-    bad = first_bad_row(a)
+    bad = _first_bad_row(a)
     if bad >= 0:
         return bad
     n, k = a.shape
