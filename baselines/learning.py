@@ -8,11 +8,13 @@ describe the feedforward of detent harmonic h as a phasor A_h (N*m; see
 from __future__ import annotations
 
 import math
+import os
 from typing import Sequence
 
 import numpy as np
 
 from stepdamp_env import fixedmath as fm
+from stepdamp_env.bench.kept import KeptResults
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, estimate_model
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import DETENT_HARMONICS
@@ -107,10 +109,27 @@ class CalibratedTable(DelayCompensatedFF):
         model = estimate_model(self.estimate, knowledge)
         key = (rig.key, context.mode, repr(model), self.iterations, self.window_s)
         if key not in _TABLES:
-            _TABLES[key] = self._calibrate(knowledge, context.mode, model)
+            _TABLES[key] = self._kept_calibration(key, knowledge, context.mode, model)
         torque, self.calibration_s = _TABLES[key]
         g = torque_paths(knowledge.nominal, context.mode, context.speed_rps, model)
         self._action = harmonic_actions(torque / g, phasors(model), context.action_scale)
+
+    def _kept_calibration(self, key: tuple, knowledge: MotorKnowledge, mode: str, model
+                          ) -> tuple[np.ndarray, float]:
+        """:meth:`_calibrate`, kept on disk by ``key`` (:class:`KeptResults`: the
+        calibration is deterministic, so a kept table is the one it would find)."""
+        kept = KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
+        content = kept.get(list(key))
+        try:
+            torque = np.array([complex(re, im) for re, im in content["torque_nm"]])
+            if torque.shape == (len(DETENT_HARMONICS),):
+                return torque, float(content["calibration_s"])
+        except (TypeError, KeyError, ValueError):      # not kept, or not a table: calibrate
+            pass
+        torque, seconds = self._calibrate(knowledge, mode, model)
+        kept.put(list(key), {"torque_nm": [[float(z.real), float(z.imag)] for z in torque],
+                             "calibration_s": seconds})
+        return torque, seconds
 
     def _calibrate(self, knowledge: MotorKnowledge, mode: str, model) -> tuple[np.ndarray, float]:
         nominal = knowledge.nominal

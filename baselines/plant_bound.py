@@ -51,11 +51,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from stepdamp_env import fixedmath as fm
+from stepdamp_env.bench.kept import KeptResults
 from stepdamp_env.bench.policy import PolicyCard, PolicyContext
 from stepdamp_env.bench.runner import EpisodeSpec, run_episodes
 from stepdamp_env.params import DETENT_HARMONICS, ParameterError, SystemParams
@@ -158,6 +160,21 @@ class PortfolioLaw(PrivilegedBound):
             self._action[:6] = np.clip(self._action[:6] + extra, -1.0, 1.0)
 
 
+def _choice_from_json(content: Any) -> tuple[Law, tuple[float, ...] | None] | None:
+    """A kept choice (law, table) as :class:`PlantBound` keeps it, or None if
+    ``content`` is not one (then rehearsed again)."""
+    try:
+        kind, value = content["law"]
+        table = content["table_nm"]
+        law = (str(kind), float(value))
+        if table is None:
+            return law, None
+        out = tuple(float(x) for x in table)
+        return (law, out) if len(out) == 6 else None
+    except (TypeError, KeyError, ValueError):
+        return None
+
+
 class _Rehearsal(PortfolioLaw):
     """Each run its own law and table (``plan``: ``id`` of the run's knowledge ->
     (law, table or None)): the rehearsals of many laws and tables step in one
@@ -231,13 +248,21 @@ class PlantBound(PortfolioLaw):
     def _select(self, contexts: Sequence[PolicyContext]) -> None:
         """Run the portfolio on the contexts whose choice is not yet known."""
         todo: dict[tuple[Any, ...], dict[tuple[Any, ...], PolicyContext]] = {}
+        kept: KeptResults | None = None
         for c in contexts:
             if c.knowledge.plant is None:
                 raise ValueError(f"{self.name} needs MotorKnowledge.plant (the true plant)")
             key = self._cache_key(c)
-            if key not in _CHOICES:
-                todo.setdefault((c.mode, c.suite, float(c.accel_rps2), c.window_s,
-                                 c.lag_limit_steps), {})[key] = c
+            if key in _CHOICES:
+                continue
+            if kept is None:
+                kept = KeptResults("plant-bound", code_root=os.path.dirname(__file__))
+            choice = _choice_from_json(kept.get(key))
+            if choice is not None:
+                _CHOICES[key] = choice
+                continue
+            todo.setdefault((c.mode, c.suite, float(c.accel_rps2), c.window_s,
+                             c.lag_limit_steps), {})[key] = c
         for (mode, suite, accel, window_s, lag_limit), group in todo.items():
             keys = list(group)
             specs = [EpisodeSpec(group[k].knowledge, group[k].knowledge.plant,
@@ -271,6 +296,9 @@ class PlantBound(PortfolioLaw):
                         final[i] = (table_rms, laws[i], table)
             for k, (_, law, table) in zip(keys, final):
                 _CHOICES[k] = (law, table)
+                if kept is not None:
+                    kept.put(k, {"law": list(law), "table_nm": None if table is None
+                                 else list(table)})
 
     def _portfolio_runs(self, specs: Sequence[EpisodeSpec], run: Mapping[str, Any]
                         ) -> list[tuple[int, list[Any]]]:

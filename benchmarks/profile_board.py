@@ -2,6 +2,12 @@
 
 Run: ``PYTHONPATH=. python benchmarks/profile_board.py [--quick] [--top 25]``.
 
+``--by-entry [--protocol v4] [--workers 2]`` instead runs the board once (on the
+CLI's pool of workers, compiled by one process: run it with numba's cache warm)
+and prints the wall time of its batches summed by entry and suite (each worker
+times the batches it runs: the sums exceed the board's wall time by about the
+number of workers).
+
 The board runs with one worker (every part in this process, caches warm: a first
 board fills them), with timers around the kernel's entry points, the
 identification, the policies' batched forward passes and the parts of
@@ -75,11 +81,69 @@ def install() -> None:
         cls.reset = timed("env building", cls.reset)
 
 
+class _Timed:
+    """A board's job function that appends each batch's wall time to a log, one
+    short line per batch (module level: the pool's workers receive it pickled)."""
+
+    def __init__(self, fn, log: str) -> None:
+        self.fn, self.log = fn, log
+
+    def __call__(self, job):
+        import json
+
+        t0 = time.perf_counter()
+        out = self.fn(job)
+        if hasattr(job, "spec"):            # a batch of runs (not an identification)
+            with open(self.log, "a") as f:
+                f.write(json.dumps([job.spec, job.suite, len(job.runs),
+                                    time.perf_counter() - t0,
+                                    sum(r.get("simulated_s", 0.0) for r in out)]) + "\n")
+        return out
+
+
+def by_entry(protocol, workers: int) -> None:
+    """Run the board once; print its batches' wall time by entry and suite."""
+    import json
+    import tempfile
+
+    from stepdamp_env.bench import run_leaderboard
+    from stepdamp_env.parallel import pool_map
+
+    log = tempfile.NamedTemporaryFile("w", suffix=".jsonl", delete=False).name
+
+    def backend(fn, jobs, n, **kwargs):
+        return pool_map(_Timed(fn, log), jobs, n, **kwargs)
+
+    t0 = time.perf_counter()
+    board = run_leaderboard(protocol, workers=workers, progress=False, backend=backend)
+    total = time.perf_counter() - t0
+    rows: dict = collections.defaultdict(lambda: [0, 0.0, 0.0])
+    for line in open(log):
+        spec, suite, runs, wall, sim = json.loads(line)
+        for key in ((spec, suite), (spec, "(all)")):
+            rows[key][0] += runs
+            rows[key][1] += wall
+            rows[key][2] += sim
+    os.unlink(log)
+    busy = sum(v[1] for k, v in rows.items() if k[1] == "(all)")
+    print(f"board {total:.1f} s with {workers} workers; batches {busy:.1f} worker-s, simulated "
+          f"{board['simulated_seconds']:.0f} s")
+    print(f"  {'entry':28s} {'suite':16s} {'runs':>5s} {'worker-s':>9s} {'share':>6s} "
+          f"{'sim s/s':>8s}")
+    for (spec, suite), (runs, wall, sim) in sorted(rows.items(), key=lambda kv: -kv[1][1]):
+        print(f"  {spec:28s} {suite:16s} {runs:5d} {wall:9.1f} {wall / busy:6.1%} "
+              f"{sim / max(wall, 1e-9):8.0f}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--top", type=int, default=25)
+    p.add_argument("--by-entry", action="store_true",
+                   help="time the batches by entry and suite (one board, as the CLI runs it)")
+    p.add_argument("--protocol", default=None, help="protocol version (default: the default)")
+    p.add_argument("--workers", type=int, default=2, help="with --by-entry")
     args = p.parse_args()
     sys.path.insert(0, ROOT)
     t0 = time.perf_counter()
@@ -89,8 +153,11 @@ def main() -> None:
     from stepdamp_env.bench.protocols import DEFAULT_VERSION, protocol_for
 
     stepdamp_baselines.register_policies()
-    protocol = protocol_for(DEFAULT_VERSION, quick=args.quick)
+    protocol = protocol_for(args.protocol or DEFAULT_VERSION, quick=args.quick)
     imports = time.perf_counter() - t0
+    if args.by_entry:
+        by_entry(protocol, args.workers)
+        return
     run_leaderboard(protocol, workers=1, progress=False)          # fills the caches
     install()
     t0 = time.perf_counter()
