@@ -78,10 +78,17 @@ class ResidualPPOPolicy(ActorCriticPolicy):
 
 
 def register_policy_aliases() -> None:
-    """``policy="ResidualMlpPolicy"`` for SAC, TD3 and PPO (and their subclasses here)."""
+    """``policy="ResidualMlpPolicy"`` for SAC, TD3 and PPO (and their subclasses here),
+    and ``policy="ResidualLstmPolicy"`` for sb3-contrib's RecurrentPPO where it is
+    installed (the zoo's ``ppo_lstm``)."""
     SAC.policy_aliases["ResidualMlpPolicy"] = ResidualSACPolicy
     TD3.policy_aliases["ResidualMlpPolicy"] = ResidualTD3Policy
     PPO.policy_aliases["ResidualMlpPolicy"] = ResidualPPOPolicy
+    try:
+        from sb3_contrib import RecurrentPPO
+    except ImportError:
+        return
+    RecurrentPPO.policy_aliases["ResidualLstmPolicy"] = _residual_recurrent_ppo()[1]
 
 
 class _ZeroWarmup:

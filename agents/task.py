@@ -23,7 +23,7 @@ from typing import Any
 
 from stepdamp_env.bench.protocol import POLICY_OPTIONS_V1
 from stepdamp_env.bench.suites import SUITES_BY_NAME
-from stepdamp_env.env.registration import ENV_ID_V1
+from stepdamp_env.env.registration import ENV_ID_V1, V2_DEFAULTS
 from stepdamp_env.params import ParameterError
 
 __all__ = ["RESIDUAL_ENV_ID", "REFERENCE_DRIVE", "REFERENCE_RESIDUAL", "task_kwargs",
@@ -76,12 +76,7 @@ def task_kwargs(env_kwargs: dict[str, Any] | None = None
 #: damping-gains at 100 Hz on ff-delay-comp, history 4, the visible context,
 #: randomised motors around the presets, 1 s episodes (the ramp's transient
 #: dominates a 0.4 s return), the protocol's sensors, the exact detent model.
-REFERENCE_TASK: dict[str, Any] = {
-    "randomize": True, "mode": "open-loop", "base_controller": "ff-delay-comp",
-    "estimate": "exact", "action_mode": "damping-gains", "agent_hz": 100.0, "history": 4,
-    "context": "visible", "resonance_prob": 0.75, "episode_s": 1.0,
-    "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
-}
+REFERENCE_TASK: dict[str, Any] = copy.deepcopy(V2_DEFAULTS)    # StepperDamp-v2's defaults
 
 #: What ``stepdamp train --suite`` sets on top of the task for each constant-speed
 #: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`; v4's moves suite

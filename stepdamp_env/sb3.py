@@ -81,10 +81,17 @@ class StepperDampSB3VecEnv(VecEnv):
         self._actions = None
         dones = terminated | truncated
         out_infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        # A drive that ended has its last step's info in final_info where the env
+        # gives SyncVectorEnv's infos (StepperDamp-v2, SAME_STEP); v0's and v1's keep
+        # it at the top level.
+        final = infos.get("final_info")
         for key in self.info_keys:
-            values = infos[key]
+            live = infos.get(key)
+            ended = final.get(key) if isinstance(final, dict) else None
             for i in range(self.num_envs):
-                out_infos[i][key] = values[i]
+                source = ended if ended is not None and dones[i] else live
+                if source is not None:
+                    out_infos[i][key] = source[i]
         if dones.any():
             final_obs = infos["final_obs"]
             for i in np.flatnonzero(dones):

@@ -71,3 +71,29 @@ def test_sac_trains_a_few_hundred_steps():
                 train_freq=4, seed=0, device="cpu", policy_kwargs={"net_arch": [32, 32]})
     model.learn(total_timesteps=300)
     assert model.num_timesteps >= 300
+
+
+def test_adapter_gives_the_same_infos_over_v1_and_v2_vector_envs():
+    """v2's vector env gives SyncVectorEnv's infos (the ended step's in final_info);
+    the adapter's per-drive info dicts are v1's all the same."""
+    from stepdamp_env.env import StepperDampV1VectorEnv, StepperDampV2VectorEnv
+    from stepdamp_env.env.registration import V2_DEFAULTS
+
+    keys = ("lag_rad", "damping_current_rms_a")
+    options = {**V2_DEFAULTS, "episode_s": 0.03}
+    a = StepperDampSB3VecEnv(StepperDampV1VectorEnv(3, autoreset_mode=AutoresetMode.SAME_STEP,
+                                                    **options), info_keys=keys)
+    b = StepperDampSB3VecEnv(StepperDampV2VectorEnv(3, autoreset_mode=AutoresetMode.SAME_STEP,
+                                                    episode_s=0.03), info_keys=keys)
+    a.seed(3)
+    b.seed(3)
+    np.testing.assert_array_equal(a.reset(), b.reset())
+    for _ in range(3):                  # 3 steps of 10 ms: the episodes end on the last
+        act = np.full((3, 8), 0.2, np.float32)
+        (oa, ra, da, ia), (ob, rb, db, ib) = a.step(act), b.step(act)
+        np.testing.assert_array_equal(oa, ob)
+        assert (ra == rb).all() and (da == db).all()
+        for x, y in zip(ia, ib):
+            assert sorted(x) == sorted(y)
+            assert all(np.array_equal(x[k], y[k]) for k in x)
+    assert da.all()

@@ -31,15 +31,38 @@ V1_OPTION_SETS = [
 ]
 
 
-def test_v1_is_registered_with_both_entry_points_and_no_outer_time_limit():
-    spec = gym.spec(ENV_ID_V1)
+@pytest.mark.parametrize("env_id", [ENV_ID_V1, "StepperDamp-v2"])
+def test_v1_is_registered_with_both_entry_points_and_no_outer_time_limit(env_id):
+    spec = gym.spec(env_id)
     assert spec.vector_entry_point is not None and spec.max_episode_steps is None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        env = gym.make(ENV_ID_V1)
-        venv = gym.make_vec(ENV_ID_V1, num_envs=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(env_id)
+        venv = gym.make_vec(env_id, num_envs=3)
+    # Gymnasium's only note: v1 has a newer version (v2, its defaults changed).
+    notes = {str(w.message) for w in caught}
+    assert all("is out of date" in n and "`v2`" in n for n in notes), notes
+    assert bool(notes) == (env_id == ENV_ID_V1)
     assert isinstance(env.unwrapped, StepperDampV1Env)
     assert isinstance(venv, StepperDampV1VectorEnv)
+
+
+def test_v2_is_v1_with_the_agents_task_as_defaults():
+    from stepdamp_agents.task import REFERENCE_TASK
+
+    env = gym.make("StepperDamp-v2")
+    assert env.unwrapped.options == StepperDampV1Env(**REFERENCE_TASK).options
+    assert env.unwrapped.options.agent_hz == 100.0 and env.observation_space.shape == (36,)
+    # A given option replaces its default; the others stay.
+    assert gym.make("StepperDamp-v2", agent_hz=50.0).unwrapped.options.history == 4
+    a, b = gym.make("StepperDamp-v2"), StepperDampV1Env(**REFERENCE_TASK)
+    oa, ob = a.reset(seed=5)[0], b.reset(seed=5)[0]
+    np.testing.assert_array_equal(oa, ob)
+    action = np.full(8, 0.3, dtype=np.float32)
+    for _ in range(3):
+        sa, sb = a.step(action), b.step(action)
+        np.testing.assert_array_equal(sa[0], sb[0])
+        assert sa[1:4] == sb[1:4]
 
 
 @pytest.mark.parametrize("kwargs", V1_OPTION_SETS)

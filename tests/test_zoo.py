@@ -52,3 +52,31 @@ def test_zoo_trains_the_per_step_task(tmp_path, algo, package, n_envs):
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert (tmp_path / "logs" / algo / "StepperDamp-v1_1" / "StepperDamp-v1.zip").is_file()
+
+
+V2_PARAMS = {"ars": ["n_envs:1"], "ppo": ["n_envs:2", "n_steps:100", "batch_size:100"],
+             "ppo_lstm": ["n_envs:2", "n_steps:100", "batch_size:100"],
+             "sac": ["n_envs:2", "learning_starts:200"], "td3": ["n_envs:2", "learning_starts:200"]}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", sorted(V2_PARAMS))
+def test_zoo_trains_and_evaluates_every_yaml_on_v2(tmp_path, algo):
+    """Each YAML's StepperDamp-v2 entry, as its comment says to run it, with the zoo's
+    evaluations on: the evaluation env (built from the id alone) is the training task."""
+    if algo in ("ars", "ppo_lstm"):
+        pytest.importorskip("sb3_contrib")
+    package = "stepdamp_env" if algo == "ars" else "stepdamp_agents.residual"
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "StepperDamp-v2",
+           "--gym-packages", package,
+           "--conf-file", os.path.join(ROOT, "agents", "hyperparams", f"{algo}.yml"),
+           "-n", "1200", "--eval-freq", "400", "--eval-episodes", "2", "--seed", "1",
+           "--log-folder", str(tmp_path / "logs"), "-params", *V2_PARAMS[algo]]
+    out = subprocess.run(cmd, cwd=tmp_path, env=dict(os.environ, MPLBACKEND="Agg"),
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    run = tmp_path / "logs" / algo / "StepperDamp-v2_1"
+    evals = np.load(run / "evaluations.npz")
+    assert evals["results"].shape[1] == 2 and len(evals["results"]) >= 1
+    assert np.all(np.isfinite(evals["results"]))
+    assert np.all(evals["ep_lengths"] == 100)           # 1 s at 100 Hz: v2's defaults

@@ -1,5 +1,6 @@
-"""Gymnasium environments of StepperDamp: ``StepperDamp-v0`` (frozen) and ``StepperDamp-v1``
-(scalar and native vector each).
+"""Gymnasium environments of StepperDamp: ``StepperDamp-v0`` (frozen), ``StepperDamp-v1``
+and ``StepperDamp-v2`` (v1 with the agents' task as defaults), scalar and native
+vector each.
 
 The agent acts as a residual on top of a base controller (the patent's harmonic
 feedforward, or none) of one hybrid stepper drive simulated by
@@ -24,12 +25,14 @@ batch of one, its vector env a batch of N, so the two agree step for step.
 from .layout import (ACTION_NAMES, HARMONIC_COS, HARMONIC_SIN, OBS, OBSERVATION_NAMES,
                      observation_names)
 from .options import DEFAULT_RANDOMIZATION, EnvOptions, default_action_scales
-from .registration import DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, register_envs
+from .registration import (DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, ENV_ID_V2, V2_DEFAULTS,
+                           register_envs)
 from .sampler import EpisodeSampler
 from .scalar import StepperDampEnv
 from .vector import StepperDampVectorEnv
 from .engine import DriveBatch, EnvTask, StepperDampBatch
-from .v1 import StepperDampV1Env, StepperDampV1VectorEnv, TaskV1
+from .v1 import (StepperDampV1Env, StepperDampV1VectorEnv, StepperDampV2Env,
+                 StepperDampV2VectorEnv, TaskV1)
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, EnvOptionsV1, MotorUnits,
                          observation_names_v1)
 from .wrappers import EpisodeGuard
@@ -39,4 +42,5 @@ __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptio
            "OBS", "OBSERVATION_NAMES", "observation_names", "HARMONIC_SIN", "HARMONIC_COS",
            "ACTION_NAMES", "default_action_scales", "EpisodeGuard",
            "ENV_ID_V1", "EnvOptionsV1", "MotorUnits", "TaskV1", "DriveBatch", "EnvTask", "StepperDampBatch", "StepperDampV1Env",
-           "StepperDampV1VectorEnv", "ACTION_NAMES_V1", "CONTEXT_NAMES", "observation_names_v1"]
+           "StepperDampV1VectorEnv", "ENV_ID_V2", "V2_DEFAULTS", "StepperDampV2Env",
+           "StepperDampV2VectorEnv", "ACTION_NAMES_V1", "CONTEXT_NAMES", "observation_names_v1"]

@@ -7,6 +7,7 @@ env is a batch of one, so the two agree step for step by construction.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any
 
@@ -30,11 +31,13 @@ from .options import default_action_scales
 from .render import render_episode, trace_rows
 from .registration import ENV_ID_V1
 from .sampler import EpisodeSampler
+from .registration import V2_DEFAULTS
 from .vector_base import STEP_INFOS, DriveVectorEnv
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
 
-__all__ = ["TaskV1", "StepperDampV1Env", "StepperDampV1VectorEnv"]
+__all__ = ["TaskV1", "StepperDampV1Env", "StepperDampV1VectorEnv", "StepperDampV2Env",
+           "StepperDampV2VectorEnv"]
 
 TWO_PI = 2.0 * math.pi
 _FF_COLUMNS = (K.CONFIG.FF_S1, K.CONFIG.FF_C1, K.CONFIG.FF_S2, K.CONFIG.FF_C2, K.CONFIG.FF_S4, K.CONFIG.FF_C4)
@@ -291,6 +294,11 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """ + OPTIONS_DOC_V1 + """
     ## Version History
 
+    * v2 (package 0.18): this class with the defaults of the committed per-step
+      agents' task (``registration.V2_DEFAULTS``: motors drawn around the
+      presets, ``agent_hz`` 100, ``history`` 4, ``context`` "visible",
+      ``estimate`` "exact", ``resonance_prob`` 0.75, ``episode_s`` 1.0, the
+      protocol's sensors): ``gym.make("StepperDamp-v2")``.
     * v1 (package 0.6): option ``nominal`` (default None: as before).
     * v1 (package 0.3): units the motor sets, history, visible context, a
       dimensionless reward, the damping-gains law in the kernel, ff-delay-comp
@@ -344,8 +352,10 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
     step for step. Drives reset automatically: ``autoreset_mode`` NEXT_STEP
     (default: the step after an episode end resets that drive, its action is
     ignored, reward 0) or SAME_STEP (``infos["final_obs"]``,
-    ``infos["final_info"]``). ``infos`` holds the scalar env's step info as
-    arrays with ``_key`` masks. Rendering: None only.
+    ``infos["final_info"]``, an object array of the scalar env's info dicts).
+    ``infos`` holds the scalar env's step info as arrays with ``_key`` masks
+    (frozen: ``StepperDamp-v2``'s vector env gives ``SyncVectorEnv``'s infos).
+    Rendering: None only.
     ``num_threads`` (default 1) spreads each step's drives over that many of
     numba's threads (``kernel.step_batch_parallel``, or groups of 32 drives in
     lanes); a drive's numbers are the same for any count. ``simd`` steps the
@@ -384,3 +394,40 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
     def physics_infos(self, out: np.ndarray) -> dict[str, np.ndarray]:
         return {**super().physics_infos(out),
                 "time_s": self._drives.t * self.task.seconds_per_step}
+
+
+def _v2_options(options: dict[str, Any]) -> dict[str, Any]:
+    """v2's defaults (:data:`.registration.V2_DEFAULTS`) with the given options on top."""
+    return {**copy.deepcopy(V2_DEFAULTS), **options}
+
+
+class StepperDampV2Env(StepperDampV1Env):
+    __doc__ = """``StepperDamp-v2``: :class:`StepperDampV1Env` whose defaults are the task
+    the committed per-step agents learn (:data:`.registration.V2_DEFAULTS`):
+    motors drawn around the presets, resonant speeds with probability 0.75, the
+    damping law's eight gains set every 10 ms (``agent_hz`` 100) with four past
+    errors (``history``) and the visible context, the exact detent model in the
+    feedforward, the protocol's sensors (4000-count encoder, 0.01 A current
+    noise), 1 s episodes (100 steps). A given option replaces its default
+    (``overrides`` as a whole). Spaces, reward and termination are v1's."""
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        super().__init__(render_mode=render_mode, **_v2_options(options))
+
+
+class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
+    __doc__ = """Native vectorised ``StepperDamp-v2``: :class:`StepperDampV1VectorEnv`
+    with v2's defaults (:class:`StepperDampV2Env`), and infos exactly as
+    Gymnasium's ``SyncVectorEnv`` gives them in both autoreset modes: each key an
+    array over the drives with its ``_key`` mask; a drive that starts over gives
+    its reset info (``speed_rps``, ``target_harmonic``) instead of its step's;
+    with SAME_STEP ``final_info`` is a dict of such arrays and ``final_obs`` an
+    object array (``tests/test_vector_infos.py``)."""
+
+    sync_infos = True
+
+    def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
+        vector = {k: kwargs.pop(k) for k in ("autoreset_mode", "render_mode", "num_threads",
+                                             "simd") if k in kwargs}
+        super().__init__(num_envs, **vector, **_v2_options(kwargs))
+

@@ -35,6 +35,11 @@ class DriveVectorEnv(VectorEnv):
     out_layout: Any
     #: The step's infos: (key, OUT field, flag), as :data:`STEP_INFOS`.
     step_infos: tuple[tuple[str, str, bool], ...] = STEP_INFOS
+    #: Infos (and autoreset's final_info) exactly as ``SyncVectorEnv`` gives them
+    #: (StepperDamp-v2). v0's and v1's keep their own, which their frozen
+    #: fingerprints hash: the ended step's physics stay at the top level, no reset
+    #: info after an autoreset, ``final_info`` an object array of dicts.
+    sync_infos = False
 
     def _attach(self, task: EnvTask, num_envs: int, mode: AutoresetMode, threads: int,
                 measure_from_s: float | None) -> DriveBatch:
@@ -102,6 +107,8 @@ class DriveVectorEnv(VectorEnv):
         # One copy of the outputs; the returned arrays are views of it, never reused.
         out = d.out.copy()
         rewards = out[:, self.out_layout.REWARD]
+        if self.sync_infos:
+            return self._sync_step(out, rewards, terminated, truncated)
         valid = np.ones(self.num_envs, dtype=bool)
         infos: dict[str, Any] = {}
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
@@ -135,5 +142,48 @@ class DriveVectorEnv(VectorEnv):
             infos["_" + key] = mask
         return obs, rewards, terminated, truncated, infos
 
+    def _sync_step(self, out: np.ndarray, rewards: np.ndarray, terminated: np.ndarray,
+                   truncated: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                   np.ndarray, dict[str, Any]]:
+        """The autoreset and infos of a step as ``SyncVectorEnv`` makes them
+        (``VectorEnv._add_info``): each key an array over the drives with its
+        ``_key`` mask, a drive that starts over giving its reset info instead of
+        its step's, SAME_STEP's ``final_info`` a dict of such arrays."""
+        d = self._drives
+        physics = self.physics_infos(out)
+        infos: dict[str, Any] = {}
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            # Drives that ended last step start over now (their stepped rows are discarded).
+            restarted = np.flatnonzero(self._autoreset)
+            stepped = ~self._autoreset
+            rewards[~stepped] = 0.0
+            terminated &= stepped
+            truncated &= stepped
+            starts = [(int(i), self._reset_drive(int(i))) for i in restarted]
+            self._autoreset = terminated | truncated
+            _put_rows(infos, physics, stepped)
+            for i, info in starts:
+                infos = self._add_info(infos, info, i)
+            return d.obs.copy(), rewards, terminated, truncated, infos
+        done = terminated | truncated
+        obs = d.obs.copy()
+        _put_rows(infos, physics, ~done)
+        for i in np.flatnonzero(done).tolist():
+            infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": d.info(i)}, i)
+            infos = self._add_info(infos, self._reset_drive(i), i)
+        if done.any():
+            obs = d.obs.copy()
+        return obs, rewards, terminated, truncated, infos
+
     def render(self) -> None:
         return None
+
+
+def _put_rows(infos: dict[str, Any], columns: dict[str, np.ndarray], rows: np.ndarray) -> None:
+    """Each column as an info of the drives ``rows`` (a mask; zero elsewhere, as
+    ``VectorEnv._add_info`` leaves it), with its ``_key`` mask; none if no drive."""
+    if not rows.any():
+        return
+    for key, col in columns.items():
+        infos[key] = np.where(rows, col, np.zeros((), dtype=col.dtype))
+        infos["_" + key] = rows.copy()
