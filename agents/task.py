@@ -4,7 +4,8 @@
 (:mod:`stepdamp_agents.per_step`). The rest of this module is the v0 gain
 selector's:
 
-``gym.make("StepperDampResidual-v0")`` (registered on importing
+``gym.make("StepperDampResidual-v0")`` (registered by ``import stepdamp_env``
+through the entry-point group ``stepdamp.envs``, and on importing
 :mod:`stepdamp_agents.residual`) is a ``StepperDamp-v0`` drive wrapped as the
 residual problem (:class:`stepdamp_agents.residual.ResidualWrapper`). Its
 defaults are the reference agents' task (on one preset, ``patent``, drawn

@@ -121,6 +121,14 @@ def main() -> None:
     show(f"v1 vector N={n} (gains, randomize)", bench_vector(venv, args.seconds, 0.2))
     show(f"v1 vector N={n} (gym.make_vec)",
          bench_vector(gym.make_vec("StepperDamp-v1", num_envs=n), args.seconds, 0.2))
+    # v2 decides at 100 Hz: a step is 10 ms of drive time (200 PWM periods), so its
+    # rate is given as env-steps/s and as simulated seconds per second (x real time).
+    for simd in (False, True):
+        venv = gym.make_vec("StepperDamp-v2", num_envs=n, simd=simd)
+        rate = bench_vector(venv, args.seconds, 0.2)
+        lanes = ", SIMD lanes" if simd else ""
+        print(f"v2 vector N={n} (defaults{lanes}): {rate:>10,.0f} env-steps/s = "
+              f"{rate * 0.01:,.0f} x real time on one core")
 
 
 if __name__ == "__main__":

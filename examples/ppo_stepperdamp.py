@@ -11,7 +11,9 @@ zero action's return on the same evaluation episodes; the script prints both.
     python examples/ppo_stepperdamp.py --help
 
 Every option is a field of :class:`Args` (defaults documented there). The
-evaluation episodes use seeds from 2,000,000 up, outside the training seeds.
+evaluation episodes use seeds from 900,000 up: motors of the training
+distribution that no training seed here draws, and below the 1,000,000 from
+which the benchmark's protocols draw their scored motors.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from torch import nn
 
 import stepdamp_env  # noqa: F401  (registers StepperDamp-v2)
 
+EVAL_SEED = 900_000
+
 
 @dataclass
 class Args:
@@ -41,7 +45,7 @@ class Args:
     epochs: int = 10
     minibatches: int = 8
     learning_rate: float = 3e-4
-    gamma: float = 0.99
+    gamma: float = 0.9                  # 0.99 made the mean policy worse than zero here
     gae_lambda: float = 0.95
     clip: float = 0.2
     entropy_coef: float = 0.0
@@ -90,7 +94,7 @@ def evaluate(args: Args, agent: Agent | None) -> float:
     action (None: the zero action)."""
     env = gym.make_vec(args.env_id, num_envs=args.eval_episodes,
                        vectorization_mode="vector_entry_point")
-    obs, _ = env.reset(seed=[2_000_000 + k for k in range(args.eval_episodes)])
+    obs, _ = env.reset(seed=[EVAL_SEED + k for k in range(args.eval_episodes)])
     total = np.zeros(args.eval_episodes)
     done = np.zeros(args.eval_episodes, dtype=bool)
     while not done.all():
@@ -168,12 +172,10 @@ def main(args: Args) -> list[dict[str, float]]:
         b_obs, b_act = obs_buf.reshape(-1, n_obs)[mask], act_buf.reshape(-1, n_act)[mask]
         b_logp, b_adv, b_ret = logp_buf.reshape(-1)[mask], adv.reshape(-1)[mask], ret.reshape(-1)[mask]
         size = len(b_obs)
-        batch = max(1, size // args.minibatches)
         gen = torch.Generator().manual_seed(args.seed * 100_003 + update)
         for _ in range(args.epochs):
-            order = torch.randperm(size, generator=gen)
-            for lo in range(0, size, batch):
-                idx = order[lo:lo + batch]
+            # Equal minibatches (a batch of one would have no advantage spread).
+            for idx in torch.tensor_split(torch.randperm(size, generator=gen), args.minibatches):
                 d = agent.dist(b_obs[idx])
                 ratio = (d.log_prob(b_act[idx]).sum(-1) - b_logp[idx]).exp()
                 a = b_adv[idx]

@@ -8,11 +8,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .analysis import bridge_limit_rps
 from .parallel import default_workers, pool_map
 from .params import DETENT_HARMONICS, ParameterError, SystemParams
 from .simulation import DEFAULT_ACCEL_RPS2, RunSettings, SpeedProfile, simulate
 
-__all__ = ["SweepResult", "parse_speed_range", "run_sweep", "find_resonance_peaks",
+__all__ = ["SweepResult", "parse_speed_range", "default_speed_range", "run_sweep", "find_resonance_peaks",
            "resolving_spacing", "prominent_peaks", "PEAK_PROMINENCE", "PEAK_MIN_FRACTION"]
 
 
@@ -114,6 +115,25 @@ PROMINENCE = 1.2
 #: from 0.9x (the presets) to 22x (a light, low-D rotor) the mechanical damping,
 #: measured on this model (docs/model.md).
 TOTAL_OVER_MECHANICAL_DAMPING = 1.9
+
+
+#: The default sweep's points between its ends.
+DEFAULT_SWEEP_POINTS = 166
+
+
+def default_speed_range(system: SystemParams) -> str:
+    """``sweep``'s default ``--speeds`` for a motor (START:STOP:STEP, rev/s): from
+    half its h = 4 resonance to 1.25 times its h = 1 resonance, so that all three
+    lie inside, capped at its top speed on its bus (:func:`.analysis.bridge_limit_rps`),
+    in :data:`DEFAULT_SWEEP_POINTS` steps rounded to 3 significant digits."""
+    res = system.predicted_resonances_rps()
+    low, high = 0.5 * min(res.values()), 1.25 * max(res.values())
+    top = bridge_limit_rps(system)
+    if math.isfinite(top) and top > low:
+        high = min(high, top)
+    low = max(low, MIN_SPEED_RPS)
+    step = float(f"{(high - low) / DEFAULT_SWEEP_POINTS:.3g}")
+    return f"{float(f'{low:.3g}'):g}:{float(f'{high:.3g}'):g}:{step:g}"
 
 
 def resolving_spacing(system: SystemParams) -> float:

@@ -158,3 +158,24 @@ def test_a_renamed_flag_is_refused_with_one_line_naming_the_new_one(argv, new, c
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0] == (f"stepdamp {argv[0]}: error: {argv[1]} was renamed "
                                         f"to {new} in 0.18.0")
+
+
+def test_the_default_sweep_holds_every_resonance_below_the_top_speed():
+    """A motor's default --speeds hold its three resonances (where its bus reaches
+    them): the old fixed 0.2..3.5 rev/s missed the h=1 resonance of larger motors."""
+    from stepdamp_env.analysis import bridge_limit_rps
+    from stepdamp_env.bench.protocols.v4 import catalogue_systems, quick_protocol_v4
+    from stepdamp_env.presets import get_preset, preset_names
+    from stepdamp_env.sweep import default_speed_range, parse_speed_range
+
+    systems = [get_preset(n) for n in preset_names()] + list(
+        catalogue_systems(quick_protocol_v4()))
+    for system in systems:
+        v = parse_speed_range(default_speed_range(system))
+        top = bridge_limit_rps(system)
+        assert 100 <= len(v) <= 200, system.name
+        highest = 1.25 * max(system.predicted_resonances_rps().values())
+        assert v[-1] <= 1.005 * (min(top, highest) if top > v[0] else highest), system.name
+        for h, speed in system.predicted_resonances_rps().items():
+            if speed < top:
+                assert v[0] < speed < v[-1], (system.name, h, speed, v[0], v[-1])

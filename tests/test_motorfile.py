@@ -310,6 +310,13 @@ def test_drive_logs_of_the_example_motor_identify_back(tmp_path, capsys):
     assert got["Kd4"] == pytest.approx(0.016, rel=0.10)
     assert got["Kd2"] == pytest.approx(0.004, rel=0.10)
     assert got["phi2"] == pytest.approx(-0.7, abs=0.05)
+    # The fitted inertia and drag are written, and said to be fitted.
+    fit = json.loads((tmp_path / "id" / "identification.json").read_text())
+    assert set(fit["fitted"]) <= {"J", "D"}
+    for name in ("J", "D"):
+        assert got[name] == fit[name]
+        assert (name in got["notes"].split(";")[0]) == (name in fit["fitted"])
+    assert main(["motors", str(tmp_path / "id" / "identified_motor.json")]) == 0
 
 
 @pytest.mark.slow

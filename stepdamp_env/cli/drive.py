@@ -76,8 +76,10 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
     p = command("sweep", "ripple against command speed, one or several base controllers on "
                          "one figure")
     add_system_args(p, base_many=True)
-    p.add_argument("--speeds", default="0.2:3.5:0.02", metavar="START:STOP:STEP",
-                   help="command speeds (rev/s)")
+    p.add_argument("--speeds", default=None, metavar="START:STOP:STEP",
+                   help="command speeds (rev/s); default: the motor's own, from half its "
+                        "h=4 resonance to 1.25x its h=1 resonance (at most its top speed), "
+                        "about 166 steps")
     p.add_argument("--entries", action="append", nargs="+", default=[], metavar="ENTRY",
                    help="sweep leaderboard entries (e.g. none tuned-constant-gain), each run "
                         "as stepdamp-bench v3 runs it: the drive identifies the motor first; "
@@ -139,10 +141,15 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from ..io import write_json
     from ..plots import plot_sweep, plot_velocity_error_traces, trace_speeds
-    from ..sweep import parse_speed_range, prominent_peaks, run_sweep
+    from ..sweep import default_speed_range, parse_speed_range, prominent_peaks, run_sweep
 
-    speeds = parse_speed_range(args.speeds)     # the arguments first, then the disk
+    if args.speeds is not None:
+        speeds = parse_speed_range(args.speeds)     # the arguments first, then the disk
     system = load_system(args.motor, parse_set_overrides(args.overrides))
+    if args.speeds is None:
+        args.speeds = default_speed_range(system)
+        speeds = parse_speed_range(args.speeds)
+        print(f"speeds {args.speeds} rev/s (the motor's resonances; --speeds to choose)")
     entries = [e for g in args.entries for e in g] + [p for g in args.policy for p in g]
     if entries:
         return _sweep_entries(args, system, speeds, entries)
@@ -391,10 +398,16 @@ def _identify_logs(args: argparse.Namespace, system: Any) -> int:
 
     result = identify_from_logs(system, args.log, method=args.log_method,
                                 settle_s=args.settle)
-    identified = result.apply_to(system)
+    identified = result.apply_to(system, mechanics=True)
+    prior = [n for n in ("J", "D") if n not in result.fitted]
     motor_file = {**identified.to_dict(), "name": _identified_name(system.name),
                   "source": f"stepdamp identify --log-method {args.log_method} on "
-                            + ", ".join(args.log)}
+                            + ", ".join(args.log),
+                  "notes": "fitted from the logs: Kd1, Kd2, Kd4, phi1, phi2, Fs"
+                           + "".join(f", {n}" for n in result.fitted)
+                           + (f"; from the prior motor {system.name!r}: "
+                              + ", ".join(prior) if prior else "")
+                           + "; every other value is the prior's"}
     with staged_directory(args.out, IDENTIFY_FILES) as stage:
         write_json(os.path.join(stage, "identified_motor.json"), motor_file)
         write_json(os.path.join(stage, "identification.json"),
