@@ -7,7 +7,9 @@ deterministic residual is exactly zero at initialisation (the base controller).
 env it wraps) has ``start_block(k)`` (:class:`.per_step.SameEpisodes`), each
 update's candidates run on one block of common episodes.
 :class:`ResidualRecurrentPPO` is sb3-contrib's RecurrentPPO with a zero action
-net. sb3-contrib and the SB3 algorithms load on first use.
+net. sb3-contrib and the SB3 algorithms load on first use, or when
+:func:`register_policy_aliases` runs (importing :mod:`stepdamp_agents.residual`
+does: the zoo's ``ppo_lstm`` names ``ResidualLstmPolicy``).
 """
 
 from __future__ import annotations

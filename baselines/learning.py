@@ -57,7 +57,8 @@ def golden_section(f, low: float, high: float, iterations: int,
 
 
 # One calibration per motor, drive mode and model (a drive calibrates its motor
-# once); deterministic, so a cache per process changes no number.
+# once); deterministic, so a cache per process (and the copy kept on disk,
+# _kept_calibration) changes no number.
 _TABLES: dict[tuple, tuple[np.ndarray, float]] = {}
 
 
@@ -119,7 +120,10 @@ class CalibratedTable(DelayCompensatedFF):
         """:meth:`_calibrate`, kept on disk by ``key`` (:class:`KeptResults`: the
         calibration is deterministic, so a kept table is the one it would find)."""
         kept = KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
-        content = kept.get(list(key))
+        # On disk, shared by boards, protocols and sweeps: the nominal model too (it
+        # picks the calibration speeds and the current paths).
+        disk_key = [*key, knowledge.nominal]
+        content = kept.get(disk_key)
         try:
             torque = np.array([complex(re, im) for re, im in content["torque_nm"]])
             if torque.shape == (len(DETENT_HARMONICS),):
@@ -127,7 +131,7 @@ class CalibratedTable(DelayCompensatedFF):
         except (TypeError, KeyError, ValueError):      # not kept, or not a table: calibrate
             pass
         torque, seconds = self._calibrate(knowledge, mode, model)
-        kept.put(list(key), {"torque_nm": [[float(z.real), float(z.imag)] for z in torque],
+        kept.put(disk_key, {"torque_nm": [[float(z.real), float(z.imag)] for z in torque],
                              "calibration_s": seconds})
         return torque, seconds
 

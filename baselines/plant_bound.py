@@ -44,7 +44,9 @@ The choice is a pure function of what the rehearsal reads (the plant, the
 exact and nominal models, mode, suite, speed, ramp, measuring window, the
 action's scales and the portfolio): it is cached per process, so the
 evaluation seeds of one cell share one choice and a board's numbers do not
-depend on how its runs are spread over workers.
+depend on how its runs are spread over workers, and kept on disk
+(:class:`stepdamp_env.bench.kept.KeptResults`, docs/caches.md), so a later board
+reads it back instead of rehearsing again.
 """
 
 from __future__ import annotations

@@ -56,6 +56,11 @@ class Args:
     eval_every: int = 5                 # updates between evaluations
     torch_threads: int = 1              # one thread: the same sums, the same model
 
+    def __post_init__(self) -> None:
+        if self.rollout_steps * self.num_envs < 2 * self.minibatches:
+            raise SystemExit(f"--rollout-steps {self.rollout_steps} x --num-envs {self.num_envs} "
+                             f"must be at least 2 x --minibatches {self.minibatches}")
+
     @classmethod
     def from_cli(cls, argv: list[str] | None = None) -> "Args":
         p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -125,7 +130,8 @@ def main(args: Args) -> list[dict[str, float]]:
     act_buf = torch.zeros((T, N, n_act))
     logp_buf = torch.zeros((T, N))
     rew_buf = torch.zeros((T, N))
-    done_buf = torch.zeros((T, N))      # the episode ended at this step
+    term_buf = torch.zeros((T, N))      # the episode terminated at this step
+    done_buf = torch.zeros((T, N))      # it ended (terminated or truncated at 1 s)
     val_buf = torch.zeros((T, N))
 
     zero_return = evaluate(args, None)
@@ -149,22 +155,23 @@ def main(args: Args) -> list[dict[str, float]]:
             valid[t] = 1.0 - restart
             nxt, reward, term, trunc, _ = env.step(action.clamp(-1.0, 1.0).numpy())
             rew_buf[t] = torch.as_tensor(reward, dtype=torch.float32)
+            term_buf[t] = torch.as_tensor(term, dtype=torch.float32)
             done_buf[t] = torch.as_tensor(term | trunc, dtype=torch.float32)
             restart = done_buf[t].clone()
             obs = torch.as_tensor(nxt)
             steps += N
 
-        # Advantages by GAE, backwards; an ended episode bootstraps nothing (its
-        # truncation at the time limit is treated as an end: v2 episodes are 1 s).
+        # Advantages by GAE, backwards. The step after an episode's end holds its
+        # final observation (NEXT_STEP), so a truncated episode (the 1 s limit)
+        # bootstraps from that state's value; a terminated one from nothing.
         with torch.no_grad():
             next_value = agent.value(obs).squeeze(-1)
         adv = torch.zeros((T, N))
         last = torch.zeros(N)
         for t in reversed(range(T)):
             v_next = next_value if t == T - 1 else val_buf[t + 1]
-            keep = 1.0 - done_buf[t]
-            delta = rew_buf[t] + args.gamma * v_next * keep - val_buf[t]
-            last = delta + args.gamma * args.gae_lambda * keep * last
+            delta = rew_buf[t] + args.gamma * v_next * (1.0 - term_buf[t]) - val_buf[t]
+            last = delta + args.gamma * args.gae_lambda * (1.0 - done_buf[t]) * last
             adv[t] = last
         ret = adv + val_buf
 
@@ -174,7 +181,7 @@ def main(args: Args) -> list[dict[str, float]]:
         size = len(b_obs)
         gen = torch.Generator().manual_seed(args.seed * 100_003 + update)
         for _ in range(args.epochs):
-            # Equal minibatches (a batch of one would have no advantage spread).
+            # Equal minibatches, two samples or more each (Args checks it).
             for idx in torch.tensor_split(torch.randperm(size, generator=gen), args.minibatches):
                 d = agent.dist(b_obs[idx])
                 ratio = (d.log_prob(b_act[idx]).sum(-1) - b_logp[idx]).exp()

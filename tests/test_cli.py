@@ -10,6 +10,7 @@ import pytest
 
 from stepdamp_env import io as sio
 from stepdamp_env.cli import main
+from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import get_preset
 from stepdamp_env.simulation import RunSettings
 from stepdamp_env.sweep import parse_speed_range, run_sweep
@@ -170,12 +171,15 @@ def test_the_default_sweep_holds_every_resonance_below_the_top_speed():
 
     systems = [get_preset(n) for n in preset_names()] + list(
         catalogue_systems(quick_protocol_v4()))
-    for system in systems:
+    weak = get_preset("patent").replace(Vdc=4.0)     # a bus below its resonances
+    for system in systems + [weak]:
         v = parse_speed_range(default_speed_range(system))
         top = bridge_limit_rps(system)
         assert 100 <= len(v) <= 200, system.name
         highest = 1.25 * max(system.predicted_resonances_rps().values())
-        assert v[-1] <= 1.005 * (min(top, highest) if top > v[0] else highest), system.name
+        assert v[-1] <= 1.005 * min(top, highest), system.name
         for h, speed in system.predicted_resonances_rps().items():
             if speed < top:
                 assert v[0] < speed < v[-1], (system.name, h, speed, v[0], v[-1])
+    with pytest.raises(ParameterError, match="Vdc=3 V.*give --speeds"):
+        default_speed_range(get_preset("patent").replace(Vdc=3.0))

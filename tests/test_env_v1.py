@@ -53,6 +53,8 @@ def test_v2_is_v1_with_the_agents_task_as_defaults():
     env = gym.make("StepperDamp-v2")
     assert env.unwrapped.options == StepperDampV1Env(**REFERENCE_TASK).options
     assert env.unwrapped.options.agent_hz == 100.0 and env.observation_space.shape == (36,)
+    with pytest.raises(ValueError, match="unknown option.*for StepperDamp-v2"):
+        gym.make("StepperDamp-v2", no_such_option=1)
     # A given option replaces its default; the others stay.
     assert gym.make("StepperDamp-v2", agent_hz=50.0).unwrapped.options.history == 4
     a, b = gym.make("StepperDamp-v2"), StepperDampV1Env(**REFERENCE_TASK)

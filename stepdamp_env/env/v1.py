@@ -29,9 +29,8 @@ from .arguments import (check_num_threads, check_render_mode, check_simd, check_
 from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
-from .registration import ENV_ID_V1
+from .registration import ENV_ID_V1, ENV_ID_V2, V2_DEFAULTS
 from .sampler import EpisodeSampler
-from .registration import V2_DEFAULTS
 from .vector_base import STEP_INFOS, DriveVectorEnv
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
                          MotorUnits)
@@ -310,11 +309,14 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
 class StepperDampV1Env(OneDriveEnv, gym.Env):
     __doc__ = _DOC
 
+    #: The id its messages name.
+    env_id = ENV_ID_V1
+
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         mode = check_render_mode(render_mode, self.metadata["render_modes"])
-        self.options = EnvOptionsV1.from_kwargs(options)
+        self.options = EnvOptionsV1.from_kwargs(options, self.env_id)
         self.task = TaskV1(self.options)
         self._attach(self.task, mode)
 
@@ -340,7 +342,7 @@ class StepperDampV1Env(OneDriveEnv, gym.Env):
             gym.logger.warn("render() called without a render_mode; pass "
                             "render_mode='rgb_array' to the constructor")
             return None
-        return render_episode(self._frames, f"{ENV_ID_V1}: {self.speed_rps:.3g} rev/s, "
+        return render_episode(self._frames, f"{self.env_id}: {self.speed_rps:.3g} rev/s, "
                               f"{self.options.mode}, {self.options.base_controller}")
 
 
@@ -366,6 +368,8 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
     for AVX2 or wider.
     """ + OPTIONS_DOC_V1
 
+    #: The id its messages name.
+    env_id = ENV_ID_V1
     out_layout = V.OUT
     step_infos = STEP_INFOS[:3] + (("damping_current_rms_a", "LAW_RMS", False),) + STEP_INFOS[3:]
 
@@ -376,7 +380,7 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
         mode = check_vector_args(num_envs, autoreset_mode, render_mode)
         threads = check_num_threads(num_threads)
         simd_on = check_simd(simd, int(num_envs))
-        self.options = EnvOptionsV1.from_kwargs(options)
+        self.options = EnvOptionsV1.from_kwargs(options, self.env_id)
         self.task = TaskV1(self.options)
         drives = self._attach(self.task, num_envs, mode, threads, self.options.measure_from_s)
         drives.simd = simd_on
@@ -411,6 +415,8 @@ class StepperDampV2Env(StepperDampV1Env):
     noise), 1 s episodes (100 steps). A given option replaces its default
     (``overrides`` as a whole). Spaces, reward and termination are v1's."""
 
+    env_id = ENV_ID_V2
+
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         super().__init__(render_mode=render_mode, **_v2_options(options))
 
@@ -424,6 +430,7 @@ class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
     with SAME_STEP ``final_info`` is a dict of such arrays and ``final_obs`` an
     object array (``tests/test_vector_infos.py``)."""
 
+    env_id = ENV_ID_V2
     sync_infos = True
 
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:

@@ -107,9 +107,10 @@ class EnvOptionsV1(DriveOptions):
     current_penalty: float = 0.0
 
     @classmethod
-    def from_kwargs(cls, kwargs: Mapping[str, Any]) -> "EnvOptionsV1":
-        """Options from keyword arguments; unknown names raise ``ValueError`` (v0's rule)."""
-        return super().from_kwargs(kwargs, ENV_ID_V1)
+    def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID_V1) -> "EnvOptionsV1":
+        """Options from keyword arguments; unknown names raise ``ValueError`` (v0's
+        rule), naming ``env_id``."""
+        return super().from_kwargs(kwargs, env_id)
 
     def __post_init__(self) -> None:
         check_choice("base_controller", self.base_controller, BASE_CONTROLLERS_V1)
