@@ -117,16 +117,12 @@ PROMINENCE = 1.2
 TOTAL_OVER_MECHANICAL_DAMPING = 1.9
 
 
-#: The default sweep's points between its ends.
-DEFAULT_SWEEP_POINTS = 166
-
-
 def default_speed_range(system: SystemParams) -> str:
     """``sweep``'s default ``--speeds`` for a motor (START:STOP:STEP, rev/s): from
     half its h = 4 resonance to 1.25 times its h = 1 resonance, so that all three
     lie inside, capped at its top speed on its bus (:func:`.analysis.bridge_limit_rps`;
     from half that where it lies below the h = 4 resonance), in
-    :data:`DEFAULT_SWEEP_POINTS` steps rounded to 3 significant digits."""
+    166 steps (the old fixed grid's count) rounded to 3 significant digits."""
     res = system.predicted_resonances_rps()
     low, high = 0.5 * min(res.values()), 1.25 * max(res.values())
     top = bridge_limit_rps(system)
@@ -138,7 +134,7 @@ def default_speed_range(system: SystemParams) -> str:
         high = top
         low = min(low, 0.5 * top)       # a bus too weak for its resonances: up to its top
     low = max(low, MIN_SPEED_RPS)
-    step = float(f"{(high - low) / DEFAULT_SWEEP_POINTS:.3g}")
+    step = float(f"{(high - low) / 166:.3g}")
     return f"{float(f'{low:.3g}'):g}:{float(f'{high:.3g}'):g}:{step:g}"
 
 

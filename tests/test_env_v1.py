@@ -47,6 +47,23 @@ def test_v1_is_registered_with_both_entry_points_and_no_outer_time_limit(env_id)
     assert isinstance(venv, StepperDampV1VectorEnv)
 
 
+def test_v2_passes_the_env_checkers_and_warns_on_the_benchmarks_seeds():
+    from stepdamp_env.env import StepperDampV2Env, StepperDampV2VectorEnv
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(gym.make("StepperDamp-v2").unwrapped)
+        sb3_check_env(StepperDampV2Env(), warn=True)
+        StepperDampV2Env().reset(seed=999_999)
+        StepperDampV2VectorEnv(2).reset(seed=[1, 999_999])
+    with pytest.warns(UserWarning, match="seeds from 1,000,000 draw the motors"):
+        StepperDampV2Env().reset(seed=1_000_000)
+    with pytest.warns(UserWarning, match="seed 1000001"):
+        StepperDampV2VectorEnv(2).reset(seed=[1, 1_000_001])
+    with pytest.warns(UserWarning, match="seed 2000000"):
+        StepperDampV2VectorEnv(2).reset(seed=2_000_000)
+
+
 def test_v2_is_v1_with_the_agents_task_as_defaults():
     from stepdamp_agents.task import REFERENCE_TASK
 

@@ -19,6 +19,9 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
+# Seeds below it are training seeds (agents, tuning); evaluation seeds are at or
+# above it. Defined with the env, which warns on them (StepperDamp-v2).
+from ..env.registration import RESERVED_SEEDS_FROM as TRAINING_SEED_LIMIT
 from ..metrics import METRICS_V0_V3
 from ..params import ParameterError
 from .suites import SUITES_BY_NAME, SUITES_THROUGH_V3, SuiteField
@@ -45,8 +48,6 @@ __all__ = [
 ]
 
 PROTOCOL_NAME = "stepdamp-bench"
-# Seeds below it are training seeds (agents, tuning); evaluation seeds are at or above it.
-TRAINING_SEED_LIMIT = 1_000_000
 #: v0's and v1's suites.
 SUITES = tuple(name for name, s in SUITES_BY_NAME.items() if s.since == "v0")
 #: Every suite of v2 and v3 (:mod:`.suites`): v2 adds the voltage-mode drive's mid-band.

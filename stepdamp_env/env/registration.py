@@ -6,7 +6,8 @@ import importlib.metadata
 
 import gymnasium as gym
 
-__all__ = ["ENV_ID", "ENV_ID_V1", "ENV_ID_V2", "V2_DEFAULTS", "DEFAULT_EPISODE_STEPS",
+__all__ = ["ENV_ID", "ENV_ID_V1", "ENV_ID_V2", "V2_DEFAULTS", "RESERVED_SEEDS_FROM",
+           "DEFAULT_EPISODE_STEPS",
            "ENTRY_POINT_GROUP", "register_envs"]
 
 ENV_ID = "StepperDamp-v0"
@@ -23,6 +24,10 @@ V2_DEFAULTS: dict = {
     "context": "visible", "resonance_prob": 0.75, "episode_s": 1.0,
     "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
 }
+#: Seeds from here on draw the motors and noise the stepdamp-bench protocols score
+#: (``bench.protocol.TRAINING_SEED_LIMIT`` is this value): StepperDamp-v2 warns when
+#: reset with one (rl-baselines3-zoo picks such seeds when given no ``--seed``).
+RESERVED_SEEDS_FROM = 1_000_000
 #: Installed packages name further env ids here (name: the id, value: its entry
 #: point), e.g. the agents' ``StepperDampResidual-v0``; registered without importing them.
 ENTRY_POINT_GROUP = "stepdamp.envs"

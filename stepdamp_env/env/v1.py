@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Any
+import warnings
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -29,7 +30,7 @@ from .arguments import (check_num_threads, check_render_mode, check_simd, check_
 from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
-from .registration import ENV_ID_V1, ENV_ID_V2, V2_DEFAULTS
+from .registration import ENV_ID_V1, ENV_ID_V2, RESERVED_SEEDS_FROM, V2_DEFAULTS
 from .sampler import EpisodeSampler
 from .vector_base import STEP_INFOS, DriveVectorEnv
 from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
@@ -405,6 +406,16 @@ def _v2_options(options: dict[str, Any]) -> dict[str, Any]:
     return {**copy.deepcopy(V2_DEFAULTS), **options}
 
 
+def _warn_reserved(seed: Any) -> None:
+    """One warning where a v2 env is reset with seeds the benchmark scores with."""
+    seeds = seed if isinstance(seed, (list, tuple)) else [seed]
+    high = [s for s in seeds if isinstance(s, (int, np.integer)) and s >= RESERVED_SEEDS_FROM]
+    if high:
+        warnings.warn(f"StepperDamp-v2 reset with seed {int(high[0])}: seeds from "
+                      f"{RESERVED_SEEDS_FROM:,} draw the motors stepdamp-bench scores; train "
+                      "on seeds below it (rl-baselines3-zoo: pass --seed)", stacklevel=3)
+
+
 class StepperDampV2Env(StepperDampV1Env):
     __doc__ = """``StepperDamp-v2``: :class:`StepperDampV1Env` whose defaults are the task
     the committed per-step agents learn (:data:`.registration.V2_DEFAULTS`):
@@ -419,6 +430,11 @@ class StepperDampV2Env(StepperDampV1Env):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         super().__init__(render_mode=render_mode, **_v2_options(options))
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        _warn_reserved(seed)
+        return super().reset(seed=seed, options=options)
 
 
 class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
@@ -437,4 +453,9 @@ class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
         vector = {k: kwargs.pop(k) for k in ("autoreset_mode", "render_mode", "num_threads",
                                              "simd") if k in kwargs}
         super().__init__(num_envs, **vector, **_v2_options(kwargs))
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        _warn_reserved(seed)
+        return super().reset(seed=seed, options=options)
 
