@@ -27,6 +27,13 @@ def cache(tmp_path, monkeypatch):
     return tmp_path
 
 
+def _forbidden(what):
+    """A stand-in that fails the test if called."""
+    def call(*args, **kwargs):
+        raise AssertionError(what)
+    return call
+
+
 def _files(root, kind):
     return sorted((root / kind).glob("*.json"))
 
@@ -74,12 +81,8 @@ def test_plant_bound_reads_its_choice_back_without_rehearsing(cache, monkeypatch
     first = (bound.choice(ctx), bound.table(ctx))
     assert len(_files(cache, "plant-bound")) == 1
     pb._CHOICES.clear()
-
-    def no_rehearsal(*args, **kwargs):
-        raise AssertionError("rehearsed although the choice was kept")
-
     with monkeypatch.context() as m:
-        m.setattr(pb, "_rehearse", no_rehearsal)
+        m.setattr(pb, "_rehearse", _forbidden("rehearsed although the choice was kept"))
         assert (bound.choice(ctx), bound.table(ctx)) == first
     # A damaged entry is rehearsed again, to the same choice.
     path = _files(cache, "plant-bound")[0]
@@ -103,12 +106,9 @@ def test_calibrated_table_reads_its_table_back_bit_for_bit(cache, monkeypatch):
     first, seconds = table._action.copy(), table.calibration_s
     assert len(_files(cache, "calibrated-table")) == 1
     learning._TABLES.clear()
-
-    def no_rig(*args, **kwargs):
-        raise AssertionError("calibrated although the table was kept")
-
     with monkeypatch.context() as m:
-        m.setattr(CalibrationRig, "harmonic_ripple", no_rig)
+        m.setattr(CalibrationRig, "harmonic_ripple",
+                  _forbidden("calibrated although the table was kept"))
         again = CalibratedTable(iterations=3)
         again.configure(ctx)
     np.testing.assert_array_equal(again._action, first)
