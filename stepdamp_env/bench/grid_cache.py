@@ -4,17 +4,13 @@ settings and code, checksummed as identifications are."""
 
 from __future__ import annotations
 
-import hashlib
-import json
 import multiprocessing
-import os
 from typing import Any, Sequence
 
-from ..io import cache_dir, read_checked_json, write_checked_json
 from ..parallel import default_workers, pool_map
 from ..params import SystemParams
 from ..simulation import RunSettings, simulate
-from .provenance import code_fingerprint
+from .kept import KeptResults
 
 __all__ = ["Grids", "grids_cached"]
 
@@ -45,26 +41,21 @@ def grids_cached(protocol: Any, systems: Sequence[SystemParams]) -> list[Grids]:
     """``protocol.suite_grids(system)`` of each system (``protocol``: any with
     ``suite_grids`` and ``to_dict``, v3's and later), those not kept on disk
     computed on every core (the same values on any number of workers) and kept
-    (:func:`..io.cache_dir` "grids"), per system, protocol settings and code
+    (:class:`.kept.KeptResults` "grids"), per system, protocol settings and code
     (:func:`.provenance.code_fingerprint`), as identifications are: the grids
     are deterministic, so a kept grid is the one it would compute. The key
     names the protocol's class; a class defined outside this package (its code
     is not in the fingerprint) is never cached."""
     kind = type(protocol)
-    where = cache_dir("grids") if kind.__module__.startswith(_PACKAGE + ".") else None
-    paths: list[str | None] = [None] * len(systems)
-    keys: list[str] = [""] * len(systems)
+    kept = KeptResults("grids") if kind.__module__.startswith(_PACKAGE + ".") else None
+    keys: list[dict] = [{} for _ in systems]
     out: list[Grids | None] = [None] * len(systems)
-    if where is not None and systems:
+    if kept is not None and systems:
         settings = {k: v for k, v in protocol.to_dict().items() if k != "splits"}
-        code = code_fingerprint()
         for i, system in enumerate(systems):
-            key = json.dumps({"system": system.to_dict(), "protocol": settings, "code": code,
-                              "class": f"{kind.__module__}.{kind.__qualname__}"},
-                             sort_keys=True, default=str)
-            keys[i] = hashlib.sha256(key.encode()).hexdigest()
-            paths[i] = os.path.join(where, keys[i][:32] + ".json")
-            out[i] = _grids_from_json(read_checked_json(paths[i], keys[i], "grid cache entry"))
+            keys[i] = {"system": system.to_dict(), "protocol": settings,
+                       "class": f"{kind.__module__}.{kind.__qualname__}"}
+            out[i] = _grids_from_json(kept.get(keys[i]))
     todo = [i for i, g in enumerate(out) if g is None]
     workers = 1 if multiprocessing.current_process().daemon else default_workers()
     workers = min(workers, len(todo))
@@ -75,12 +66,8 @@ def grids_cached(protocol: Any, systems: Sequence[SystemParams]) -> list[Grids]:
                     max_chunk=1)
     for i, g in zip(todo, done):
         out[i] = g
-        if paths[i] is not None:
-            try:
-                write_checked_json(paths[i], keys[i], [[suite, list(speeds), list(labels)]
-                                                       for suite, speeds, labels in g])
-            except OSError:             # a full or read-only cache: computed anyway
-                pass
+        if kept is not None:
+            kept.put(keys[i], [[suite, list(speeds), list(labels)] for suite, speeds, labels in g])
     if any(g is None for g in out):
         raise RuntimeError("grids_cached: a motor's grids were neither kept nor computed")
     return [g for g in out if g is not None]

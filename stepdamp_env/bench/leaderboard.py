@@ -14,8 +14,6 @@ again with the same arguments picks up where it stopped.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import os
 import sys
 import time
@@ -24,10 +22,11 @@ from typing import Any, Callable, Sequence
 
 from ..env.options import EnvOptions
 from ..identify import identify
-from ..io import cache_dir, read_checked_json, write_checked_json
+from ..io import write_checked_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..presets import get_preset
+from .kept import KeptResults
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
 from .protocol import REFERENCE_POLICY, REFERENCE_ROW, SUITE_MODE, Protocol
@@ -105,36 +104,27 @@ def _make(spec: str, training_seed: int | None) -> Any:
 
 def identify_cached(system: SystemParams, method: str, seed: int) -> FeedforwardModel | str:
     """``identify(system, method=method, noise_seed=seed).model``, or the failure
-    as a string ("ErrorType: message"), kept on disk (:func:`..io.cache_dir`)
-    per system, method, seed and code (:func:`code_fingerprint`: the package's
-    sources and dependency versions): identification is deterministic, so a
-    kept model is the one it would compute."""
-    where = cache_dir("identify")
-    path = None
-    if where is not None:
-        key = json.dumps({"system": system.to_dict(), "method": method, "seed": seed,
-                          "code": code_fingerprint()}, sort_keys=True)
-        digest = hashlib.sha256(key.encode()).hexdigest()
-        path = os.path.join(where, digest[:32] + ".json")
-        kept = read_checked_json(path, digest, "identification cache entry")
-        try:
-            if isinstance(kept, dict) and kept.get("failed") is not None:
-                return str(kept["failed"])
-            if isinstance(kept, dict) and isinstance(kept.get("model"), dict):
-                return FeedforwardModel(**kept["model"])
-        except (TypeError, ValueError, ParameterError):     # unreadable: computed again
-            pass
+    as a string ("ErrorType: message"), kept on disk (:class:`.kept.KeptResults`
+    "identify") per system, method, seed and code (the package's sources and
+    dependency versions): identification is deterministic, so a kept model is
+    the one it would compute."""
+    kept = KeptResults("identify")
+    key = {"system": system.to_dict(), "method": method, "seed": seed}
+    content = kept.get(key)
+    try:
+        if isinstance(content, dict) and content.get("failed") is not None:
+            return str(content["failed"])
+        if isinstance(content, dict) and isinstance(content.get("model"), dict):
+            return FeedforwardModel(**content["model"])
+    except (TypeError, ValueError, ParameterError):     # unreadable: computed again
+        pass
     try:
         model: FeedforwardModel | str = identify(system, method=method, noise_seed=seed).model
         entry = {"model": dataclasses.asdict(model), "failed": None}
     except (RuntimeError, ParameterError) as exc:
         model = f"{type(exc).__name__}: {exc}"
         entry = {"model": None, "failed": model}
-    if path is not None:
-        try:
-            write_checked_json(path, digest, entry)
-        except OSError:                 # a full or read-only cache: computed anyway
-            pass
+    kept.put(key, entry)
     return model
 
 
