@@ -34,7 +34,7 @@ from stepdamp_env.response import current_path, phasors, torque_paths, velocity_
 from .harmonic import DelayCompensatedFF, gather_rows, harmonic_actions
 
 __all__ = ["VelocityFeedback", "SensorlessDamping", "OracleFloor", "TunedConstantGain",
-           "design_gains",
+           "gains_law", "design_gains",
            "hold_response", "DEFAULT_ZETA_ADD", "DEFAULT_SENSORLESS_ZETA_ADD"]
 
 # Added damping ratios, chosen on training motors (scripts/ladder_tuning.py);
@@ -446,39 +446,54 @@ class TunedConstantGain(RowPolicy):
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """The law this entry runs in ``context`` (:mod:`stepdamp_env.bench.firmware`):
-        v1's ff-delay-comp base feedforward (unrounded) plus the kernel's velocity
-        feedback ``clip(kv*Kv*e_w, +-law limit)``, with v1's own scales (the env's
-        task computes them, so the export follows the env)."""
-        if np.any(self._action[1:] != 0.0):
-            raise ParameterError(f"entry {self.name!r} cannot be exported: only the velocity "
-                                 "gain kv of the damping law is supported (kp and the "
-                                 "resonant gains must be 0)")
-        knowledge = context.knowledge
-        options = self.env_options(knowledge)
-        model = options["estimate"]
-        if model is None:
-            raise ParameterError(f"entry {self.name!r} cannot be exported: it needs an "
-                                 "identified motor model (MotorKnowledge.identified is None)")
-        nominal = knowledge.nominal
-        task = TaskV1(EnvOptionsV1.from_kwargs({
-            **options, "motor": nominal, "nominal": nominal, "mode": context.mode,
-            "speed_rps": context.speed_rps}))
-        # The kernel's KV: the float32 action times its scale, 2*zeta_scale*J*wn/Km (A*s/rad).
-        kv = float(self._action[0]) * task.action_scales[0]
-        return harmonic_law(
-            context, self.name, task.base_coefficients(model, context.speed_rps), model,
-            velocity_gain_a_s_per_rad=kv, feedback_limit_a=task.law_limit_a,
-            velocity_estimator=(f"the drive's encoder difference through a first-order "
-                                f"low-pass at {nominal.servo.velocity_cutoff_hz!r} Hz, every "
-                                "PWM period"),
-            notes=(f"{self.name}: ff-delay-comp's table (the identified detent model through "
-                   "the inverse current path at the held speed) plus StepperDamp-v1's damping "
-                   f"law at the constant gain kv = {float(self._action[0])!r}: Kv = kv*2*"
-                   f"{task.options.damping_ratio_scale!r}*J*wn/Km of the nominal motor, "
-                   f"bounded by {task.options.law_limit_factor!r} times the holding current."))
+        v1's ff-delay-comp base feedforward (unrounded) plus the kernel's feedback
+        ``clip(kv*Kv*e_w + kp*Kv*wn*hp(e_theta), +-law limit)``, with v1's own scales
+        (the env's task computes them, so the export follows the env)."""
+        return gains_law(self.name, self._gains(context), self.env_options(context.knowledge),
+                         context)
+
+    def _gains(self, context: PolicyContext) -> np.ndarray:
+        """The float32 damping-gains action this entry holds in ``context``."""
+        return self._action
 
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
         pass
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         return np.tile(self._action, (len(rows), 1))
+
+
+def gains_law(name: str, action: np.ndarray, options: dict[str, Any],
+              context: PolicyContext) -> FirmwareLaw:
+    """The law of an entry holding the constant damping-gains ``action`` (float32,
+    StepperDamp-v1's scales) on ff-delay-comp with the env ``options``, in ``context``."""
+    if np.any(action[2:] != 0.0):
+        raise ParameterError(f"entry {name!r} cannot be exported: only the gains kv and kp "
+                             "of the damping law are supported (the resonant gains must be 0)")
+    knowledge = context.knowledge
+    model = options["estimate"]
+    if model is None:
+        raise ParameterError(f"entry {name!r} cannot be exported: it needs an identified "
+                             "motor model (MotorKnowledge.identified is None)")
+    nominal = knowledge.nominal
+    task = TaskV1(EnvOptionsV1.from_kwargs({
+        **options, "motor": nominal, "nominal": nominal, "mode": context.mode,
+        "speed_rps": context.speed_rps}))
+    # The kernel's KV and KP: the float32 actions times their scales, Kv = 2*zeta_scale*
+    # J*wn/Km (A*s/rad) and Kv*wn (A/rad).
+    kv, kp = float(action[0]), float(action[1])
+    position = (f" and the high-passed position gain kp = {kp!r} (Kp = kp*Kv*wn; the "
+                "high-pass's corner wn/4)" if kp != 0.0 else "")
+    return harmonic_law(
+        context, name, task.base_coefficients(model, context.speed_rps), model,
+        velocity_gain_a_s_per_rad=kv * task.action_scales[0], feedback_limit_a=task.law_limit_a,
+        position_gain_a_per_rad=kp * task.action_scales[1],
+        position_highpass_alpha=task.law_hp_alpha if kp != 0.0 else 0.0,
+        velocity_estimator=(f"the drive's encoder difference through a first-order "
+                            f"low-pass at {nominal.servo.velocity_cutoff_hz!r} Hz, every "
+                            "PWM period"),
+        notes=(f"{name}: ff-delay-comp's table (the identified detent model through "
+               "the inverse current path at the held speed) plus StepperDamp-v1's damping "
+               f"law at the constant gain kv = {kv!r}{position}: Kv = kv*2*"
+               f"{task.options.damping_ratio_scale!r}*J*wn/Km of the nominal motor, "
+               f"bounded by {task.options.law_limit_factor!r} times the holding current."))

@@ -25,7 +25,9 @@ from stepdamp_env.bench.suites import nearest_suite, tuned_suite
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError
 
-from .feedback import TunedConstantGain
+from stepdamp_env.bench.firmware import FirmwareLaw
+
+from .feedback import TunedConstantGain, gains_law
 
 __all__ = ["TunedGainPair", "DEV_GAIN_PAIRS"]
 
@@ -67,13 +69,24 @@ class TunedGainPair:
     env_options = TunedConstantGain.env_options
 
     def reset(self, context: PolicyContext) -> None:
+        self.action = self._gains(context)
+
+    def _gains(self, context: PolicyContext) -> np.ndarray:
+        """The float32 damping-gains action of ``context``'s suite."""
         drive = context.knowledge.nominal.drive.drive_mode
         suite = tuned_suite(context.suite or nearest_suite(context.mode, drive), self.pairs)
         if suite not in self.pairs:
             raise ParameterError(f"{self.name}: no gains for suite {suite!r} (tuned for "
                                  f"{sorted(self.pairs)})")
-        self.action = np.zeros(8, dtype=np.float32)
-        self.action[:2] = self.pairs[suite]
+        action = np.zeros(8, dtype=np.float32)
+        action[:2] = self.pairs[suite]
+        return action
+
+    def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
+        """The law this entry runs in ``context``: ff-delay-comp's table plus the
+        kernel's feedback at the suite's (kv, kp) (:func:`.feedback.gains_law`)."""
+        return gains_law(self.name, self._gains(context), self.env_options(context.knowledge),
+                         context)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         if self.action is None:

@@ -1,7 +1,7 @@
 """Do StepperDamp's defaults learn? SB3's PPO, SAC and TD3 with their library
 defaults on ``make_vec_env(ENV, n_envs=8)``, several seeds, against the zero action.
 
-Run: ``python benchmarks/bench_defaults.py [--env StepperDamp-v2] [--steps 100000]
+Run: ``python benchmarks/bench_defaults.py [--env StepperDamp-v3] [--steps 100000]
 [--seeds 1-5] [--algos ppo sac td3]``.
 
 Each run trains ``--steps`` env steps (over all 8 envs) from the algorithm's
@@ -56,7 +56,7 @@ def t_interval(values: list[float]) -> tuple[float, float, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--env", default="StepperDamp-v2")
+    p.add_argument("--env", default="StepperDamp-v3")
     p.add_argument("--steps", type=int, default=100_000)
     p.add_argument("--seeds", default="1-5")
     p.add_argument("--algos", nargs="+", default=["ppo", "sac", "td3"])

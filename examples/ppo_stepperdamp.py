@@ -1,11 +1,13 @@
-"""PPO on StepperDamp-v2 in one file: read it top to bottom, change what you like.
+"""PPO on StepperDamp-v3 in one file: read it top to bottom, change what you like.
 
 A clipped-surrogate PPO with a Gaussian policy and generalised advantage
-estimation, on the native vector env, in torch alone (no SB3). StepperDamp-v2's
-defaults are the per-step agents' task: eight gains of a damping law, set every
-10 ms on top of the drive's model-based feedforward, on motors drawn around the
-presets. A zero action is the feedforward alone, so the number to beat is the
-zero action's return on the same evaluation episodes; the script prints both.
+estimation, on the native vector env, in torch alone (no SB3). StepperDamp-v3's
+defaults are the per-step agents' task with a two-number action: the gain and
+phase of a velocity-feedback damping law, set every 10 ms on top of the drive's
+model-based feedforward, on motors drawn around the presets. A zero action is
+the feedforward alone, so the number to beat is the zero action's return on the
+same evaluation episodes; the script prints both. ``--env-id StepperDamp-v2``
+trains on the eight gains of the full law instead.
 
     python examples/ppo_stepperdamp.py --total-steps 200000
     python examples/ppo_stepperdamp.py --help
@@ -28,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-import stepdamp_env  # noqa: F401  (registers StepperDamp-v2)
+import stepdamp_env  # noqa: F401  (registers StepperDamp-v3)
 
 EVAL_SEED = 900_000
 
@@ -37,7 +39,7 @@ EVAL_SEED = 900_000
 class Args:
     """The run's settings; each is also a ``--flag`` of the command line."""
 
-    env_id: str = "StepperDamp-v2"
+    env_id: str = "StepperDamp-v3"
     seed: int = 1
     num_envs: int = 8                   # drives stepped together (one native vector env)
     total_steps: int = 200_000          # env steps over all drives
@@ -45,7 +47,7 @@ class Args:
     epochs: int = 10
     minibatches: int = 8
     learning_rate: float = 3e-4
-    gamma: float = 0.9                  # 0.99 made the mean policy worse than zero here
+    gamma: float = 0.9                  # on v2, 0.99 made the mean policy worse than zero
     gae_lambda: float = 0.95
     clip: float = 0.2
     entropy_coef: float = 0.0

@@ -17,7 +17,7 @@ from stepdamp_env import kernel as K
 from stepdamp_env.bench import MotorKnowledge, run_episode
 from stepdamp_env.bench.firmware import (FirmwareLaw, c_source, correction, entry_law,
                                          export_law, firmware_knowledge, from_json,
-                                         microstep_table, policy_law, to_json)
+                                         microstep_table, policy_law, position_lowpass, to_json)
 from stepdamp_env.bench.policy import PolicyCard
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.bench.rig import CalibrationRig
@@ -55,7 +55,9 @@ def _pwm_trace(entry, knowledge, mode, speed_rps, until_s=0.03):
                                          ("ff-delay-comp", "servo"),
                                          ("calibrated-table", "open-loop"),
                                          ("tuned-constant-gain", "open-loop"),
-                                         ("tuned-constant-gain", "servo")])
+                                         ("tuned-constant-gain", "servo"),
+                                         ("tuned-gain-pair", "open-loop"),
+                                         ("tuned-gain-pair", "servo")])
 def test_the_python_law_is_what_the_simulation_applies(knowledge, entry, mode):
     # The kernel's injected q current (feedforward, plus the v1 damping law's
     # current) at each PWM period, against correction() at the Park angle the
@@ -73,8 +75,10 @@ def test_the_python_law_is_what_the_simulation_applies(knowledge, entry, mode):
         count = 2.0 * math.pi / plant.servo.encoder_cpr
         angle = m.Nr * (tr[:, K.TRACE.THETA_FB] + 0.5 * count)
     e_w = tr[:-1, K.TRACE.OMEGA_CMD] - tr[:-1, K.TRACE.OMEGA_FB]
+    e_theta = tr[:-1, K.TRACE.THETA_CMD] - tr[:-1, K.TRACE.THETA_FB]
     expected = tr[1:, K.TRACE.IQ_FF]
-    got = correction(law, angle[1:], e_w, tr[1:, K.TRACE.OMEGA_CMD])
+    got = correction(law, angle[1:], e_w, tr[1:, K.TRACE.OMEGA_CMD], e_theta,
+                     position_lowpass(law, e_theta))
     assert len(expected) > 500
     np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-12)
     # The law is not a trivial one: the table differs from the plain identified
@@ -83,9 +87,13 @@ def test_the_python_law_is_what_the_simulation_applies(knowledge, entry, mode):
     table = law.coefficients_nm()
     delay_comp = entry != "patent-ff-identified"
     assert (max(abs(a - b) for a, b in zip(table, plain)) > 1e-4) == delay_comp
-    if entry == "tuned-constant-gain":
+    if entry.startswith("tuned-"):
         assert law.velocity_gain_a_s_per_rad > 0.0
         assert np.max(np.abs(law.velocity_gain_a_s_per_rad * e_w)) > 1e-3
+    assert law.stateful == (entry == "tuned-gain-pair")
+    if law.stateful:        # the position term acts: without it the law differs
+        plain = correction(law, angle[1:], e_w, tr[1:, K.TRACE.OMEGA_CMD])
+        assert np.max(np.abs(plain - expected)) > 1e-3
     assert (law.friction_a > 0.0) == (mode == "servo")
 
 
@@ -114,6 +122,25 @@ int main(void)
     return 0;
 }}
 """
+# A law with the position term keeps one state (the high-pass's), the caller's.
+_STATEFUL_DRIVER = """#include <stdio.h>
+#include "{prefix}.h"
+
+int main(void)
+{{
+    double x, e, w, p;
+    double lowpass = 0.0;
+    int k;
+
+    for (k = 0; k < {macro}_TABLE_SIZE; ++k) {{
+        printf("%.17g\\n", {prefix}_microstep_table_a[k]);
+    }}
+    while (scanf("%lf %lf %lf %lf", &x, &e, &w, &p) == 4) {{
+        printf("%.17g\\n", {prefix}_iq_correction_a(x, e, w, p, &lowpass));
+    }}
+    return 0;
+}}
+"""
 
 
 def _synthetic_law() -> FirmwareLaw:
@@ -125,7 +152,7 @@ def _synthetic_law() -> FirmwareLaw:
 
 
 @pytest.mark.parametrize("which", ["tuned-constant-gain/servo", "ff-delay-comp/open-loop",
-                                   "synthetic"])
+                                   "tuned-gain-pair/open-loop", "synthetic"])
 def test_the_c_source_computes_the_python_law(tmp_path, which):
     cc = _compiler()
     if which == "synthetic":
@@ -136,7 +163,8 @@ def test_the_c_source_computes_the_python_law(tmp_path, which):
     prefix = "law_under_test"
     paths = export_law(law, "c", tmp_path, prefix)
     assert [os.path.basename(p) for p in paths] == [f"{prefix}.h", f"{prefix}.c"]
-    (tmp_path / "main.c").write_text(_DRIVER.format(prefix=prefix, macro=prefix.upper()))
+    driver = _STATEFUL_DRIVER if law.stateful else _DRIVER
+    (tmp_path / "main.c").write_text(driver.format(prefix=prefix, macro=prefix.upper()))
     exe = str(tmp_path / "driver")
     build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
                             "-lm"], capture_output=True, text=True, timeout=120)
@@ -147,14 +175,16 @@ def test_the_c_source_computes_the_python_law(tmp_path, which):
     x[:16] = 2.0 * math.pi * np.arange(16) / law.table_size     # exact microsteps too
     e_w = rng.uniform(-30.0, 30.0, n)                           # both sides of the clamp
     w_cmd = rng.choice([-1.0, 0.0, 1.0], n) * rng.uniform(0.0, 100.0, n)
-    text = "".join(f"{float(a)!r} {float(b)!r} {float(c)!r}\n" for a, b, c in zip(x, e_w, w_cmd))
+    e_theta = np.cumsum(rng.uniform(-0.01, 0.01, n))             # a wandering position error
+    columns = (x, e_w, w_cmd, e_theta) if law.stateful else (x, e_w, w_cmd)
+    text = "".join(" ".join(repr(float(v)) for v in row) + "\n" for row in zip(*columns))
     run = subprocess.run([exe], input=text, capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr
     out = np.array([float(v) for v in run.stdout.split()])
     assert len(out) == law.table_size + n
     np.testing.assert_array_equal(out[:law.table_size], microstep_table(law))
-    np.testing.assert_allclose(out[law.table_size:], correction(law, x, e_w, w_cmd),
-                               rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(out[law.table_size:], correction(
+        law, x, e_w, w_cmd, e_theta, position_lowpass(law, e_theta)), rtol=0.0, atol=1e-9)
     # Every branch of the C was taken.
     if math.isfinite(law.feedback_limit_a) and law.velocity_gain_a_s_per_rad != 0.0:
         assert np.any(np.abs(law.velocity_gain_a_s_per_rad * e_w) > law.feedback_limit_a)
@@ -196,8 +226,12 @@ def test_the_microstep_table_is_the_correction_at_each_microstep():
 def test_json_round_trip(tmp_path):
     system = get_preset("patent")
     for law in (_synthetic_law(), entry_law("ff-delay-comp", firmware_knowledge(system)),
-                entry_law("tuned-constant-gain", firmware_knowledge(system), mode="servo")):
+                entry_law("tuned-constant-gain", firmware_knowledge(system), mode="servo"),
+                entry_law("tuned-gain-pair", firmware_knowledge(system))):
         data = to_json(law)
+        # A law without the position term keeps format /1 (what older readers take).
+        assert data["format"].endswith("/2" if law.stateful else "/1")
+        assert ("position_gain_a_per_rad" in data) == law.stateful
         assert from_json(json.loads(json.dumps(data))) == law
         [path] = export_law(law, "json", tmp_path / "out")
         assert os.path.basename(path) == law.entry.replace("-", "_") + ".json"

@@ -263,8 +263,41 @@ def test_sweep_any_entry(tmp_path, capsys):
     assert none["entry"] == "none" and len(none["rms_velocity_error_rad_s"]) == 4
     # Damping the h=4 resonance (0.625 rev/s) by a lot: the entry is really run.
     assert max(tcg["rms_velocity_error_rad_s"]) < 0.2 * max(none["rms_velocity_error_rad_s"])
+    # Its dB against none, per speed and summarised, in the file and in one line.
+    db = [20 * math.log10(n / e) for n, e in zip(none["rms_velocity_error_rad_s"],
+                                                  tcg["rms_velocity_error_rad_s"])]
+    summary = tcg["against_none"]
+    np.testing.assert_allclose(summary["attenuation_db"], db, rtol=0, atol=1e-12)
+    assert summary["worst_db"] == min(summary["attenuation_db"]) > 10.0
+    assert summary["humps_rps"] == [] and "against none: mean +" in text and "no humps" in text
+    # Asked without none, none is swept as the reference all the same.
+    assert main(["sweep", "--motor", EXAMPLE, "--entries", "tuned-constant-gain",
+                 "--speeds", "0.55:0.6:0.05", "--out", str(tmp_path / "sw2"), "--no-progress",
+                 "--workers", "1"]) == 0
+    assert "swept too: the reference" in capsys.readouterr().out
+    assert (tmp_path / "sw2" / "sweep_none.json").is_file()
     assert main(["sweep", "--entries", "no-such-entry", "--out", str(tmp_path / "x")]) == 2
     assert "--entries: unknown ['no-such-entry']" in capsys.readouterr().err
+
+
+def test_the_decibel_summary_flags_humps_and_counts_lost_runs():
+    from stepdamp_env.bench.entry_sweep import EntrySweep, decibel_summary
+    from stepdamp_env.presets import get_preset
+
+    system = get_preset("patent")
+    v = np.array([0.5, 0.6, 0.7, 0.8])
+    none = EntrySweep("none", "open-loop", system, v, np.array([1.0, 1.0, math.nan, 1.0]),
+                      np.array([False, False, True, False]))
+    # 20 dB better, 2 dB worse (a hump), none lost (not scored), a lost run (-20 dB).
+    entry = EntrySweep("x", "open-loop", system, v, np.array([0.1, 10 ** 0.1, 0.5, math.nan]),
+                       np.array([False, False, False, True]))
+    s = decibel_summary(entry, none)
+    assert s["attenuation_db"][0] == pytest.approx(20.0) and s["attenuation_db"][2] is None
+    assert s["attenuation_db"][1] == pytest.approx(-2.0) and s["attenuation_db"][3] == -20.0
+    assert s["humps_rps"] == [0.6] and s["speeds_scored"] == 3
+    assert s["worst_db"] == -20.0 and s["worst_speed_rps"] == 0.8
+    assert s["mean_db"] == pytest.approx((20.0 - 2.0 - 20.0) / 3)
+    assert decibel_summary(entry, none, hump_db=3.0)["humps_rps"] == []
 
 
 @pytest.mark.parametrize("speeds, words", [

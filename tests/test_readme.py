@@ -62,7 +62,7 @@ def test_readme_is_a_front_page_and_every_link_resolves():
     assert len(README.splitlines()) <= 250
     first = README[README.index("```python"):]
     first = first[:first.index("```", 3)]
-    assert "gym.make(\"StepperDamp-v2\"" in first and "StepperDamp-v0" not in first
+    assert "gym.make(\"StepperDamp-v3\"" in first and "StepperDamp-v0" not in first
     pages = [os.path.join(ROOT, "README.md")] + [
         os.path.join(ROOT, "docs", n) for n in os.listdir(os.path.join(ROOT, "docs"))
         if n.endswith(".md")]

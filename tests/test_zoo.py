@@ -80,3 +80,26 @@ def test_zoo_trains_and_evaluates_every_yaml_on_v2(tmp_path, algo):
     assert evals["results"].shape[1] == 2 and len(evals["results"]) >= 1
     assert np.all(np.isfinite(evals["results"]))
     assert np.all(evals["ep_lengths"] == 100)           # 1 s at 100 Hz: v2's defaults
+
+
+V3_PARAMS = {"ppo": ["n_steps:100"], "sac": ["learning_starts:200"],
+             "td3": ["learning_starts:200"]}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", sorted(V3_PARAMS))
+def test_zoo_trains_and_evaluates_the_library_defaults_on_v3(tmp_path, algo):
+    """Each YAML's StepperDamp-v3 entry (the library's defaults on 8 envs) with the
+    zoo's evaluations on; ``import stepdamp_env`` registers the id."""
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "StepperDamp-v3",
+           "--gym-packages", "stepdamp_env",
+           "--conf-file", os.path.join(ROOT, "agents", "hyperparams", f"{algo}.yml"),
+           "-n", "1600", "--eval-freq", "100", "--eval-episodes", "2", "--seed", "1",
+           "--log-folder", str(tmp_path / "logs"), "-params", *V3_PARAMS[algo]]
+    out = subprocess.run(cmd, cwd=tmp_path, env=dict(os.environ, MPLBACKEND="Agg"),
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    evals = np.load(tmp_path / "logs" / algo / "StepperDamp-v3_1" / "evaluations.npz")
+    assert evals["results"].shape[1] == 2 and len(evals["results"]) >= 1
+    assert np.all(np.isfinite(evals["results"]))
+    assert np.all(evals["ep_lengths"] == 100)

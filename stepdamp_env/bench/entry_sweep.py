@@ -18,13 +18,17 @@ from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..parallel import default_workers, pool_map
 from .leaderboard import identify_cached, protocol_knowledge
 from .motors import ProtocolMotor
+from .protocols.decibels import FAILURE_DB, attenuation_db
 from .protocols.v3 import full_protocol_v3
 from .registry import resolve_policy
 from .runner import run_episode
 from ..plots import finish_ripple_axes, mark_resonances, pyplot, save_figure, POLICY_COLOURS
 from ..sweep import prominent_peaks
 
-__all__ = ["EntrySweep", "sweep_entry", "plot_entry_sweeps"]
+__all__ = ["EntrySweep", "sweep_entry", "plot_entry_sweeps", "decibel_summary", "HUMP_DB"]
+
+#: A hump: a speed where the entry's ripple is above ``none``'s by more than this (dB).
+HUMP_DB = 1.0
 
 @dataclass
 class EntrySweep:
@@ -100,6 +104,31 @@ def sweep_entry(spec: str, system: SystemParams, speeds_rps: Sequence[float], *,
                        for f, m in got])
     return EntrySweep(spec, mode, system, np.asarray(speeds_rps, dtype=float), ripple, failed,
                       identified, [m for _, m in got])
+
+
+def decibel_summary(entry: EntrySweep, none: EntrySweep, hump_db: float = HUMP_DB
+                    ) -> dict[str, Any]:
+    """The entry's attenuation of the RMS velocity ripple against ``none``'s at each
+    speed of the same sweep, in dB as stepdamp-bench scores it (a lost run
+    :data:`FAILURE_DB`; nan where ``none`` lost its steps), and its summary: mean,
+    median and worst over the speeds where it is defined, and the humps, the
+    speeds where the entry holds its steps and ripples more than ``none`` by over
+    ``hump_db`` (its lost runs are counted apart)."""
+    if not np.array_equal(entry.speeds_rps, none.speeds_rps):
+        raise ParameterError("decibel_summary: the two sweeps must share their speeds")
+    db = np.array([math.nan if nf else FAILURE_DB if ef else attenuation_db(float(n), float(e))
+                   for n, e, nf, ef in zip(none.ripple_rad_s, entry.ripple_rad_s, none.failed,
+                                           entry.failed)])
+    ok = np.isfinite(db)
+    worst = int(np.flatnonzero(ok)[np.argmin(db[ok])]) if ok.any() else None
+    humps = np.flatnonzero(ok & ~entry.failed & (db < -hump_db))
+    return {"attenuation_db": [None if not math.isfinite(x) else float(x) for x in db],
+            "mean_db": float(np.mean(db[ok])) if ok.any() else None,
+            "median_db": float(np.median(db[ok])) if ok.any() else None,
+            "worst_db": None if worst is None else float(db[worst]),
+            "worst_speed_rps": None if worst is None else float(entry.speeds_rps[worst]),
+            "humps_rps": [float(entry.speeds_rps[k]) for k in humps],
+            "hump_db": float(hump_db), "speeds_scored": int(ok.sum())}
 
 
 def plot_entry_sweeps(sweeps: Sequence[EntrySweep], path: str) -> None:

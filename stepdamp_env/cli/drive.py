@@ -201,7 +201,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _sweep_entries(args: argparse.Namespace, system: Any, speeds: np.ndarray,
                    entries: list[str]) -> int:
     """``sweep --entries``: each entry as stepdamp-bench v3 runs it."""
-    from ..bench.entry_sweep import plot_entry_sweeps, sweep_entry
+    from ..bench.entry_sweep import decibel_summary, plot_entry_sweeps, sweep_entry
+    from ..bench.protocols.decibels import FAILURE_DB
     from ..bench.registry import default_policy_names
     from ..io import write_json
 
@@ -216,23 +217,43 @@ def _sweep_entries(args: argparse.Namespace, system: Any, speeds: np.ndarray,
         raise ParameterError(f"--entries: unknown {unknown}; choose from {list(named)} "
                              "(or give a policy file with --policy)")
     args.out = check_output_dir(args.out, "--out")
+    # The dB summary's reference: no damping, swept too where not asked for.
+    order = list(dict.fromkeys(entries))
+    with_none = order if "none" in order else ["none"] + order
     results = [sweep_entry(e, system, speeds, mode=args.mode, seed=args.noise_seed,
                            workers=args.workers, progress=not args.no_progress)
-               for e in dict.fromkeys(entries)]
+               for e in with_none]
+    none = results[with_none.index("none")]
+    summaries = [None if r is none else decibel_summary(r, none) for r in results]
     names = [f"sweep_{_file_stem(r.entry)}.json" for r in results]
     with staged_directory(args.out, SWEEP_FILES) as stage:
-        for name, result in zip(names, results):
-            write_json(os.path.join(stage, name), result.to_dict())
+        for name, result, summary in zip(names, results, summaries):
+            data = result.to_dict()
+            if summary is not None:
+                data["against_none"] = summary
+            write_json(os.path.join(stage, name), data)
         plot_entry_sweeps(results, os.path.join(stage, "sweep.png"))
     predicted = system.predicted_resonances_rps()
     print(f"motor {system.name}: {args.mode}, {len(speeds)} speeds "
           f"{speeds[0]:g}..{speeds[-1]:g} rev/s; predicted resonances "
           + ", ".join(f"h={h}: {v:.3f}" for h, v in predicted.items()) + " rev/s")
-    for r in results:
+    if "none" not in order:
+        print("  (none, no damping, swept too: the reference of the dB figures)")
+    for r, summary in zip(results, summaries):
         finite = r.ripple_rad_s[np.isfinite(r.ripple_rad_s)]
         print(f"  {r.entry}: lost steps in {int(r.failed.sum())} of {len(speeds)} runs; "
               f"RMS ripple mean {float(np.mean(finite)) if finite.size else math.nan:.4g} "
               "rad/s over the runs that held")
+        if summary is not None and summary["speeds_scored"]:
+            humps = summary["humps_rps"]
+            print(f"    against none: mean {summary['mean_db']:+.1f} dB, median "
+                  f"{summary['median_db']:+.1f} dB, worst {summary['worst_db']:+.1f} dB at "
+                  f"{summary['worst_speed_rps']:.4g} rev/s over {summary['speeds_scored']} "
+                  f"speeds (a lost run {FAILURE_DB:g} dB); "
+                  + (f"HUMPS (ripple above none's by > {summary['hump_db']:g} dB) at "
+                     + ", ".join(f"{v:.4g}" for v in humps) + " rev/s" if humps else
+                     "no humps (nowhere above none's ripple by more than "
+                     f"{summary['hump_db']:g} dB)"))
         for peak in r.peaks():
             h = min(predicted, key=lambda k: abs(predicted[k] / peak["speed_rps"] - 1))
             near = (f" (h={h} predicted {predicted[h]:.3f})"
@@ -262,7 +283,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
     paths = export_law(law, args.format, args.out, args.prefix)
     print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: "
           f"{len(law.harmonics)} harmonics, velocity gain {law.velocity_gain_a_s_per_rad:.4g} "
-          f"A*s/rad; wrote {', '.join(paths)}")
+          f"A*s/rad"
+          + (f", position gain {law.position_gain_a_per_rad:.4g} A/rad (high-passed: the "
+             "C function keeps one state, the caller's)" if law.stateful else "")
+          + f"; wrote {', '.join(paths)}")
     return 0
 
 

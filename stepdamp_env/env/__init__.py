@@ -25,16 +25,16 @@ batch of one, its vector env a batch of N, so the two agree step for step.
 from .layout import (ACTION_NAMES, HARMONIC_COS, HARMONIC_SIN, OBS, OBSERVATION_NAMES,
                      observation_names)
 from .options import DEFAULT_RANDOMIZATION, EnvOptions, default_action_scales
-from .registration import (DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, ENV_ID_V2, V2_DEFAULTS,
-                           register_envs)
+from .registration import (DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, ENV_ID_V2, ENV_ID_V3,
+                           V2_DEFAULTS, V3_DEFAULTS, register_envs)
 from .sampler import EpisodeSampler
 from .scalar import StepperDampEnv
 from .vector import StepperDampVectorEnv
 from .engine import DriveBatch, EnvTask, StepperDampBatch
 from .v1 import (StepperDampV1Env, StepperDampV1VectorEnv, StepperDampV2Env,
-                 StepperDampV2VectorEnv, TaskV1)
-from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, EnvOptionsV1, MotorUnits,
-                         observation_names_v1)
+                 StepperDampV2VectorEnv, StepperDampV3Env, StepperDampV3VectorEnv, TaskV1)
+from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, GAIN_PHASE_LIMIT_RAD, EnvOptionsV1,
+                         MotorUnits, observation_names_v1)
 from .wrappers import EpisodeGuard
 
 __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptions",
@@ -43,4 +43,6 @@ __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptio
            "ACTION_NAMES", "default_action_scales", "EpisodeGuard",
            "ENV_ID_V1", "EnvOptionsV1", "MotorUnits", "TaskV1", "DriveBatch", "EnvTask", "StepperDampBatch", "StepperDampV1Env",
            "StepperDampV1VectorEnv", "ENV_ID_V2", "V2_DEFAULTS", "StepperDampV2Env",
-           "StepperDampV2VectorEnv", "ACTION_NAMES_V1", "CONTEXT_NAMES", "observation_names_v1"]
+           "StepperDampV2VectorEnv", "ENV_ID_V3", "V3_DEFAULTS", "StepperDampV3Env",
+           "StepperDampV3VectorEnv", "GAIN_PHASE_LIMIT_RAD", "ACTION_NAMES_V1", "CONTEXT_NAMES",
+           "observation_names_v1"]

@@ -6,13 +6,14 @@ import importlib.metadata
 
 import gymnasium as gym
 
-__all__ = ["ENV_ID", "ENV_ID_V1", "ENV_ID_V2", "V2_DEFAULTS", "RESERVED_SEEDS_FROM",
+__all__ = ["ENV_ID", "ENV_ID_V1", "ENV_ID_V2", "ENV_ID_V3", "V2_DEFAULTS", "V3_DEFAULTS", "RESERVED_SEEDS_FROM",
            "DEFAULT_EPISODE_STEPS",
            "ENTRY_POINT_GROUP", "register_envs"]
 
 ENV_ID = "StepperDamp-v0"
 ENV_ID_V1 = "StepperDamp-v1"
 ENV_ID_V2 = "StepperDamp-v2"
+ENV_ID_V3 = "StepperDamp-v3"
 #: ``StepperDamp-v2``: v1's env with the defaults of the task the committed per-step
 #: agents learn (``stepdamp_agents.task.REFERENCE_TASK``): motors drawn around the
 #: presets, resonant speeds with probability 0.75, the damping law's gains set every
@@ -24,6 +25,10 @@ V2_DEFAULTS: dict = {
     "context": "visible", "resonance_prob": 0.75, "episode_s": 1.0,
     "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
 }
+#: ``StepperDamp-v3``: v2's task with the action "gain-phase" (the damping law's
+#: velocity-feedback gain and phase, two numbers): no action in its box loses
+#: steps, so library-default exploration cannot end episodes.
+V3_DEFAULTS: dict = {**V2_DEFAULTS, "action_mode": "gain-phase"}
 #: Seeds from here on draw the motors and noise the stepdamp-bench protocols score
 #: (``bench.protocol.TRAINING_SEED_LIMIT`` is this value): StepperDamp-v2 warns when
 #: reset with one (rl-baselines3-zoo picks such seeds when given no ``--seed``).
@@ -37,7 +42,7 @@ DEFAULT_EPISODE_STEPS = 300
 
 
 def register_envs() -> None:
-    """Register ``StepperDamp-v0``, ``StepperDamp-v1`` and ``StepperDamp-v2`` (scalar
+    """Register ``StepperDamp-v0`` to ``StepperDamp-v3`` (scalar
     entry point and native vector entry point), and the ids installed packages
     name in the entry-point group :data:`ENTRY_POINT_GROUP`.
 
@@ -47,9 +52,10 @@ def register_envs() -> None:
     if ENV_ID_V1 not in gym.registry:
         gym.register(id=ENV_ID_V1, entry_point="stepdamp_env.env.v1:StepperDampV1Env",
                      vector_entry_point="stepdamp_env.env.v1:StepperDampV1VectorEnv")
-    if ENV_ID_V2 not in gym.registry:
-        gym.register(id=ENV_ID_V2, entry_point="stepdamp_env.env.v1:StepperDampV2Env",
-                     vector_entry_point="stepdamp_env.env.v1:StepperDampV2VectorEnv")
+    for env_id, name in ((ENV_ID_V2, "StepperDampV2"), (ENV_ID_V3, "StepperDampV3")):
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=f"stepdamp_env.env.v1:{name}Env",
+                         vector_entry_point=f"stepdamp_env.env.v1:{name}VectorEnv")
     for point in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         if point.name not in gym.registry:
             gym.register(id=point.name, entry_point=point.value)

@@ -30,14 +30,15 @@ from .arguments import (check_num_threads, check_render_mode, check_simd, check_
 from .engine import DriveBatch, EnvTask, OneDriveEnv
 from .options import default_action_scales
 from .render import render_episode, trace_rows
-from .registration import ENV_ID_V1, ENV_ID_V2, RESERVED_SEEDS_FROM, V2_DEFAULTS
+from .registration import (ENV_ID_V1, ENV_ID_V2, ENV_ID_V3, RESERVED_SEEDS_FROM, V2_DEFAULTS,
+                           V3_DEFAULTS)
 from .sampler import EpisodeSampler
 from .vector_base import STEP_INFOS, DriveVectorEnv
-from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, OPTIONS_DOC_V1, REWARD_BOUND, EnvOptionsV1,
-                         MotorUnits)
+from .v1_options import (ACTION_NAMES_V1, CONTEXT_NAMES, GAIN_PHASE_LIMIT_RAD, OPTIONS_DOC_V1,
+                         REWARD_BOUND, EnvOptionsV1, MotorUnits)
 
 __all__ = ["TaskV1", "StepperDampV1Env", "StepperDampV1VectorEnv", "StepperDampV2Env",
-           "StepperDampV2VectorEnv"]
+           "StepperDampV2VectorEnv", "StepperDampV3Env", "StepperDampV3VectorEnv"]
 
 TWO_PI = 2.0 * math.pi
 _FF_COLUMNS = (K.CONFIG.FF_S1, K.CONFIG.FF_C1, K.CONFIG.FF_S2, K.CONFIG.FF_C2, K.CONFIG.FF_S4, K.CONFIG.FF_C4)
@@ -77,10 +78,14 @@ class TaskV1(EnvTask):
             default_harmonic, default_current = default_action_scales(self.nominal)
             harmonic = default_harmonic if o.harmonic_scale_nm is None else harmonic
             current = default_current if o.current_scale_a is None else current
+        self.gain_phase = o.action_mode == "gain-phase"
         if o.action_mode == "damping-gains":
             # (kv, kp) = (cos phi, -sin phi): velocity feedback with a lead of about phi at wn.
             scales = (kv, kv * u.wn_rad_s) + (kr,) * 6
             self.law_actions, self.input_offset = True, K.LAW.KV
+        elif self.gain_phase:
+            # The (kv, kp) pair of "damping-gains" as a gain and a phase (load_gain_phase).
+            scales, self.law_actions, self.input_offset = (kv, kv * u.wn_rad_s), True, K.LAW.KV
         elif o.action_mode == "harmonic":
             scales, self.law_actions, self.input_offset = (harmonic,) * 6, False, K.INPUT.DS1
         elif o.action_mode == "current":
@@ -178,6 +183,9 @@ class TaskV1(EnvTask):
                   d.extra["ctx"], self.privileged, C.OBS_BOUND, REWARD_BOUND, d.obs, d.out)
 
     def load(self, drives: DriveBatch, a: np.ndarray) -> int:
+        if self.gain_phase:
+            return V.load_gain_phase(a, drives.law, self.input_offset, drives.par, drives.acc,
+                                     V.LAW_INDEX, GAIN_PHASE_LIMIT_RAD)
         dest = drives.law if self.law_actions else drives.u
         return V.load_actions(a, dest, self.input_offset, drives.par, drives.acc, drives.law,
                               V.LAW_INDEX)
@@ -235,6 +243,10 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
       Kr * e_w * (sin hx + j cos hx), Kr = ``resonant_rate_scale``*J*wn^2/Km,
       and is kept when its gains go back to zero. Names:
       ``kv, kp, r1_re, r1_im, r2_re, r2_im, r4_re, r4_im``.
+    * ``"gain-phase"`` (k = 2; StepperDamp-v3's): the velocity-feedback pair of
+      "damping-gains" as a gain and a phase: kv = g*cos(phi), kp = -g*sin(phi),
+      g = max(``gain``, 0), phi = ``phase`` * pi/4 (a positive phase leads);
+      resonant gains 0. Names: ``gain, phase``.
     * ``"harmonic"`` (k = 6), ``"current"`` (k = 1), ``"harmonic+current"`` (k = 7):
       as in v0 (corrections of the feedforward's coefficients, times
       ``harmonic_scale_nm``; a q current, times ``current_scale_a``).
@@ -294,6 +306,9 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """ + OPTIONS_DOC_V1 + """
     ## Version History
 
+    * v3 (package 0.18): v2 with ``action_mode`` "gain-phase" (the damping law's
+      gain and phase, two numbers; no action in the box loses steps):
+      ``gym.make("StepperDamp-v3")``.
     * v2 (package 0.18): this class with the defaults of the committed per-step
       agents' task (``registration.V2_DEFAULTS``: motors drawn around the
       presets, ``agent_hz`` 100, ``history`` 4, ``context`` "visible",
@@ -401,17 +416,17 @@ class StepperDampV1VectorEnv(DriveVectorEnv):
                 "time_s": self._drives.t * self.task.seconds_per_step}
 
 
-def _v2_options(options: dict[str, Any]) -> dict[str, Any]:
-    """v2's defaults (:data:`.registration.V2_DEFAULTS`) with the given options on top."""
-    return {**copy.deepcopy(V2_DEFAULTS), **options}
+def _with_defaults(defaults: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]:
+    """A version's defaults with the given options on top."""
+    return {**copy.deepcopy(defaults), **options}
 
 
-def _warn_reserved(seed: Any) -> None:
-    """One warning where a v2 env is reset with seeds the benchmark scores with."""
+def _warn_reserved(seed: Any, env_id: str) -> None:
+    """One warning where a v2 or later env is reset with seeds the benchmark scores with."""
     seeds = seed if isinstance(seed, (list, tuple)) else [seed]
     high = [s for s in seeds if isinstance(s, (int, np.integer)) and s >= RESERVED_SEEDS_FROM]
     if high:
-        warnings.warn(f"StepperDamp-v2 reset with seed {int(high[0])}: seeds from "
+        warnings.warn(f"{env_id} reset with seed {int(high[0])}: seeds from "
                       f"{RESERVED_SEEDS_FROM:,} draw the motors stepdamp-bench scores; train "
                       "on seeds below it (rl-baselines3-zoo: pass --seed)", stacklevel=3)
 
@@ -427,13 +442,15 @@ class StepperDampV2Env(StepperDampV1Env):
     (``overrides`` as a whole). Spaces, reward and termination are v1's."""
 
     env_id = ENV_ID_V2
+    #: The version's defaults; a given option replaces one.
+    defaults: dict = V2_DEFAULTS
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        super().__init__(render_mode=render_mode, **_v2_options(options))
+        super().__init__(render_mode=render_mode, **_with_defaults(self.defaults, options))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
-        _warn_reserved(seed)
+        _warn_reserved(seed, self.env_id)
         return super().reset(seed=seed, options=options)
 
 
@@ -447,15 +464,38 @@ class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
     object array (``tests/test_vector_infos.py``)."""
 
     env_id = ENV_ID_V2
+    defaults: dict = V2_DEFAULTS
     sync_infos = True
 
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
         vector = {k: kwargs.pop(k) for k in ("autoreset_mode", "render_mode", "num_threads",
                                              "simd") if k in kwargs}
-        super().__init__(num_envs, **vector, **_v2_options(kwargs))
+        super().__init__(num_envs, **vector, **_with_defaults(self.defaults, kwargs))
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        _warn_reserved(seed)
+        _warn_reserved(seed, self.env_id)
         return super().reset(seed=seed, options=options)
+
+
+class StepperDampV3Env(StepperDampV2Env):
+    __doc__ = """``StepperDamp-v3``: :class:`StepperDampV2Env` whose action cannot lose
+    steps (:data:`.registration.V3_DEFAULTS`): ``action_mode`` "gain-phase", the
+    velocity-feedback law's gain and phase, ``Box(-1, 1, (2,))``:
+    kv = g*cos(phi), kp = -g*sin(phi) (the "damping-gains" pair) with
+    g = max(gain, 0) and phi = phase * pi/4. The zero action is the base
+    controller; gain 1 adds a damping ratio of 0.5 to the nominal rotor; a
+    positive phase leads. Everything else is v2's. Why: with v2's eight gains,
+    library-default exploration noise loses steps (``docs/envs.md``)."""
+
+    env_id = ENV_ID_V3
+    defaults: dict = V3_DEFAULTS
+
+
+class StepperDampV3VectorEnv(StepperDampV2VectorEnv):
+    __doc__ = """Native vectorised ``StepperDamp-v3`` (:class:`StepperDampV3Env`), with
+    ``SyncVectorEnv``'s infos as :class:`StepperDampV2VectorEnv`."""
+
+    env_id = ENV_ID_V3
+    defaults: dict = V3_DEFAULTS
 

@@ -15,10 +15,11 @@ from numba import njit
 
 from .. import kernel as K
 from ..fields import layout
+from .. import fixedmath as fm
 from . import compiled as C
 
 __all__ = ["OBS", "HISTORY", "PARAM", "OUT", "LAW_FIELDS", "LAW_INDEX", "load_actions",
-           "observe"]
+           "load_gain_phase", "observe"]
 
 _jit = njit(cache=True, error_model="numpy")
 
@@ -82,6 +83,29 @@ def load_actions(a, dest, offset, par, acc, law, lx):
         for i in range(a.shape[0]):
             law[i, lx[LAW_FIELDS.SUM_I2]] = 0.0
     return bad
+
+
+@_jit
+def load_gain_phase(a, law, offset, par, acc, lx, phase_limit_rad):
+    """The "gain-phase" action rows ``a`` (gain, phase) into the law's (kv, kp) at
+    ``law[:, offset:]``: kv = g*cos(phi), kp = -g*sin(phi) with g = max(gain, 0)
+    and phi = phase * ``phase_limit_rad``, each times its scale; the step's
+    accumulators zeroed. Returns the first row that is not finite or has an entry
+    outside [-1, 1] (nothing changed then), or -1."""
+    n, k = a.shape
+    for i in range(n):
+        for j in range(k):
+            if not (-1.0 <= a[i, j] <= 1.0):       # also catches NaN
+                return i
+    for i in range(n):
+        g = max(float(a[i, 0]), 0.0)
+        s, c = fm.sincos(float(a[i, 1]) * phase_limit_rad)
+        law[i, offset] = g * c * par[i, PARAM.ACT_SCALE]
+        law[i, offset + 1] = -g * s * par[i, PARAM.ACT_SCALE + 1]
+        for j in range(acc.shape[1]):
+            acc[i, j] = 0.0
+        law[i, lx[LAW_FIELDS.SUM_I2]] = 0.0
+    return -1
 
 
 @_jit

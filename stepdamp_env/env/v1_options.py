@@ -16,7 +16,7 @@ from .options import DriveOptions, EnvOptions, check_choice, check_number
 from .registration import ENV_ID_V1
 
 __all__ = ["EnvOptionsV1", "MotorUnits", "BASE_CONTROLLERS_V1", "ACTION_NAMES_V1",
-           "ACTION_MODES_V1", "CONTEXTS", "CONTEXT_NAMES", "OBSERVATION_NAMES_V1",
+           "ACTION_MODES_V1", "GAIN_PHASE_LIMIT_RAD", "CONTEXTS", "CONTEXT_NAMES", "OBSERVATION_NAMES_V1",
            "OBSERVATION_UNITS_V1", "REWARD_BOUND", "DEFAULT_EPISODE_S", "observation_names_v1"]
 
 BASE_CONTROLLERS_V1 = ("ff-delay-comp", "patent-ff", "none")
@@ -24,8 +24,13 @@ BASE_CONTROLLERS_V1 = ("ff-delay-comp", "patent-ff", "none")
 ACTION_NAMES_V1: dict[str, tuple[str, ...]] = {
     **ACTION_NAMES,
     "damping-gains": ("kv", "kp", "r1_re", "r1_im", "r2_re", "r2_im", "r4_re", "r4_im"),
+    "gain-phase": ("gain", "phase"),
 }
-ACTION_MODES_V1 = ("damping-gains", "harmonic", "current", "harmonic+current")
+ACTION_MODES_V1 = ("damping-gains", "harmonic", "current", "harmonic+current", "gain-phase")
+#: "gain-phase": the phase of the damping law at phase = +-1 (rad). Within
+#: +-pi/4 the law's velocity part (kv = g*cos(phi) >= 0.7*g) never adds energy,
+#: so no action in the box loses steps (tests/test_env_v3.py); at +-pi/2 some do.
+GAIN_PHASE_LIMIT_RAD = math.pi / 4
 CONTEXTS = ("hidden", "visible")
 CONTEXT_NAMES = ("speed_over_resonance_h4", "speed_over_resonance_h2", "speed_over_resonance_h1",
                  "model_s1", "model_c1", "model_s2", "model_c2", "model_s4", "model_c4")

@@ -1,0 +1,209 @@
+"""The firmware law as C99 (:func:`c_source`; see :mod:`stepdamp_env.bench.firmware`)."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+
+from ..params import ParameterError
+from ..version import __version__
+from .firmware_law import FirmwareLaw, microstep_table
+
+__all__ = ["c_source", "default_prefix", "check_prefix"]
+
+# A C identifier that is safe as a file name too (no leading underscore: reserved in C).
+_PREFIX = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
+_C_KEYWORDS = frozenset(
+    "auto break case char const continue default do double else enum extern float for goto "
+    "if inline int long register restrict return short signed sizeof static struct switch "
+    "typedef union unsigned void volatile while".split())
+
+
+def default_prefix(entry: str) -> str:
+    """A C prefix from an entry name: "tuned-constant-gain" -> "tuned_constant_gain"."""
+    text = re.sub(r"[^A-Za-z0-9]+", "_", os.path.basename(entry)).strip("_")[:40].rstrip("_")
+    if not text or not text[0].isalpha():
+        text = ("law_" + text)[:40].rstrip("_")
+    return text
+
+
+def check_prefix(prefix: str) -> str:
+    if not isinstance(prefix, str) or not _PREFIX.fullmatch(prefix) or prefix in _C_KEYWORDS:
+        raise ParameterError(f"prefix={prefix!r} must be a C identifier of 1-40 letters, digits "
+                             "and underscores starting with a letter (it names the files and "
+                             "the function)")
+    return prefix
+
+
+def _c(value: float) -> str:
+    """A double literal that parses back to ``value`` exactly (repr is round-trip)."""
+    text = repr(float(value))
+    if not math.isfinite(value):
+        raise ParameterError(f"cannot write the non-finite value {text} as a C literal")
+    return text
+
+
+def _comment(text: str) -> str:
+    """``text`` made safe inside a C block comment, wrapped at 86 columns."""
+    words = text.replace("*/", "* /").split()
+    lines, line = [], ""
+    for w in words:
+        if line and len(line) + 1 + len(w) > 86:
+            lines.append(line)
+            line = w
+        else:
+            line = f"{line} {w}" if line else w
+    return "\n".join(f" * {x}" for x in lines + ([line] if line else []))
+
+
+def c_source(law: FirmwareLaw, prefix: str | None = None) -> tuple[str, str]:
+    """(header text, source text) of a self-contained C99 implementation of the law.
+
+    The header declares one function, ``double <prefix>_iq_correction_a(double
+    electrical_angle_rad, double velocity_error_rad_s, double command_speed_rad_s)``,
+    which returns :func:`correction` (A) computed in double with ``sin`` from
+    ``<math.h>`` (no state, no allocation, no globals to initialise), and the
+    constant microstep table ``<prefix>_microstep_table_a`` (A, :func:`microstep_table`).
+    The source includes ``"<prefix>.h"``. Compiles clean with ``-std=c99 -Wall
+    -Wextra -Werror -pedantic``; link with ``-lm``.
+    """
+    prefix = check_prefix(default_prefix(law.entry) if prefix is None else prefix)
+    macro = prefix.upper()
+    fn = f"{prefix}_iq_correction_a"
+    kp = law.stateful
+    position_args = (",\n        double position_error_rad, double *position_lowpass_rad"
+                     if kp else "")
+    position_doc = (
+        " * position_error_rad    e_theta = theta_cmd - theta_encoder (shaft rad).\n"
+        " * position_lowpass_rad  the high-pass's state, one double per drive, 0.0 at the\n"
+        " *                       start, updated in place: *s += alpha*(e_theta - *s),\n"
+        " *                       hp = e_theta - *s. Call once per PWM period, in order.\n"
+        if kp else "")
+    purity = ("Its one state is the caller's (position_lowpass_rad)" if kp
+              else "Pure: no state")
+    table = f"{prefix}_microstep_table_a"
+    n = len(law.harmonics)
+    limited = math.isfinite(law.feedback_limit_a)
+    limit_text = f"{law.feedback_limit_a!r} A" if limited else "none (no limit)"
+    hs = ", ".join(map(str, law.harmonics))
+    harmonic_rows = "\n".join(
+        f" *   h = {h}: A = {a!r} A ({a * law.km_nm_per_a!r} N*m), phi = {p!r} rad"
+        for h, a, p in zip(law.harmonics, law.amplitude_a, law.phase_rad))
+    header = f"""/*
+ * {prefix}.h: the damping law "{law.entry}" for motor "{law.motor}",
+ * exported by stepdamp {__version__} (stepdamp export). Generated: re-export, do not edit.
+ *
+ * Operating point: {law.mode}, held command speed {law.speed_rps!r} rev/s, evaluated every
+ * PWM period at {law.pwm_hz!r} Hz from the samples of the period before.
+{_comment(law.notes)}
+ *
+ * Harmonic table (q-current amplitude A_h and electrical phase phi_h; torque = A_h*Km,
+ * Km = {law.km_nm_per_a!r} N*m/A):
+{harmonic_rows}
+ *
+{_comment(f"Friction feedforward F = {law.friction_a!r} A; velocity gain Kv = "
+          f"{law.velocity_gain_a_s_per_rad!r} A*s/rad; "
+          + (f"position gain Kp = {law.position_gain_a_per_rad!r} A/rad on the position error "
+             f"high-passed with alpha = {law.position_highpass_alpha!r} per period; " if kp
+             else "")
+          + f"feedback limit I_max = {limit_text}. "
+          "Speed estimate in the velocity error: "
+          f"{law.velocity_estimator or 'not used (Kv = 0)'}.")}
+ */
+#ifndef {macro}_H
+#define {macro}_H
+
+/* Rotor teeth: electrical angle = NR * shaft angle. */
+#define {macro}_NR {law.nr}
+/* Microsteps per full step. */
+#define {macro}_MICROSTEPS {law.microsteps}
+/* Microsteps per electrical period (4 full steps): the microstep table's length. */
+#define {macro}_TABLE_SIZE {law.table_size}
+
+/*
+ * {fn}: the q-axis current correction (A) of the law.
+ *
+ *   iq = sum_h A_h * sin(h*x + phi_h)                   (harmonic table above, h = {hs})
+ *      + F * sign(command_speed_rad_s)                  (servo's friction feedforward)
+ *      + clamp(Kv * velocity_error_rad_s{" + Kp * hp" if kp else ""}, -I_max, I_max) (feedback)
+ *
+ * electrical_angle_rad  x (rad): the electrical angle of the drive's Park transform,
+ *                       NR * shaft angle; open loop: NR * the microstep-quantised command
+ *                       angle; servo: NR * (encoder angle + half a count). Any value;
+ *                       wrapped to one period it loses the least to rounding.
+ * velocity_error_rad_s  e_w = w_cmd - w_est (shaft rad/s): the command speed minus the
+ *                       drive's speed estimate; positive while the rotor lags.
+ * command_speed_rad_s   w_cmd (shaft rad/s); only its sign is used.
+{position_doc} * Returns               the correction (A) to add to the q-current command; positive q
+ *                       current gives positive torque (positive direction of rotation).
+ *
+ * {purity}; no allocation, no globals to set up;
+ * double precision, sin() from <math.h> only (link with -lm).
+ */
+double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
+        double command_speed_rad_s{position_args});
+
+/*
+{_comment(f"{table}[k]: the harmonic part of the correction (A) at x = "
+          f"2*pi*k/{macro}_TABLE_SIZE, i.e. {fn} at x with zero errors and command speed, "
+          "for table-driven drivers: k = "
+          f"the microstep count modulo {macro}_TABLE_SIZE (the non-negative remainder), counted "
+          "from the shaft angle where "
+          f"x = 0. Add the feedback and the friction term as {fn} does.")}
+ */
+extern const double {table}[{macro}_TABLE_SIZE];
+
+#endif /* {macro}_H */
+"""
+    values = microstep_table(law)
+    rows = ",\n".join("    " + ", ".join(_c(v) for v in values[i:i + 4])
+                      for i in range(0, len(values), 4))
+    if limited:
+        clamp = f"""    if (feedback_a > {_c(law.feedback_limit_a)}) {{
+        feedback_a = {_c(law.feedback_limit_a)};
+    }} else if (feedback_a < {_c(-law.feedback_limit_a)}) {{
+        feedback_a = {_c(-law.feedback_limit_a)};
+    }}
+"""
+    else:
+        clamp = "    /* no limit on the feedback current */\n"
+    alpha, gain = _c(law.position_highpass_alpha), _c(law.position_gain_a_per_rad)
+    position = (
+        "    /* The high-passed position error (the kernel's first-order high-pass). */\n"
+        f"    *position_lowpass_rad += {alpha} * (position_error_rad - *position_lowpass_rad);\n"
+        f"    feedback_a += {gain} * (position_error_rad - *position_lowpass_rad);\n"
+        if kp else "")
+    source = f"""/* {prefix}.c: see {prefix}.h (generated by stepdamp {__version__}). */
+#include "{prefix}.h"
+
+#include <math.h>
+
+const double {table}[{macro}_TABLE_SIZE] = {{
+{rows}
+}};
+
+double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
+        double command_speed_rad_s{position_args})
+{{
+    static const double harmonic[{n}] = {{{", ".join(_c(h) for h in law.harmonics)}}};
+    static const double amplitude_a[{n}] = {{{", ".join(_c(a) for a in law.amplitude_a)}}};
+    static const double phase_rad[{n}] = {{{", ".join(_c(p) for p in law.phase_rad)}}};
+    double iq_a = 0.0;
+    double feedback_a;
+    int k;
+
+    for (k = 0; k < {n}; ++k) {{
+        iq_a += amplitude_a[k] * sin(harmonic[k] * electrical_angle_rad + phase_rad[k]);
+    }}
+    /* The servo's friction feedforward, with the command's sign (0 at rest). */
+    if (command_speed_rad_s > 0.0) {{
+        iq_a += {_c(law.friction_a)};
+    }} else if (command_speed_rad_s < 0.0) {{
+        iq_a -= {_c(law.friction_a)};
+    }}
+    feedback_a = {_c(law.velocity_gain_a_s_per_rad)} * velocity_error_rad_s;
+{position}{clamp}    return iq_a + feedback_a;
+}}
+"""
+    return header, source
