@@ -392,10 +392,17 @@ class StepperDampBatch:
         """What envs stepped together must share (equal tuples: one batch)."""
         return env.task.layout()
 
+    #: Step in SIMD lanes (:mod:`stepdamp_env.lanes`, the same bits) while the batch
+    #: holds LANES rows or more: None (default) where numba compiles for AVX2 or
+    #: wider (:func:`lanes.simd_by_default`), or True / False.
+    simd: bool | None = None
+
     def __init__(self, envs: Sequence[Any]) -> None:
         check_batch_envs(envs, self.layout_of, "StepperDampBatch")
         self._d = DriveBatch.stack([env.drive_batch for env in envs])
         self._run = np.stack([env.window_sums for env in envs])
+        self._lanes = (lanes.simd_by_default(lanes.LANES) if self.simd is None
+                       else bool(self.simd))
 
     @property
     def obs(self) -> np.ndarray:
@@ -420,6 +427,7 @@ class StepperDampBatch:
         step_loss, overcurrent) of this step."""
         d = self._d
         d.load(actions, (d.n, d.task.act_dim))
+        d.simd = self._lanes and d.n >= lanes.LANES
         terminated, _ = d.advance()
         merge_accumulator_rows(self._run, d.acc)
         out = d.task.out_layout
