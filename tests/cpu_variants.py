@@ -41,7 +41,9 @@ from typing import Any, Sequence
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 STORED = os.path.join(HERE, "data", "quick_boards.json")
-PROTOCOLS = ("v0", "v1", "v2", "v3", "v4")
+PROTOCOLS = ("v0", "v1", "v2", "v3", "v4", "env-v2", "env-v3")
+#: Rollouts pinned beside the boards: the env versions no board runs.
+ENV_ROLLOUTS = {"env-v2": "StepperDamp-v2", "env-v3": "StepperDamp-v3"}
 
 _ABOVE_V2 = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 _ABOVE_V3 = "X86_V4 AVX512_ICL AVX512_SPR"
@@ -84,12 +86,43 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
             "v4": (quick_protocol_v4, full_protocol_v4)}
     out = {}
     for name in protocols:
+        if name in ENV_ROLLOUTS:
+            out[name] = {"fingerprint": env_rollout_fingerprint(ENV_ROLLOUTS[name]),
+                         "entries": {}}
+            continue
         board = run_leaderboard(make[name][full](), workers=workers, progress=False)
         out[name] = {"fingerprint": board["fingerprint"], "entries": entry_fingerprints(board)}
     check_threads_give_the_same_bits()
     if lanes:
         check_lanes_give_the_same_bits()
     return out
+
+
+def env_rollout_fingerprint(env_id: str) -> str:
+    """sha256 of a native vector env's rollout (8 drives, seeded uniform random
+    actions, 110 steps: past the 1 s episodes' end and autoreset): observations,
+    rewards, episode ends and the per-step ripple info."""
+    import hashlib
+    import warnings
+
+    import gymnasium as gym
+    import numpy as np
+
+    import stepdamp_env  # noqa: F401  (registers the envs)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                 # v2's note: a newer version exists
+        env = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point")
+    obs, _ = env.reset(seed=list(range(123, 131)))
+    rng = np.random.default_rng(3)
+    digest = hashlib.sha256(obs.tobytes())
+    for _ in range(110):
+        action = rng.uniform(-1.0, 1.0, env.action_space.shape).astype(np.float32)
+        obs, reward, term, trunc, info = env.step(action)
+        for part in (obs, reward, term, trunc, info["velocity_error_rms_rad_s"]):
+            digest.update(np.ascontiguousarray(part).tobytes())
+    env.close()
+    return digest.hexdigest()
 
 
 def _v1_rollout(seed: int, steps: int, **kwargs: Any) -> bytes:
@@ -130,7 +163,7 @@ def check_lanes_give_the_same_bits() -> None:
         return _v1_rollout(9, 10, num_envs=37, num_threads=threads, simd=simd, action_mode=mode,
                            randomize=True)
 
-    for mode in ("harmonic", "damping-gains"):           # the plain loop, the law's
+    for mode in ("harmonic", "damping-gains", "gain-phase"):   # the plain loop, the law's
         plain = rollout(False, 1, mode)
         for threads in {1, min(2, int(numba.config.NUMBA_NUM_THREADS))}:
             assert rollout(True, threads, mode) == plain, f"SIMD lanes differ ({mode})"

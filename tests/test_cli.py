@@ -136,13 +136,14 @@ def test_the_glossary_check_finds_a_missing_flag_and_a_shared_meaning(tmp_path):
     doc = os.path.join(os.path.dirname(os.path.dirname(__file__)), "docs", "cli.md")
     text = open(doc, encoding="utf-8").read()
     edited = tmp_path / "cli.md"
-    edited.write_text(text.replace("| `--workers` | worker processes | sweep, leaderboard |\n", "")
+    edited.write_text(text.replace("| `--workers` | worker processes | sweep, leaderboard, "
+                                   "recommend |\n", "")
                       .replace("| `--full` | the whole LEADERBOARD.md table |",
                                "| `--full` | no progress bars |")
                       .replace("| sweep | `--damping` | `--entries` |",
                                "| sweep | `--damping` | `--policy` |"))
     problems = audit.glossary_problems(str(edited))
-    assert "--workers: not in the glossary (leaderboard, sweep)" in problems
+    assert "--workers: not in the glossary (leaderboard, recommend, sweep)" in problems
     assert "meaning 'no progress bars': given to two flags" in problems
     assert any(p.startswith("sweep --damping: exit 2") for p in problems)
 

@@ -1,8 +1,9 @@
 """The same numbers on every x86-64 CPU, from x86-64-v2 to AVX-512, and any thread count.
 
-The quick boards of v0 to v4 (every default entry) give the fingerprints
-stored in ``tests/data/quick_boards.json`` here; the v0 and v3 quick boards
-give them in fresh processes under emulated CPUs too (``tests/cpu_variants.py``
+The quick boards of v0 to v4 (every default entry) and rollouts of the
+StepperDamp-v2 and v3 vector envs give the fingerprints stored in
+``tests/data/quick_boards.json`` here; the v0 and v3 quick boards and the
+rollouts give them in fresh processes under emulated CPUs too (``tests/cpu_variants.py``
 says what each variant changes): the oldest CPU (every library on its
 x86-64-v2 path, numba generic, the C library without FMA, one worker) and this
 machine with OpenBLAS's AVX-512 kernels (one worker; skipped where OpenBLAS
@@ -36,7 +37,7 @@ EMULATED = ("x86-64-v2", "skylakex")
 #: moves suite runs kernel code of its own (the S-curve): it once differed under
 #: x86-64-v2 through libm's sin and cos, which test_architecture now refuses;
 #: its emulated board (about 10 minutes) is in benchmarks/bench_determinism.py.
-EMULATED_PROTOCOLS = ("v0", "v3")
+EMULATED_PROTOCOLS = ("v0", "v3", "env-v2", "env-v3")
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""StepperDamp-v2's native vector env gives Gymnasium's ``SyncVectorEnv`` infos: the
+"""StepperDamp-v2's and v3's native vector envs give Gymnasium's ``SyncVectorEnv`` infos: the
 same keys, masks, shapes, dtypes and values, step after step, in both autoreset
 modes, with the reset info of drives that start over and ``final_info`` as a dict
 of arrays. (v0's and v1's keep their own, which their frozen fingerprints hash.)"""
@@ -15,7 +15,8 @@ import stepdamp_env  # noqa: F401
 # Short episodes, so that drives end (one at a time: their ramps differ) and start over.
 CASES = [("StepperDamp-v2", {"episode_s": 0.03}),
          ("StepperDamp-v2", {"episode_s": 0.004, "agent_hz": 1000.0, "action_mode": "harmonic",
-                             "history": 0, "context": "hidden", "randomize": False})]
+                             "history": 0, "context": "hidden", "randomize": False}),
+         ("StepperDamp-v3", {"episode_s": 0.03})]
 
 
 def _equal(a, b, where):
@@ -37,7 +38,7 @@ def _equal(a, b, where):
 
 
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
-@pytest.mark.parametrize("env_id,kwargs", CASES, ids=["defaults", "harmonic-1kHz"])
+@pytest.mark.parametrize("env_id,kwargs", CASES, ids=["defaults", "harmonic-1kHz", "v3"])
 def test_native_infos_are_sync_infos(env_id, kwargs, mode):
     n = 3
     sync = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync",

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 from .. import numba_cache
 from ..params import ParameterError
 from ..parallel import WorkerLostError
-from . import bench, drive
+from . import bench, drive, firmware
 from .options import DESCRIPTION, HelpFormatter
 
 __all__ = ["main", "run", "build_parser"]
@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         return sub.add_parser(name, help=text, description=text, formatter_class=HelpFormatter)
 
     drive.add_commands(sub, command)
+    firmware.add_commands(sub, command)
     bench.add_commands(sub, command)
     return parser
 

@@ -1,5 +1,5 @@
-"""The drive's commands: motors (presets), analyse, simulate, sweep, identify,
-export."""
+"""The drive's commands: motors (presets), analyse, simulate, sweep, identify
+(export and recommend: :mod:`.firmware`)."""
 
 from __future__ import annotations
 
@@ -113,32 +113,6 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                    help="with --log: the start of each log left out of the fit (s)")
     p.add_argument("--out", required=True, metavar="DIR", help="result directory")
     p.set_defaults(func=_cmd_identify)
-
-    p = command("export", "write an entry's damping law for a drive's firmware: harmonic "
-                "table, per-microstep table and gains as JSON, or C99 source and header")
-    p.add_argument("entry", metavar="ENTRY",
-                   help="a leaderboard entry with a fixed law (patent-ff-identified, "
-                        "ff-delay-comp, calibrated-table, tuned-constant-gain)")
-    p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
-                   help="what the drive knows: a preset or a motor file (to use the model "
-                        "identified on your motor, export with `stepdamp identify`'s "
-                        "identified_motor.json)")
-    p.add_argument("--set", dest="overrides", action="append", default=[],
-                   metavar="FIELD=VALUE", help="override one parameter (SI units); repeatable")
-    p.add_argument("--format", choices=("c", "json"), default="c",
-                   help="c: PREFIX.h and PREFIX.c (C99, libm's sin only); json: PREFIX.json")
-    p.add_argument("--mode", choices=("open-loop", "servo"), default="open-loop",
-                   help="the drive's mode the law is computed for")
-    p.add_argument("--speed", type=number(float, 1e-3, 1e3), default=None, metavar="RPS",
-                   help="held command speed the delay-compensated table is computed for "
-                        "(rev/s; default: the motor's h=4 resonance)")
-    p.add_argument("--speeds", default=None, metavar="START:STOP:STEP",
-                   help="one law for a speed range: the table at each speed of this grid "
-                        "(rev/s), interpolated over the command speed (instead of --speed)")
-    p.add_argument("--prefix", default=None,
-                   help="file and C symbol prefix (default: the entry's name, - as _)")
-    p.add_argument("--out", default=".", metavar="DIR", help="output directory")
-    p.set_defaults(func=_cmd_export)
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
@@ -273,61 +247,6 @@ def _sweep_entries(args: argparse.Namespace, system: Any, speeds: np.ndarray,
 def _file_stem(spec: str) -> str:
     """A file-name part for an entry name or a policy path."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in spec).strip("_")[-60:]
-
-
-def _export_schedule(args: argparse.Namespace) -> int:
-    """``export --speeds``: one law over a speed range."""
-    from ..bench.firmware import entry_law, firmware_knowledge
-    from ..bench.firmware_schedule import (build_schedule, export_schedule,
-                                           interpolation_error, multiply_adds_per_period)
-    from ..sweep import parse_speed_range
-
-    if args.speed is not None:
-        raise ParameterError("--speed and --speeds: give one (a held speed, or a grid of them)")
-    speeds = parse_speed_range(args.speeds)
-    if len(speeds) < 2:
-        raise ParameterError(f"--speeds {args.speeds!r} gives {len(speeds)} speed; a schedule "
-                             "needs at least 2")
-    system = load_system(args.motor, parse_set_overrides(args.overrides))
-    register_policies()
-    knowledge = firmware_knowledge(system)
-
-    def law_at(speed: float) -> Any:
-        return entry_law(args.entry, knowledge, mode=args.mode, speed_rps=speed)
-
-    schedule = build_schedule(law_at, float(speeds[0]), float(speeds[-1]), len(speeds))
-    error_a, share = interpolation_error(schedule, law_at)
-    check_writable(args.out, "--out", directory=True)
-    paths = export_schedule(schedule, args.format, args.out, args.prefix)
-    cost = multiply_adds_per_period(schedule)
-    print(f"{args.entry} on {system.name}, {args.mode}, {len(speeds)} speeds "
-          f"{speeds[0]:.4g}..{speeds[-1]:.4g} rev/s (step {schedule.step_rps:.4g}): table "
-          f"of {cost['table_doubles']} doubles, per PWM period {cost['multiplications']} "
-          f"multiplications, {cost['additions']} additions, {cost['sin_cos']} sin/cos; "
-          f"between the grid's speeds the interpolated table is off by at most "
-          f"{error_a:.3g} A ({100 * share:.2g} % of the table; halve the step to shrink it); "
-          f"wrote {', '.join(paths)}")
-    return 0
-
-
-def _cmd_export(args: argparse.Namespace) -> int:
-    from ..bench.firmware import entry_law, export_law, firmware_knowledge
-
-    if args.speeds is not None:
-        return _export_schedule(args)
-    system = load_system(args.motor, parse_set_overrides(args.overrides))
-    register_policies()
-    law = entry_law(args.entry, firmware_knowledge(system), mode=args.mode,
-                    speed_rps=args.speed)
-    check_writable(args.out, "--out", directory=True)
-    paths = export_law(law, args.format, args.out, args.prefix)
-    print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: "
-          f"{len(law.harmonics)} harmonics, velocity gain {law.velocity_gain_a_s_per_rad:.4g} "
-          f"A*s/rad"
-          + (f", position gain {law.position_gain_a_per_rad:.4g} A/rad (high-passed: the "
-             "C function keeps one state, the caller's)" if law.stateful else "")
-          + f"; wrote {', '.join(paths)}")
-    return 0
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:

@@ -344,6 +344,25 @@ class DecibelProtocol(MidBandProtocol):
         row["_cells"] = (cell_db, cell_motor)
         return row
 
+    def headline_run_db(self, runs: Sequence[Mapping[str, Any]],
+                        none_runs: Sequence[Mapping[str, Any]]
+                        ) -> dict[tuple[str, int, float], float]:
+        """Each headline run's attenuation (dB) against ``none``'s run of the same
+        (motor, seed, speed), as a row scores it (lost runs and lost ``none`` runs
+        by the same rules), keyed (motor, seed, speed_rps); runs without a finite
+        score are left out."""
+        none = {(r["motor"], r["seed"], r["speed_rps"]): r for r in none_runs}
+        stand_in = self._stand_ins(none)
+        out: dict[tuple[str, int, float], float] = {}
+        for r in runs:
+            if r["speed_label"].startswith("off"):
+                continue
+            key = (r["motor"], r["seed"], r["speed_rps"])
+            db = self._run_db(r, none.get(key), stand_in.get((r["motor"], r["seed"]), math.nan))
+            if math.isfinite(db):
+                out[key] = db
+        return out
+
     def _run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
                 stand_in: float) -> float:
         none_lost = none is not None and bool(none["failed"])

@@ -1,0 +1,38 @@
+"""``stepdamp recommend`` (issue #52): the exportable entries ranked on a quick board
+of one motor, the pick and what to expect from it."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from stepdamp_env.bench.recommend import exportable_entries, recommend
+from stepdamp_env.cli import main
+from stepdamp_env.motorfile import load_system
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MOTOR = os.path.join(ROOT, "docs", "motors", "17hs4401.json")
+
+
+def test_the_exportable_entries_are_what_export_can_write():
+    names = exportable_entries(load_system(MOTOR))
+    assert {"ff-delay-comp", "tuned-constant-gain", "tuned-gain-pair"} <= set(names)
+    # Not exportable: adaptive, stateful filters, oracles, learned agents, no damping.
+    assert not {"none", "adaptive-ff", "velocity-feedback", "plant-bound",
+                "oracle-floor"} & set(names)
+
+
+@pytest.mark.slow
+def test_recommend_scores_them_on_the_motor_and_picks_the_best(capsys):
+    rec = recommend(load_system(MOTOR), workers=2)
+    names = [s["name"] for s in rec.scores]
+    assert set(names) <= set(exportable_entries(load_system(MOTOR))) and "none" not in names
+    assert rec.pick is rec.scores[0] and rec.pick["iqm"] == max(s["iqm"] for s in rec.scores)
+    assert all(s["ci"][0] <= s["iqm"] <= s["ci"][1] and s["runs"] >= 6 for s in rec.scores)
+    # Damping pays on this motor: the pick is far above no damping, with its interval.
+    assert rec.pick["ci"][0] > 10.0
+    assert main(["recommend", MOTOR, "--no-progress", "--workers", "2"]) == 0
+    out = capsys.readouterr().out
+    assert f"flash {rec.pick['name']}: expect {rec.pick['iqm']:.1f} dB" in out
+    assert f"stepdamp export {rec.pick['name']} --motor {MOTOR}" in out
