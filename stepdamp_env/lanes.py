@@ -19,8 +19,9 @@ beyond 1e6 rad for :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8
 rad for :func:`fixedmath.sincos_rotated`, a NaN) is run again by the kernel
 from its state at the period's start.
 
-``StepperDampV1VectorEnv(simd=...)`` steps its drives here; the board does not
-(docs/performance.md, "SIMD across drives", has the measurements).
+``StepperDampV1VectorEnv(simd=...)`` steps its drives here, and the board's
+batches of 32 runs or more (``StepperDampBatch.simd``; docs/performance.md,
+"SIMD across drives", has the measurements).
 """
 
 from __future__ import annotations

@@ -55,10 +55,9 @@ import numpy as np
 
 from .. import fixedmath as fm
 from ..analysis import bridge_limit_rps
-from ..io import write_json, write_text
 from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
-from .firmware_c import c_source, check_prefix, default_prefix
+from .firmware_c import FORMATS, c_source, default_prefix, write_law_files
 from .firmware_law import (FORMAT_ID, FirmwareLaw, correction, from_json, microstep_table,
                            position_lowpass, to_json)
 from .policy import (MotorKnowledge, PolicyContext, ZeroAction, estimate_model, policy_card,
@@ -70,11 +69,6 @@ __all__ = ["FirmwareLaw", "FORMATS", "FORMAT_ID", "correction", "microstep_table
            "from_json", "c_source", "export_law", "position_lowpass", "default_prefix",
            "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law"]
 
-#: What ``export_law`` writes: "json" (``<prefix>.json``) or "c" (``<prefix>.h``, ``<prefix>.c``).
-FORMATS = ("c", "json")
-
-
-
 
 def export_law(law: FirmwareLaw, fmt: str, out_dir: str | os.PathLike[str],
                prefix: str | None = None) -> list[str]:
@@ -82,19 +76,8 @@ def export_law(law: FirmwareLaw, fmt: str, out_dir: str | os.PathLike[str],
     ``<prefix>.json`` (fmt "json", :func:`to_json`) or ``<prefix>.h`` and
     ``<prefix>.c`` (fmt "c", :func:`c_source`). ``prefix`` defaults to
     :func:`default_prefix` of the entry. Returns the paths written."""
-    if fmt not in FORMATS:
-        raise ParameterError(f"format={fmt!r} is not one of {list(FORMATS)}")
-    prefix = check_prefix(default_prefix(law.entry) if prefix is None else prefix)
-    out_dir = os.fspath(out_dir)
-    if fmt == "json":
-        path = os.path.join(out_dir, f"{prefix}.json")
-        write_json(path, to_json(law))
-        return [path]
-    header, source = c_source(law, prefix)
-    paths = [os.path.join(out_dir, f"{prefix}.h"), os.path.join(out_dir, f"{prefix}.c")]
-    write_text(paths[0], header)
-    write_text(paths[1], source)
-    return paths
+    return write_law_files(fmt, out_dir, default_prefix(law.entry) if prefix is None else prefix,
+                           lambda: to_json(law), lambda p: c_source(law, p))
 
 
 def harmonic_law(context: PolicyContext, entry: str, coefficients_nm: Sequence[float],

@@ -5,12 +5,17 @@ from __future__ import annotations
 import math
 import os
 import re
+from typing import Any, Callable
 
+from ..io import write_json, write_text
 from ..params import ParameterError
 from ..version import __version__
 from .firmware_law import FirmwareLaw, microstep_table
 
-__all__ = ["c_source", "default_prefix", "check_prefix"]
+__all__ = ["c_source", "default_prefix", "check_prefix", "write_law_files", "FORMATS"]
+
+#: What a law is written as: "json" (``<prefix>.json``) or "c" (``<prefix>.h``, ``<prefix>.c``).
+FORMATS = ("c", "json")
 
 # A C identifier that is safe as a file name too (no leading underscore: reserved in C).
 _PREFIX = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
@@ -207,3 +212,24 @@ double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
 }}
 """
     return header, source
+
+
+def write_law_files(fmt: str, out_dir: str | os.PathLike[str], prefix: str,
+                    json_of: Callable[[], dict[str, Any]],
+                    c_of: Callable[[str], tuple[str, str]]) -> list[str]:
+    """Write ``<prefix>.json`` (fmt "json": ``json_of()``) or ``<prefix>.h`` and
+    ``<prefix>.c`` (fmt "c": ``c_of(prefix)``) into ``out_dir``, each atomically;
+    the paths written."""
+    if fmt not in FORMATS:
+        raise ParameterError(f"format={fmt!r} is not one of {list(FORMATS)}")
+    prefix = check_prefix(prefix)
+    out_dir = os.fspath(out_dir)
+    if fmt == "json":
+        path = os.path.join(out_dir, f"{prefix}.json")
+        write_json(path, json_of())
+        return [path]
+    header, source = c_of(prefix)
+    paths = [os.path.join(out_dir, f"{prefix}.h"), os.path.join(out_dir, f"{prefix}.c")]
+    write_text(paths[0], header)
+    write_text(paths[1], source)
+    return paths

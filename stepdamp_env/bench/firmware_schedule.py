@@ -29,10 +29,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from .. import fixedmath as fm
-from ..io import write_json, write_text
 from ..params import ParameterError
 from ..version import __version__
-from .firmware_c import check_prefix, default_prefix
+from .firmware_c import check_prefix, default_prefix, write_law_files
 from .firmware_law import FirmwareLaw, correction, from_json, to_json
 
 __all__ = ["FirmwareSchedule", "SCHEDULE_FORMAT_ID", "build_schedule", "schedule_correction",
@@ -312,17 +311,7 @@ def export_schedule(schedule: FirmwareSchedule, fmt: str, out_dir: str | os.Path
                     prefix: str | None = None) -> list[str]:
     """Write the schedule into ``out_dir``, each file atomically: ``<prefix>.json``
     (fmt "json") or ``<prefix>.h`` and ``<prefix>.c`` (fmt "c"); the paths written."""
-    if fmt not in ("c", "json"):
-        raise ParameterError(f"format={fmt!r} is not one of ['c', 'json']")
-    law = schedule.laws[0]
-    prefix = check_prefix(default_prefix(law.entry) if prefix is None else prefix)
-    out_dir = os.fspath(out_dir)
-    if fmt == "json":
-        path = os.path.join(out_dir, f"{prefix}.json")
-        write_json(path, schedule_to_json(schedule))
-        return [path]
-    header, source = schedule_c_source(schedule, prefix)
-    paths = [os.path.join(out_dir, f"{prefix}.h"), os.path.join(out_dir, f"{prefix}.c")]
-    write_text(paths[0], header)
-    write_text(paths[1], source)
-    return paths
+    entry = schedule.laws[0].entry
+    return write_law_files(fmt, out_dir, default_prefix(entry) if prefix is None else prefix,
+                           lambda: schedule_to_json(schedule),
+                           lambda p: schedule_c_source(schedule, p))
