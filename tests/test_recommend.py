@@ -28,11 +28,15 @@ def test_recommend_scores_them_on_the_motor_and_picks_the_best(capsys):
     rec = recommend(load_system(MOTOR), workers=2)
     names = [s["name"] for s in rec.scores]
     assert set(names) <= set(exportable_entries(load_system(MOTOR))) and "none" not in names
-    assert rec.pick is rec.scores[0] and rec.pick["iqm"] == max(s["iqm"] for s in rec.scores)
-    assert all(s["ci"][0] <= s["iqm"] <= s["ci"][1] and s["runs"] >= 6 for s in rec.scores)
+    assert rec.pick is rec.scores[0] and rec.pick["lost"] == 0
+    assert rec.pick["mean"] == max(s["mean"] for s in rec.scores if s["lost"] == 0)
+    assert all(s["ci"][0] - 1e-9 <= s["mean"] <= s["ci"][1] + 1e-9 and s["runs"] >= 6
+               and len(s["by_speed"]) == 3 for s in rec.scores)
     # Damping pays on this motor: the pick is far above no damping, with its interval.
     assert rec.pick["ci"][0] > 10.0
     assert main(["recommend", MOTOR, "--no-progress", "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    assert f"flash {rec.pick['name']}: expect {rec.pick['iqm']:.1f} dB" in out
+    assert f"flash {rec.pick['name']}: expect {rec.pick['mean']:.1f} dB" in out
     assert f"stepdamp export {rec.pick['name']} --motor {MOTOR}" in out
+    # The suggested grid reaches the top of the motor's range (0.313:3.13 rev/s).
+    assert "--speeds 0.313:3.13:0.0939 " in out

@@ -38,7 +38,9 @@ with :func:`harmonic_law`) can be exported; :class:`~.policy.ZeroAction` (the
 ``patent-ff-*`` entries) is handled here. :func:`entry_law` turns an entry name
 and a :class:`~.policy.MotorKnowledge` (:func:`firmware_knowledge` for a motor
 file) into its law, or a one-line ``ParameterError`` saying why it cannot be
-exported (learned, adaptive, stateful or oracle entries).
+exported (learned agents, laws that change while they run or filter at the
+agent rate, oracles). A law's one state, the high-pass of ``tuned-gain-pair``'s
+position term, is the caller's.
 
 The law's definition, reference and JSON live in :mod:`.firmware_law`, its C in
 :mod:`.firmware_c`; this module re-exports them and builds laws from entries.

@@ -68,7 +68,9 @@ def c_source(law: FirmwareLaw, prefix: str | None = None) -> tuple[str, str]:
     The header declares one function, ``double <prefix>_iq_correction_a(double
     electrical_angle_rad, double velocity_error_rad_s, double command_speed_rad_s)``,
     which returns :func:`correction` (A) computed in double with ``sin`` from
-    ``<math.h>`` (no state, no allocation, no globals to initialise), and the
+    ``<math.h>`` (no state, no allocation, no globals to initialise; a law with
+    the position term takes two more arguments, the position error and a
+    pointer to its high-pass's state, the caller's), and the
     constant microstep table ``<prefix>_microstep_table_a`` (A, :func:`microstep_table`).
     The source includes ``"<prefix>.h"``. Compiles clean with ``-std=c99 -Wall
     -Wextra -Werror -pedantic``; link with ``-lm``.

@@ -100,6 +100,8 @@ class FirmwareLaw:
         if not 0.0 <= self.position_highpass_alpha <= 1.0:
             raise ParameterError(f"position_highpass_alpha={self.position_highpass_alpha!r} "
                                  "is outside its allowed range [0, 1]")
+        if self.position_gain_a_per_rad == 0.0:      # no position term: no high-pass either
+            object.__setattr__(self, "position_highpass_alpha", 0.0)
         for name in ("pwm_hz", "km_nm_per_a"):
             if not getattr(self, name) > 0.0:
                 raise ParameterError(f"{name}={getattr(self, name)!r} must be > 0")

@@ -5,15 +5,18 @@ held speed (:mod:`.firmware`), so a law exported at one speed is off elsewhere.
 A :class:`FirmwareSchedule` holds the entry's law at the speeds of a uniform
 grid ``speeds_rps`` and interpolates its table linearly in speed between them::
 
-    v   = clamp(|w_cmd| / (2*pi), v_0, v_last)               rev/s
-    k   = min(floor((v - v_0) / dv), n - 2),  t = (v - v_0) / dv - k
+    v   = clamp(|w_cmd| / (2*pi), v_0, v_last)   (v_0 where not a number)   rev/s
+    u   = (v - v_0) * (1/dv),  k = min(floor(u), n - 2),  t = u - k
     s_h = S[k][h] + t * (S[k+1][h] - S[k][h]),  c_h likewise    A
     iq  = sum_h s_h * sin(h*x) + c_h * cos(h*x)  + the law's friction and feedback
 
 The table is kept as sin/cos coefficients (A): A_h sin(hx + phi_h) =
 A_h cos(phi_h) sin(hx) + A_h sin(phi_h) cos(hx). The friction and feedback
 terms do not depend on the speed and must be the same at every grid speed.
-Outside the grid the law holds the end's table. :func:`interpolation_error`
+Outside the grid the law holds the end's table. The tables are computed for the
+positive direction, as the benchmark runs (a delay-compensated table's lead
+changes sign with the direction): for reverse motion export them again with
+the drive's direction convention in mind. :func:`interpolation_error`
 measures what the grid loses between its speeds; :func:`schedule_c_source`
 writes C99 whose function computes :func:`schedule_correction` to rounding.
 """
@@ -110,9 +113,10 @@ def build_schedule(law_at: Callable[[float], FirmwareLaw], low_rps: float, high_
 def _interpolated(schedule: FirmwareSchedule, speed_rps: np.ndarray) -> np.ndarray:
     """(..., harmonics, 2): the table at each |speed| (rev/s), as the C computes it."""
     coef = schedule.coefficients_a()
-    v0, dv, n = schedule.laws[0].speed_rps, schedule.step_rps, len(schedule.laws)
-    v = np.clip(np.abs(speed_rps), v0, schedule.laws[-1].speed_rps)
-    u = (v - v0) / dv
+    v0, n = schedule.laws[0].speed_rps, len(schedule.laws)
+    v = np.abs(np.asarray(speed_rps, dtype=np.float64))
+    v = np.where(~(v >= v0), v0, np.minimum(v, schedule.laws[-1].speed_rps))   # nan: v0
+    u = (v - v0) * (1.0 / schedule.step_rps)
     k = np.minimum(np.floor(u), n - 2).astype(np.int64)
     t = (u - k)[..., None, None]
     return coef[k] + t * (coef[k + 1] - coef[k])
@@ -166,16 +170,14 @@ def multiply_adds_per_period(schedule: FirmwareSchedule) -> dict[str, int]:
     (or subtractions), and sine/cosine evaluations, counted from its source."""
     n_h = len(schedule.laws[0].harmonics)
     law = schedule.laws[0]
-    # speed: |w|*(1/2pi), (v - v0)*(1/dv), t = u - k; per harmonic: 2 interpolations
-    # (1 mul, 2 add each), h*x (1 mul), s*sin + c*cos (2 mul, 2 add).
-    mul = 2 + n_h * (2 + 1 + 2)
-    add = 2 + n_h * (4 + 2)
-    if law.velocity_gain_a_s_per_rad != 0.0:
-        mul, add = mul + 1, add + 1
+    # As schedule_c_source writes it: |w|*(1/2pi), (v - v0)*(1/dv), t = u - k; per
+    # harmonic two interpolations (1 mul, 2 add each), h*x twice, s*sin and c*cos
+    # (2 mul, 2 add); the friction term (1 add), Kv*e_w (1 mul), the sum (1 add);
+    # the position term (2 mul, 4 add).
+    mul = 2 + n_h * (2 + 2 + 2) + 1
+    add = 2 + n_h * (4 + 2) + 2
     if law.stateful:
         mul, add = mul + 2, add + 4
-    if law.friction_a != 0.0:
-        add += 1
     return {"multiplications": mul, "additions": add, "sin_cos": 2 * n_h,
             "table_doubles": 2 * n_h * len(schedule.laws)}
 
@@ -191,7 +193,8 @@ def schedule_to_json(schedule: FirmwareSchedule) -> dict[str, Any]:
             "sin_coefficients_a": coef[:, :, 0].tolist(),
             "cos_coefficients_a": coef[:, :, 1].tolist(),
             "cost_per_pwm_period": multiply_adds_per_period(schedule),
-            "convention": __doc__.split("::")[1].split("\n\n")[0].strip("\n"),
+            "convention": "; ".join(" ".join(line.split()) for line in
+                                    __doc__.split("::")[1].strip().split("\n\n")[0].splitlines()),
             "laws": [to_json(law) for law in schedule.laws]}
 
 
@@ -278,12 +281,12 @@ double {fn}({args})
     double u, t, s, c, iq_a = 0.0, feedback_a;
     int k, j;
 
-    if (v < {v_lo!r}) {{
+    if (!(v >= {v_lo!r})) {{      /* below the grid, or not a number */
         v = {v_lo!r};
     }} else if (v > {v_hi!r}) {{
         v = {v_hi!r};
     }}
-    u = (v - {v_lo!r}) / {dv!r};
+    u = (v - {v_lo!r}) * {1.0 / dv!r};
     k = (int)floor(u);
     if (k > {n - 2}) {{
         k = {n - 2};

@@ -92,6 +92,8 @@ def _export_schedule(args: argparse.Namespace) -> int:
 
 
 def _cmd_recommend(args: argparse.Namespace) -> int:
+    import shlex
+
     from ..bench.recommend import recommend
     from ..sweep import default_speed_range
 
@@ -99,24 +101,34 @@ def _cmd_recommend(args: argparse.Namespace) -> int:
     register_policies()
     rec = recommend(system, args.mode, workers=args.workers, progress=not args.no_progress)
     print(f"{system.name}, {rec.suite}: the exportable entries on a quick stepdamp-bench v4 "
-          f"board of this motor alone (its headline speeds, the protocol's sensors, "
-          f"{rec.eval_seeds} seeds); attenuation of the velocity ripple against no damping over "
-          "the headline runs, IQM [95 % interval]:")
+          f"board of this motor alone (its headline speeds, its sensors, "
+          f"{rec.eval_seeds} seeds); attenuation of the velocity ripple against no damping, "
+          "mean over the headline runs [95 % interval over the seeds; zero wide where the "
+          "runs do not depend on the seed] and per headline speed "
+          + ", ".join(f"{v:.4g}" for v in rec.scores[0]["by_speed"]) + " rev/s:")
     for s in rec.scores:
-        lost = f", {s['lost']} lost" if s["lost"] else ""
-        print(f"  {s['name']:24s} {s['iqm']:6.1f} dB [{s['ci'][0]:.1f}, {s['ci'][1]:.1f}] "
-              f"({s['runs']} runs{lost})")
+        lost = f", {s['lost']} lost steps (-20 dB each)" if s["lost"] else ""
+        per = " / ".join(f"{v:.1f}" for v in s["by_speed"].values())
+        print(f"  {s['name']:24s} {s['mean']:6.1f} dB [{s['ci'][0]:.1f}, {s['ci'][1]:.1f}] "
+              f"(per speed {per} dB; {s['runs']} runs{lost})")
     pick = rec.pick
-    tied = (f"; not told apart from {', '.join(rec.tied)} by the paired interval (any of "
-            "them is as good here)" if rec.tied else "")
-    source = args.motor + "".join(f" --set {o}" for o in args.overrides)
+    tied = (f"; the paired comparison does not tell it apart from {', '.join(rec.tied)}"
+            if rec.tied else "")
+    warn = (f" It lost steps in {pick['lost']} runs, as every exportable entry did here."
+            if pick["lost"] else "")
+    source = " ".join(shlex.quote(a) for a in [args.motor] + [x for o in args.overrides
+                                                              for x in ("--set", o)])
     low, high, _ = (float(v) for v in default_speed_range(system).split(":"))
-    grid = f"{low:g}:{high:g}:{float(f'{(high - low) / 30:.2g}'):g}"    # about 30 tables
-    print(f"flash {pick['name']}: expect {pick['iqm']:.1f} dB [{pick['ci'][0]:.1f}, "
+    # About 30 tables; the step in 6 digits, rounded down so the grid reaches the top.
+    step = float(f"{(high - low) / 30:.6g}")
+    if step > (high - low) / 30:
+        step = float(f"{(high - low) / 30 * (1.0 - 1e-6):.6g}")
+    print(f"flash {pick['name']}: expect {pick['mean']:.1f} dB [{pick['ci'][0]:.1f}, "
           f"{pick['ci'][1]:.1f}] less ripple than without damping at the motor's resonant "
-          f"speeds{tied}. Its law over the motor's speed range:\n"
+          f"speeds in this simulation{tied}.{warn} Its law over the motor's speed range "
+          "(the positive direction):\n"
           f"  stepdamp export {pick['name']} --motor {source} --mode {args.mode} "
-          f"--speeds {grid} --out firmware/")
+          f"--speeds {low:g}:{high:g}:{step:g} --out firmware/")
     return 0
 
 

@@ -26,8 +26,9 @@ V2_DEFAULTS: dict = {
     "overrides": {"current_noise_a": 0.01, "encoder_cpr": 4000},
 }
 #: ``StepperDamp-v3``: v2's task with the action "gain-phase" (the damping law's
-#: velocity-feedback gain and phase, two numbers): no action in its box loses
-#: steps, so library-default exploration cannot end episodes.
+#: velocity-feedback gain and phase, two numbers): no action of its box lost steps
+#: on the tested draws (tests/test_env_v3.py), so library-default exploration
+#: does not end episodes there.
 V3_DEFAULTS: dict = {**V2_DEFAULTS, "action_mode": "gain-phase"}
 #: Seeds from here on draw the motors and noise the stepdamp-bench protocols score
 #: (``bench.protocol.TRAINING_SEED_LIMIT`` is this value): StepperDamp-v2 warns when

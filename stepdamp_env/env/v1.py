@@ -306,9 +306,9 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """ + OPTIONS_DOC_V1 + """
     ## Version History
 
-    * v3 (package 0.18): v2 with ``action_mode`` "gain-phase" (the damping law's
-      gain and phase, two numbers; no action in the box loses steps):
-      ``gym.make("StepperDamp-v3")``.
+    * v3 (package 0.18): v2 with ``action_mode`` "gain-phase" (the damping
+      law's gain and phase, two numbers; no action of the box lost steps on the
+      tested draws): ``gym.make("StepperDamp-v3")``.
     * v2 (package 0.18): this class with the defaults of the committed per-step
       agents' task (``registration.V2_DEFAULTS``: motors drawn around the
       presets, ``agent_hz`` 100, ``history`` 4, ``context`` "visible",
@@ -479,8 +479,8 @@ class StepperDampV2VectorEnv(StepperDampV1VectorEnv):
 
 
 class StepperDampV3Env(StepperDampV2Env):
-    __doc__ = """``StepperDamp-v3``: :class:`StepperDampV2Env` whose action cannot lose
-    steps (:data:`.registration.V3_DEFAULTS`): ``action_mode`` "gain-phase", the
+    __doc__ = """``StepperDamp-v3``: :class:`StepperDampV2Env` with an action whose box
+    lost no steps on the tested draws (:data:`.registration.V3_DEFAULTS`): ``action_mode`` "gain-phase", the
     velocity-feedback law's gain and phase, ``Box(-1, 1, (2,))``:
     kv = g*cos(phi), kp = -g*sin(phi) (the "damping-gains" pair) with
     g = max(gain, 0) and phi = phase * pi/4. The zero action is the base

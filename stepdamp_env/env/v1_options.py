@@ -28,8 +28,9 @@ ACTION_NAMES_V1: dict[str, tuple[str, ...]] = {
 }
 ACTION_MODES_V1 = ("damping-gains", "harmonic", "current", "harmonic+current", "gain-phase")
 #: "gain-phase": the phase of the damping law at phase = +-1 (rad). Within
-#: +-pi/4 the law's velocity part (kv = g*cos(phi) >= 0.7*g) never adds energy,
-#: so no action in the box loses steps (tests/test_env_v3.py); at +-pi/2 some do.
+#: +-pi/4 the law's velocity part (kv = g*cos(phi) >= 0.7*g) removes energy;
+#: no action of the box lost steps on the tested draws (tests/test_env_v3.py),
+#: where a lead of pi/2 does.
 GAIN_PHASE_LIMIT_RAD = math.pi / 4
 CONTEXTS = ("hidden", "visible")
 CONTEXT_NAMES = ("speed_over_resonance_h4", "speed_over_resonance_h2", "speed_over_resonance_h1",

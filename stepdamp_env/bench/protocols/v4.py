@@ -406,6 +406,24 @@ class ProtocolV4(DecibelProtocol):
                 got.setdefault((motor, seed), []).append(r["metrics"][metric])
         return {k: float(np.mean(v)) for k, v in got.items()}
 
+    def headline_run_db(self, runs: Sequence[Mapping[str, Any]],
+                        none_runs: Sequence[Mapping[str, Any]]
+                        ) -> dict[tuple[str, int, float], float]:
+        """v4's :meth:`run_db` of each headline run of the velocity ripple against
+        ``none``'s run of the same cell and seed, keyed (motor, seed, speed_rps);
+        runs without a finite score are left out."""
+        none = {(r["motor"], r["seed"], r["speed_rps"], r["speed_label"]): r for r in none_runs}
+        stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
+        out: dict[tuple[str, int, float], float] = {}
+        for r in runs:
+            if r["speed_label"].startswith("off"):
+                continue
+            n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
+            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
+            if math.isfinite(db):
+                out[(r["motor"], r["seed"], r["speed_rps"])] = db
+        return out
+
     def run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
                stand_in: float, metric: str = "rms_velocity_error_rad_s") -> float:
         """One run's attenuation in dB (module docstring, "Runs") of ``metric``
