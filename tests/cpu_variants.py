@@ -251,9 +251,11 @@ def differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
     keys = []
     for proto in sorted(set(a) | set(b)):
         ea, eb = a.get(proto, {}).get("entries", {}), b.get(proto, {}).get("entries", {})
-        keys += [f"{proto}: {k}" for k in sorted(set(ea) | set(eb)) if ea.get(k) != eb.get(k)]
-        if not keys and a.get(proto, {}).get("fingerprint") != b.get(proto, {}).get("fingerprint"):
-            keys.append(f"{proto}: board")
+        mine = [f"{proto}: {k}" for k in sorted(set(ea) | set(eb)) if ea.get(k) != eb.get(k)]
+        # The board's own fingerprint, where no entry of this protocol already differs.
+        if not mine and a.get(proto, {}).get("fingerprint") != b.get(proto, {}).get("fingerprint"):
+            mine.append(f"{proto}: board")
+        keys += mine
     return keys
 
 

@@ -4,6 +4,7 @@ of one motor, the pick and what to expect from it."""
 from __future__ import annotations
 
 import os
+import shlex
 
 import pytest
 
@@ -37,6 +38,6 @@ def test_recommend_scores_them_on_the_motor_and_picks_the_best(capsys):
     assert main(["recommend", MOTOR, "--no-progress", "--workers", "2"]) == 0
     out = capsys.readouterr().out
     assert f"flash {rec.pick['name']}: expect {rec.pick['mean']:.1f} dB" in out
-    assert f"stepdamp export {rec.pick['name']} --motor {MOTOR}" in out
+    assert f"stepdamp export {rec.pick['name']} --motor {shlex.quote(MOTOR)}" in out
     # The suggested grid reaches the top of the motor's range (0.313:3.13 rev/s).
     assert "--speeds 0.313:3.13:0.0939 " in out
