@@ -35,6 +35,9 @@ import numpy as np
 from . import fixedmath as fm
 from .drivelog import read_trace
 from .identify import effort_response, model_from_coefficients
+from .logstats import (AMPLITUDES, MAX_UNCERTAINTY, PHASES, PRIOR_J_UNCERTAINTY,
+                       balance_uncertainty, coefficient_uncertainty, corrected_amplitudes,
+                       covariance, judgements, noise_inflation, root)
 from .motorfile import load_system
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 
@@ -42,8 +45,9 @@ from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemPa
 FILTER_ZERO_PER_H4 = 3.0
 
 __all__ = ["DEFAULT_SETTLE_S", "DISTINCT_SPEEDS", "LogFit", "LogIdentification",
-           "MAX_RESIDUAL_FRACTION", "METHODS", "MIN_ELECTRICAL_PERIODS", "MIN_FIT_PERIODS",
-           "SPEED_DRIFT", "identify_from_logs", "identify_from_tables"]
+           "MAX_RESIDUAL_FRACTION", "MAX_UNCERTAINTY", "METHODS", "MIN_ELECTRICAL_PERIODS",
+           "MIN_FIT_PERIODS", "PRIOR_J_UNCERTAINTY", "SPEED_DRIFT", "identify_from_logs",
+           "identify_from_tables"]
 
 
 METHODS = ("torque-balance", "effort")
@@ -138,6 +142,12 @@ class LogIdentification:
         residual_rms_a: RMS of the residual current over all logs (A).
         residual_fraction: residual RMS over the signal RMS, over all logs.
         warnings: every warning, one line each (the logs' and the fit's).
+        uncertainty: one standard uncertainty per identified value, in its
+            unit (Kd1, Kd2, Kd4, Fs: N*m; phi1, phi2: rad; J: kg*m^2; D:
+            N*m*s/rad where fitted): the fit's covariance (its residual as
+            noise, the low-pass's correlation counted), the spread between
+            the logs' own fits where there are several, and, where J is the
+            prior's, :data:`PRIOR_J_UNCERTAINTY` of J carried through.
     """
 
     model: FeedforwardModel
@@ -149,6 +159,12 @@ class LogIdentification:
     residual_rms_a: float
     residual_fraction: float
     warnings: tuple[str, ...] = field(default=())
+    uncertainty: Mapping[str, float] = field(default_factory=dict, hash=False)
+
+    def relative_uncertainty(self, name: str) -> float:
+        """``uncertainty[name]`` over the value (Kd1, Kd2, Kd4, Fs, J, D)."""
+        value = getattr(self, name) if name in ("J", "D") else getattr(self.model, name)
+        return self.uncertainty[name] / abs(value) if value else math.inf
 
     @property
     def speeds_rps(self) -> tuple[float, ...]:
@@ -170,6 +186,9 @@ class LogIdentification:
                 "D": self.D, "fitted": list(self.fitted),
                 "speeds_rps": list(self.speeds_rps), "residual_rms_a": self.residual_rms_a,
                 "residual_fraction": self.residual_fraction,
+                "uncertainty": dict(self.uncertainty),
+                "relative_uncertainty": {k: self.relative_uncertainty(k)
+                                         for k in self.uncertainty if k not in PHASES},
                 "logs": [log.to_dict() for log in self.logs], "warnings": list(self.warnings)}
 
 
@@ -331,13 +350,15 @@ def _rms(x: np.ndarray) -> float:
 
 def _torque_balance(nominal: SystemParams, logs: list[_Log], fit_mechanics: bool
                     ) -> tuple[np.ndarray, float, float, float, tuple[str, ...],
-                               list[tuple[np.ndarray, np.ndarray]], list[str]]:
+                               list[tuple[np.ndarray, np.ndarray]], list[str], dict[str, float]]:
     """(detent coefficients, Fs, J, D, the names of J, D fitted, per-log (signal,
-    residual) in N*m, notes)."""
+    residual) in N*m, notes, uncertainties: Kd1, Kd2, Kd4 relative, the others
+    in their units)."""
     m = nominal.motor
-    rows, targets, notes = [], [], []
+    rows, targets, notes, inflation = [], [], [], 1.0
     for log in logs:
         width = _filter_width(log, m.Nr)
+        inflation = max(inflation, noise_inflation(width))
         th = log.theta
         torque = m.Km * _q_current(log, m.Nr)
         # Central differences at the inner samples: theta'' and theta'.
@@ -348,14 +369,17 @@ def _torque_balance(nominal: SystemParams, logs: list[_Log], fit_mechanics: bool
         rows.append(np.column_stack([_lowpass(c, width) for c in cols]))
         targets.append(_lowpass(torque[1:-1], width))
     a, y = np.vstack(rows), np.concatenate(targets)
-    # J and D are fitted unless told not to; D also needs distinct speeds (with
-    # one speed D*w and Fs are one constant).
+    # J and D are fitted unless told not to, from distinct speeds: with one speed
+    # D*w and Fs are one constant, and the rotor's acceleration is (nearly) a
+    # sum of the detent harmonics, so that J trades against them.
     speeds = [abs(log.omega) for log in logs]
     free = [fit_mechanics, fit_mechanics]
     if fit_mechanics and max(speeds) - min(speeds) < DISTINCT_SPEEDS * max(speeds):
-        free[1] = False
-        notes.append(f"the logs hold one speed (within {DISTINCT_SPEEDS:.0%}): D taken from "
-                     "the nominal motor; log two or more distinct speeds to fit it and Fs apart")
+        free = [False, False]
+        notes.append(f"the logs hold one speed (within {DISTINCT_SPEEDS:.0%}): J and D are the "
+                     "prior's, and the harmonics only as right as its J (their uncertainty "
+                     f"assumes +-{PRIOR_J_UNCERTAINTY:.0%}; Fs holds any error of D*w); log "
+                     "three distinct speeds to fit them (stepdamp identify --plan)")
     sol = _fit_with_known(a, y, free, (m.J, m.D))
     if any(free) and not (np.all(np.isfinite(sol)) and sol[0] > 0 and sol[1] >= 0):
         notes.append(f"the logs give J={sol[0]:.4g} kg*m^2, D={sol[1]:.4g} N*m*s/rad (not "
@@ -367,7 +391,9 @@ def _torque_balance(nominal: SystemParams, logs: list[_Log], fit_mechanics: bool
                              "rank deficient): give longer logs at distinct speeds")
     fitted = [(t, t - fm.weighted_rows(r, sol)) for r, t in zip(rows, targets)]
     fitted_names = tuple(n for n, f in zip(("J", "D"), free) if f)
-    return sol[3:], float(sol[2]), float(sol[0]), float(sol[1]), fitted_names, fitted, notes
+    unc = balance_uncertainty(a, y, rows, targets, sol, free, inflation, m.J)
+    return (sol[3:], float(sol[2]), float(sol[0]), float(sol[1]), fitted_names, fitted, notes,
+            unc)
 
 
 def _fit_with_known(a: np.ndarray, y: np.ndarray, free: list[bool],
@@ -386,8 +412,11 @@ def _fit_with_known(a: np.ndarray, y: np.ndarray, free: list[bool],
 
 
 def _effort(nominal: SystemParams, logs: list[_Log]
-            ) -> tuple[np.ndarray, float, float, list[tuple[np.ndarray, np.ndarray]], list[str]]:
-    """(detent coefficients, Fs, D, per-log (signal, residual) in N*m, notes).
+            ) -> tuple[np.ndarray, float, float, list[tuple[np.ndarray, np.ndarray]], list[str],
+                       dict[str, float]]:
+    """(detent coefficients, Fs, D, per-log (signal, residual) in N*m, notes,
+    uncertainties as :func:`_torque_balance` gives them: the slowest log's fit
+    covariance, its residual taken as white, and the other logs' harmonics).
 
     The harmonics come from the slowest log, where the servo's ripple and so
     the bias are least (as :func:`stepdamp_env.identify.identify` does); Fs and
@@ -396,7 +425,8 @@ def _effort(nominal: SystemParams, logs: list[_Log]
     m = nominal.motor
     slowest = min(range(len(logs)), key=lambda k: abs(logs[k].omega))
     coef = np.zeros(2 * len(DETENT_HARMONICS))
-    intercepts, fitted, notes = [], [], []
+    intercepts, fitted, notes, own, var_intercepts = [], [], [], [], []
+    cov = np.zeros((len(coef), len(coef)))
     for k, log in enumerate(logs):
         s1, c1 = fm.sincos_array(np.ascontiguousarray(m.Nr * log.theta))
         i_d = log.ia * c1 + log.ib * s1
@@ -412,27 +442,62 @@ def _effort(nominal: SystemParams, logs: list[_Log]
         if not np.all(np.isfinite(sol)):
             raise ParameterError(f"{log.label}: the harmonics are not determined (rank "
                                  "deficient fit); log longer")
+        mine = np.zeros(1 + len(coef))
+        mine[0] = float(sol[0]) * math.copysign(1.0, log.omega)
+        gains = []
+        for i, h in enumerate(DETENT_HARMONICS):
+            # The servo passes h*Nr*w to its effort as L/(1 + L): divide it out.
+            g = 1.0 / effort_response(nominal, h * m.Nr * log.omega)
+            z = complex(sol[1 + 2 * i], sol[2 + 2 * i]) * g
+            mine[1 + 2 * i], mine[2 + 2 * i] = z.real, z.imag
+            gains.append(np.array([[g.real, -g.imag], [g.imag, g.real]]))
+        own.append(mine)
+        raw = covariance(a, effort, sol, 1.0)
+        var_intercepts.append(float(raw[0, 0]))
+        raw = raw[1:, 1:]
         if k == slowest:
-            for i, h in enumerate(DETENT_HARMONICS):
-                # The servo passes h*Nr*w to its effort as L/(1 + L): divide it out.
-                z = complex(sol[1 + 2 * i], sol[2 + 2 * i]) \
-                    / effort_response(nominal, h * m.Nr * log.omega)
-                coef[2 * i], coef[2 * i + 1] = z.real, z.imag
+            coef[:] = mine[1:]
+            for i, gi in enumerate(gains):
+                for j, gj in enumerate(gains):
+                    block = raw[2 * i:2 * i + 2, 2 * j:2 * j + 2]
+                    for r in range(2):
+                        for q in range(2):
+                            cov[2 * i + r, 2 * j + q] = sum(
+                                gi[r, k] * block[k, l] * gj[q, l]
+                                for k in range(2) for l in range(2))
         intercepts.append(float(sol[0]) * math.copysign(1.0, log.omega))
         # Reported after the torque-balance's low-pass: the noise in the harmonics' band.
         width = _filter_width(log, m.Nr)
         residual = effort - fm.weighted_rows(a, sol)
         fitted.append((_lowpass(effort, width), _lowpass(residual, width)))
     speeds = np.array([abs(log.omega) for log in logs])
+    n = len(logs)
     if np.ptp(speeds) >= DISTINCT_SPEEDS * np.max(speeds):
         fs, damping = fm.lstsq(np.column_stack([np.ones_like(speeds), speeds]),
                                np.array(intercepts))
+        # The line's (Fs, D) = M y, M = (X'X)^-1 X': each log's intercept variance through it.
+        s1, s2 = float(np.sum(speeds)), fm.dot(speeds, speeds)
+        det = n * s2 - s1 * s1
+        rows_m = [[(s2 - s1 * v) / det for v in speeds], [(n * v - s1) / det for v in speeds]]
+        var_fs = sum(mk * mk * vk for mk, vk in zip(rows_m[0], var_intercepts))
+        var_d: float | None = sum(mk * mk * vk for mk, vk in zip(rows_m[1], var_intercepts))
     else:
         damping = m.D
         fs = float(np.mean(np.array(intercepts) - m.D * speeds))
+        var_fs, var_d = sum(var_intercepts) / (n * n), None
         notes.append(f"the logs hold one speed (within {DISTINCT_SPEEDS:.0%}): D taken from "
                      "the nominal motor, Fs from the mean effort less D*w")
-    return coef, float(fs), float(damping), fitted, notes
+    if n == 1:
+        notes.append("one log: the effort method's bias on a light axis (5-20 %, docs/"
+                     "drivelogs.md) is not in its stated uncertainty; log the speeds "
+                     "`stepdamp identify --plan` gives, whose disagreement shows it")
+    for x, v in zip(own, speeds):
+        x[0] -= damping * v                     # each log's Fs, as the line gives it
+    unc = coefficient_uncertainty(coef, cov, own if n > 1 else [], float(fs), var_fs)
+    unc["J"] = PRIOR_J_UNCERTAINTY * m.J
+    if var_d is not None:
+        unc["D"] = root(var_d)
+    return coef, float(fs), float(damping), fitted, notes, unc
 
 
 def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[str, np.ndarray]],
@@ -457,12 +522,19 @@ def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[s
     logs = [_prepare(nominal, table, label, method, float(settle_s))
             for table, label in zip(tables, labels)]
     if method == "torque-balance":
-        coef, fs, j, damping, mechanics, fitted, notes = _torque_balance(nominal, logs,
-                                                                         fit_mechanics)
+        coef, fs, j, damping, mechanics, fitted, notes, unc = _torque_balance(nominal, logs,
+                                                                              fit_mechanics)
     else:
-        coef, fs, damping, fitted, notes = _effort(nominal, logs)
+        coef, fs, damping, fitted, notes, unc = _effort(nominal, logs)
         j, mechanics = nominal.motor.J, ("D",) if not notes else ()
     model = _sinc_and_model(coef, nominal, fs)
+    # Relative uncertainties times the amplitudes before the clip of a negative
+    # Kd4 to 0 (sinc-corrected: the correction scales both alike).
+    amplitudes = dict(zip(AMPLITUDES, corrected_amplitudes(coef, nominal)))
+    uncertainty = {name: unc[name] * amplitudes[name] if name in AMPLITUDES else unc[name]
+                   for name in unc}
+    notes = notes + judgements(nominal, [log.omega / (2.0 * math.pi) for log in logs], model,
+                               float(j), mechanics, uncertainty)
     km = nominal.motor.Km
     fits, warnings = [], []
     for log, (signal, residual) in zip(logs, fitted):
@@ -489,7 +561,7 @@ def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[s
                              fitted=mechanics, logs=tuple(fits),
                              residual_rms_a=total,
                              residual_fraction=total / signal_rms if signal_rms > 0 else math.inf,
-                             warnings=tuple(warnings + notes))
+                             warnings=tuple(warnings + notes), uncertainty=uncertainty)
 
 
 def identify_from_logs(nominal: SystemParams | str, paths: Sequence[str | os.PathLike[str]], *,
@@ -523,3 +595,5 @@ def identify_from_logs(nominal: SystemParams | str, paths: Sequence[str | os.Pat
     tables = [read_trace(p, required=_NEEDED[method]) for p in names]
     return identify_from_tables(nominal, tables, names, method=method, settle_s=settle_s,
                                 fit_mechanics=fit_mechanics)
+
+

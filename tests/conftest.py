@@ -22,24 +22,13 @@ def pytest_configure(config):
     costs CI minutes. Without xdist, or in a worker, nothing happens here."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
-    from stepdamp_env.bench.warmup import warm_up
-    from stepdamp_env.parallel import pool_map
+    from stepdamp_env.bench.warmup import warm_lanes, warm_up
 
     try:
         warm_up(get_preset("patent"), workers=2)
-        pool_map(_warm_lanes, ["harmonic", "damping-gains"], 2)
+        warm_lanes(workers=2, always=True, here=False)   # xdist's workers do not fork from here
     except Exception:       # noqa: BLE001 - only a head start: the workers compile it
         pass
-
-
-def _warm_lanes(action_mode):
-    """The SIMD lanes' loop of one action mode (plain, or with the damping law)."""
-    from stepdamp_env.env import StepperDampV1VectorEnv
-
-    env = StepperDampV1VectorEnv(num_envs=37, simd=True, agent_hz=500.0,
-                                 action_mode=action_mode)
-    env.reset(seed=0)
-    call_with_frame_room(env.step, np.zeros(env.action_space.shape, dtype=np.float32))
 
 
 @pytest.fixture(autouse=True, scope="session")

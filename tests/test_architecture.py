@@ -28,6 +28,7 @@ FLOORS = {
     "stepdamp_env.simulation": 1, "stepdamp_env.response": 1, "stepdamp_env.metrics": 1,
     "stepdamp_env.identify": 2, "stepdamp_env.sweep": 2, "stepdamp_env.plots": 2,
     "stepdamp_env.analysis": 2, "stepdamp_env.drivelog": 2, "stepdamp_env.logfit": 2,
+    "stepdamp_env.logstats": 2, "stepdamp_env.logplan": 2,
     "stepdamp_env": 3,                       # the package root exports the env floor
     "stepdamp_env.env": 3, "stepdamp_env.sb3": 3, "stepdamp_env.fields": 0,
     "stepdamp_env.motorfile": 0,

@@ -67,7 +67,13 @@ def test_held_out_motor_identified_from_its_logs_with_the_nominal_prior(held_out
     assert abs(errors["Fs"]) < 0.2 and abs(errors["D"]) < 0.2, errors
     assert result.fitted == ("J", "D")
     assert result.speeds_rps == pytest.approx(SPEEDS_RPS, rel=0.01)
-    assert result.warnings == ()
+    # The prior is another motor (J -33 %): it says so, and nothing else is warned.
+    assert "J 4e-05 kg*m^2 against the logs' 6.00" in result.warnings[0]
+    assert all(w.startswith("the prior disagrees with the logs: ") for w in result.warnings)
+    # Each amplitude's error within three stated uncertainties, each under 5 %.
+    for name in ("Kd1", "Kd2", "Kd4"):
+        assert result.relative_uncertainty(name) < 0.05
+        assert abs(errors[name]) < 3.0 * result.relative_uncertainty(name) + 0.003, name
     assert all(log.electrical_periods >= MIN_ELECTRICAL_PERIODS for log in result.logs)
     assert result.residual_fraction < 0.1 and 0 < result.residual_rms_a < 0.01
     identified = result.apply_to(nominal)

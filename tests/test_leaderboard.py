@@ -269,3 +269,23 @@ def test_warm_up_marks_this_code_version_compiled(tmp_path, monkeypatch, capsys)
     assert os.path.exists(marker)
     warm_up(load_system("patent"), workers=1, progress=True)
     assert capsys.readouterr().err == ""
+
+
+def test_warm_lanes_compiles_the_lanes_only_where_batches_step_in_them(monkeypatch, capsys):
+    """The board's SIMD lanes are compiled by the warm-up (their own marker) where
+    batches step in them by default; on a CPU without AVX2 nothing happens."""
+    from stepdamp_env import lanes
+    from stepdamp_env.bench.warmup import compiled_marker, warm_lanes
+
+    marker = compiled_marker("lanes")
+    assert marker is not None and marker != compiled_marker()
+    monkeypatch.setattr(lanes, "simd_by_default", lambda n: False)
+    if os.path.exists(marker):
+        os.remove(marker)
+    assert warm_lanes(workers=1, progress=True) == 0.0
+    assert capsys.readouterr().err == "" and not os.path.exists(marker)
+    assert warm_lanes(workers=1, progress=True, always=True) > 0.0
+    assert "compiling the SIMD lanes" in capsys.readouterr().err
+    assert os.path.exists(marker)
+    warm_lanes(workers=1, progress=True, always=True)
+    assert capsys.readouterr().err == ""

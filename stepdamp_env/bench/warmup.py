@@ -8,33 +8,35 @@ import hashlib
 import os
 import sys
 import time
+from typing import Any, Callable
 
 import numpy as np
 
 from .. import fixedmath as fm
-from .. import numba_cache
+from .. import lanes, numba_cache
 from ..env.engine import StepperDampBatch
 from ..env.scalar import StepperDampEnv
-from ..env.v1 import StepperDampV1Env
+from ..env.v1 import StepperDampV1Env, StepperDampV1VectorEnv
 from ..estimators import kalman_velocity_gains
 from ..fixednet import mlp_forward
 from ..parallel import pool_map
 from ..params import SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
 
-__all__ = ["warm_up", "compiled_marker"]
+__all__ = ["warm_up", "warm_lanes", "compiled_marker"]
 
 
-def compiled_marker() -> str | None:
+def compiled_marker(part: str = "") -> str | None:
     """The file the warm-up leaves once this code, installed where it is, has
-    compiled (None: nothing is cached). Numba keys its cache on the source
-    files' paths too, so a copy of the same code elsewhere (``pip install .``
-    beside ``-e .``, a CI checkout) is cold though its code is not."""
+    compiled (None: nothing is cached); ``part`` "lanes": the SIMD lanes'
+    (:func:`warm_lanes`). Numba keys its cache on the source files' paths too,
+    so a copy of the same code elsewhere (``pip install .`` beside ``-e .``, a
+    CI checkout) is cold though its code is not."""
     where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
     if not where:
         return None
     here = hashlib.sha256(os.path.dirname(os.path.abspath(__file__)).encode()).hexdigest()
-    return os.path.join(where, f"compiled-{here[:16]}")
+    return os.path.join(where, f"compiled-{part + '-' if part else ''}{here[:16]}")
 
 
 def _warm_plain(system: SystemParams) -> None:
@@ -92,28 +94,72 @@ def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> f
     Where this version's numba cache is cold, the parts compile in ``workers``
     processes first (they share no compiled code), with a line on stderr if
     ``progress``. Returns the seconds spent."""
+    return _compile_once(compiled_marker(), _warm_part,
+                         [(k, system) for k in range(len(_WARM_PARTS))], workers, progress,
+                         "the simulation kernels", "under a minute")
+
+
+def _warm_lanes(action_mode: str) -> None:
+    """The SIMD lanes' loop of one action mode: "harmonic" (plain) or
+    "damping-gains" (with the damping law)."""
+    env = StepperDampV1VectorEnv(num_envs=lanes.LANES + 5, simd=True, agent_hz=500.0,
+                                 action_mode=action_mode)
+    env.reset(seed=0)
+    numba_cache.call_with_frame_room(
+        env.step, np.zeros(env.action_space.shape, dtype=np.float32))
+
+
+#: The lanes' two loops (without and with the damping law: they share no loop).
+LANES_PARTS = ("harmonic", "damping-gains")
+
+
+def warm_lanes(workers: int = 1, progress: bool = False, always: bool = False,
+               here: bool = True) -> float:
+    """:func:`warm_up` for the SIMD lanes, where batches step in them by default
+    (:func:`.lanes.simd_by_default`; else nothing to do, unless ``always``,
+    as the tests, which step in lanes on any CPU): compiled in ``workers``
+    processes first where this code's cache is cold (a few minutes, announced
+    on stderr if ``progress``), then loaded here unless not ``here`` (processes
+    that do not fork from this one: only the cache is filled). Returns the seconds
+    spent."""
+    if not (always or lanes.simd_by_default(lanes.LANES)):
+        return 0.0
+    return _compile_once(compiled_marker("lanes"), _warm_lanes, list(LANES_PARTS), workers,
+                         progress, "the SIMD lanes", "a few minutes", here)
+
+
+def _compile_once(marker: str | None, part: Callable[[Any], None], jobs: list[Any],
+                  workers: int, progress: bool, what: str, how_long: str,
+                  here: bool = True) -> float:
+    """Run ``part`` on each job here (unless not ``here``); where ``marker`` is
+    missing (this code's cache cold) first on ``workers`` processes, which fill
+    the numba cache in parallel, announced on stderr if ``progress``; then leave
+    the marker. Returns the seconds spent."""
     start = time.perf_counter()
-    marker = compiled_marker()
     cold = marker is None or not os.path.exists(marker)
     if cold and progress:
-        print(f"compiling the simulation kernels for this version of the code, once "
-              f"({min(workers, len(_WARM_PARTS))} process(es); under a minute)...",
+        print(f"compiling {what} for this version of the code, once "
+              f"({min(workers, len(jobs))} process(es); {how_long})...",
               file=sys.stderr, flush=True)
     if cold and workers > 1:
         try:
-            pool_map(_warm_part, [(k, system) for k in range(len(_WARM_PARTS))],
-                     min(workers, len(_WARM_PARTS)), min_jobs=2)
+            pool_map(part, jobs, min(workers, len(jobs)), min_jobs=2)
         except Exception:       # noqa: BLE001 - a part failed: compiled here below
             pass
-    for k in range(len(_WARM_PARTS)):
-        _warm_part((k, system))
+    if here or workers <= 1:
+        for job in jobs:
+            part(job)
     if cold and marker is not None:
-        try:
-            with open(marker, "w", encoding="utf-8") as fh:
-                fh.write("compiled\n")
-        except OSError:
-            pass
+        _mark(marker)
         if progress:
             print(f"compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr,
                   flush=True)
     return time.perf_counter() - start
+
+
+def _mark(marker: str) -> None:
+    try:
+        with open(marker, "w", encoding="utf-8") as fh:
+            fh.write("compiled\n")
+    except OSError:
+        pass

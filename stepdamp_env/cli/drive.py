@@ -7,6 +7,7 @@ import argparse
 import json
 import math
 import os
+import shlex
 from typing import Any, Callable
 
 import numpy as np
@@ -111,7 +112,11 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                         "mode), or the servo effort as patent claim 1 (servo logs)")
     p.add_argument("--settle", type=number(float, 0.0, 1e4), default=0.1, metavar="SECONDS",
                    help="with --log: the start of each log left out of the fit (s)")
-    p.add_argument("--out", required=True, metavar="DIR", help="result directory")
+    p.add_argument("--plan", nargs="?", const="", default=None, metavar="MOTOR",
+                   help="print the drive logs to record for --log on MOTOR (or --motor): "
+                        "speeds, durations, sampling; nothing is run")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="result directory (required unless --plan)")
     p.set_defaults(func=_cmd_identify)
 
 
@@ -343,6 +348,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from ..identify import identify
     from ..io import write_json
 
+    if args.plan is not None:
+        if args.log or args.out is not None:
+            raise ParameterError("--plan prints the logs to record and runs nothing: give it "
+                                 "without --log and --out")
+        return _identify_plan(args)
+    if args.out is None:
+        raise ParameterError("--out DIR is required (unless --plan)")
     args.out = check_output_dir(args.out, "--out")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     if args.log:
@@ -374,6 +386,32 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _identify_plan(args: argparse.Namespace) -> int:
+    """``identify --plan``: the logs to record for ``identify --log``."""
+    from ..logfit import DEFAULT_SETTLE_S
+    from ..logplan import PRIOR_J_UNCERTAINTY, log_plan
+
+    motor = args.plan or args.motor
+    system = load_system(motor, parse_set_overrides(args.overrides))
+    plan = log_plan(system, settle_s=args.settle)
+    print(f"drive logs to record for {system.name} (the prior): its h=4 resonance is at "
+          f"{plan.f4_rps:.4g} rev/s (J {system.motor.J:.4g} kg*m^2 from the prior)")
+    for k, (v, d) in enumerate(zip(plan.speeds_rps, plan.durations_s)):
+        print(f"  {k + 1}. {v:.4g} rev/s, {d:.3g} s from when it reaches the speed")
+    print("  each at constant speed, servo or open loop, either direction; columns time_s, "
+          "position_rad, phase_current_a_A, phase_current_b_A (docs/drivelogs.md)")
+    print(f"  sample at {plan.min_sample_rate_hz:.4g} Hz or faster (once per PWM period is best)")
+    print("  below the resonance the harmonics hardly depend on J, and three distinct "
+          "speeds give J, D and Fs apart; above it J trades against them, and with one "
+          f"speed J is the prior's (+-{PRIOR_J_UNCERTAINTY:.0%} assumed)")
+    logs = " ".join(f"--log log{k + 1}.csv" for k in range(len(plan.speeds_rps)))
+    extra = "".join(f" --set {shlex.quote(o)}" for o in args.overrides)
+    if args.settle != DEFAULT_SETTLE_S:
+        extra += f" --settle {args.settle:g}"
+    print(f"then: stepdamp identify --motor {shlex.quote(motor)}{extra} {logs} --out DIR")
+    return 0
+
+
 def _identify_logs(args: argparse.Namespace, system: Any) -> int:
     """``identify --log``: the detent model from drive logs, ``system`` the prior."""
     from ..logfit import identify_from_logs
@@ -401,13 +439,20 @@ def _identify_logs(args: argparse.Namespace, system: Any) -> int:
         print(f"  {fit.label}: {fit.speed_rps:.4g} rev/s, {fit.electrical_periods:.1f} "
               f"electrical periods, residual {fit.residual_rms_a:.3g} A "
               f"({fit.residual_fraction:.1%})")
-    print(f"  {'':6s} {'identified':>12s} {'prior':>12s}")
+    unc = result.uncertainty
+    print(f"  {'':6s} {'identified':>12s} {'+- (1 sd)':>10s} {'':>6s} {'prior':>12s}")
     for name in ("Kd1", "Kd2", "Kd4", "phi1", "phi2", "Fs"):
-        print(f"  {name:6s} {getattr(model, name):12.6g} {getattr(m, name):12.6g}")
-    print(f"  {'J':6s} {result.J:12.6g} {m.J:12.6g}" + ("" if "J" in result.fitted
-                                                         else " (prior)"))
-    print(f"  {'D':6s} {result.D:12.6g} {m.D:12.6g}" + ("" if "D" in result.fitted
-                                                         else " (prior)"))
+        rel = (f"{result.relative_uncertainty(name):6.1%}" if name not in ("phi1", "phi2")
+               else "   rad")
+        print(f"  {name:6s} {getattr(model, name):12.6g} {unc[name]:10.3g} {rel} "
+              f"{getattr(m, name):12.6g}")
+    for name in ("J", "D"):
+        value = getattr(result, name)
+        u = (f"{unc[name]:10.3g} {result.relative_uncertainty(name):6.1%}" if name in unc
+             else f"{'':10s} {'':6s}")
+        print(f"  {name:6s} {value:12.6g} {u} {getattr(m, name):12.6g}"
+              + ("" if name in result.fitted else " (prior; +- assumed)" if name in unc
+                 else " (prior)"))
     print(f"  residual {result.residual_rms_a:.3g} A ({result.residual_fraction:.1%} of the "
           "current's RMS)")
     for w in result.warnings:
