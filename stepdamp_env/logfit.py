@@ -36,8 +36,8 @@ from . import fixedmath as fm
 from .drivelog import read_trace
 from .identify import effort_response, model_from_coefficients
 from .logstats import (AMPLITUDES, MAX_UNCERTAINTY, PHASES, PRIOR_J_UNCERTAINTY,
-                       balance_uncertainty, coefficient_uncertainty, corrected_amplitudes,
-                       covariance, judgements, noise_inflation, root)
+                       balance_uncertainty, coefficient_uncertainty, covariance, judgements,
+                       noise_inflation, root)
 from .motorfile import load_system
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 
@@ -328,10 +328,9 @@ def _lowpass(x: np.ndarray, m: int) -> np.ndarray:
     return x
 
 
-def _sinc_and_model(coef: np.ndarray, nominal: SystemParams, fs: float) -> FeedforwardModel:
-    """The model from detent coefficients (s1, c1, s2, c2, s4, c4) fitted at the
-    centre of the encoder count: averaging a harmonic over a count attenuates it
-    by sinc(h*Nr*q/2), divided out here."""
+def _sinc_corrected(coef: np.ndarray, nominal: SystemParams) -> np.ndarray:
+    """Detent coefficients (s1, c1, s2, c2, s4, c4) fitted at the centre of the
+    encoder count, with the count's averaging, sinc(h*Nr*q/2), divided out."""
     m = nominal.motor
     q = 2.0 * math.pi / nominal.servo.encoder_cpr
     out = np.array(coef, dtype=float)
@@ -341,7 +340,7 @@ def _sinc_and_model(coef: np.ndarray, nominal: SystemParams, fs: float) -> Feedf
     if not np.all(np.isfinite(out)):
         raise ParameterError("the logs do not determine the detent harmonics (the fit is "
                              "rank deficient): give longer logs at distinct speeds")
-    return model_from_coefficients(nominal, out, fs)
+    return out
 
 
 def _rms(x: np.ndarray) -> float:
@@ -527,10 +526,12 @@ def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[s
     else:
         coef, fs, damping, fitted, notes, unc = _effort(nominal, logs)
         j, mechanics = nominal.motor.J, ("D",) if not notes else ()
-    model = _sinc_and_model(coef, nominal, fs)
+    corrected = _sinc_corrected(coef, nominal)
+    model = model_from_coefficients(nominal, corrected, fs)
     # Relative uncertainties times the amplitudes before the clip of a negative
-    # Kd4 to 0 (sinc-corrected: the correction scales both alike).
-    amplitudes = dict(zip(AMPLITUDES, corrected_amplitudes(coef, nominal)))
+    # Kd4 to 0 (the sinc correction scales an amplitude and its uncertainty alike).
+    amplitudes = {name: fm.hypot(corrected[2 * i], corrected[2 * i + 1])
+                  for i, name in enumerate(AMPLITUDES)}
     uncertainty = {name: unc[name] * amplitudes[name] if name in AMPLITUDES else unc[name]
                    for name in unc}
     notes = notes + judgements(nominal, [log.omega / (2.0 * math.pi) for log in logs], model,

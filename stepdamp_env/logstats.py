@@ -12,11 +12,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from . import fixedmath as fm
-from .params import DETENT_HARMONICS, FeedforwardModel, SystemParams
+from .params import FeedforwardModel, SystemParams
 
 __all__ = ["AMPLITUDES", "J_DISAGREES", "MAX_UNCERTAINTY", "PHASES", "PRIOR_J_UNCERTAINTY",
-           "balance_uncertainty", "coefficient_uncertainty", "corrected_amplitudes",
-           "covariance", "gram", "inverse", "judgements", "noise_inflation", "quadratic", "root",
+           "balance_uncertainty", "coefficient_uncertainty", "covariance", "gram", "inverse", "judgements", "noise_inflation", "quadratic", "root",
            "wrap"]
 
 
@@ -166,17 +165,6 @@ def balance_uncertainty(a: np.ndarray, y: np.ndarray, rows: Sequence[np.ndarray]
     if free[1]:
         unc["D"] = root(cov[1, 1])
     return unc
-
-
-def corrected_amplitudes(coef: np.ndarray, nominal: SystemParams) -> list[float]:
-    """|(s_h, c_h)| of each harmonic (s1, c1, s2, c2, s4, c4 in ``coef``) divided by
-    the encoder count's averaging, sinc(h*Nr*q/2), as the identified model is."""
-    q = 2.0 * math.pi / nominal.servo.encoder_cpr
-    out = []
-    for i, h in enumerate(DETENT_HARMONICS):
-        arg = 0.5 * h * nominal.motor.Nr * q
-        out.append(fm.hypot(coef[2 * i], coef[2 * i + 1]) * (arg / fm.sin(arg)))
-    return out
 
 
 def judgements(nominal: SystemParams, speeds_rps: Sequence[float], model: FeedforwardModel,
