@@ -11,12 +11,16 @@ PWM, RK4, one substep) is stepped ``--periods`` PWM periods by
 the two must end in the same bits. Rates are simulated drive-seconds per wall
 second. Variants: ``plain`` (no current noise: what ``bench_sim.py`` times),
 ``noise`` (current-sensor noise on every drive), ``law+noise`` (and a damping law
-with resonant terms, as the board's adaptive entries run).
+with resonant terms, as the board's adaptive entries run); with noise too,
+``servo`` (servo mode with the patent's feedforward), ``voltage`` (open loop in
+voltage mode), ``kalman`` (servo with the Kalman velocity) and ``s-curve`` (servo
+moves of one revolution with S-curve ramps).
 
 ``--cpus`` repeats the measurement in children whose numba compiles for another
 CPU (``NUMBA_CPU_NAME`` with that CPU's features only: ``haswell`` is AVX2, 4
 doubles per vector; ``nehalem`` is x86-64-v2, SSE4.2, 2; ``generic`` is SSE2, 2). ``--coverage`` runs the v3 quick board in this process and counts
-the drive-periods the lanes' variant would cover.
+the drive-periods the lanes would cover (every variant since 0.18; a group of
+lanes shares one substep count).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import time
 
 import numpy as np
 
-VARIANTS = ("plain", "noise", "law+noise")
+VARIANTS = ("plain", "noise", "law+noise", "servo", "voltage", "kalman", "s-curve")
 
 
 def batch(drives: int, variant: str):
@@ -48,8 +52,18 @@ def batch(drives: int, variant: str):
         system = load_system(names[i % len(names)])
         if variant != "plain":
             system = system.replace(current_noise_a=0.02)
-        configs.append(build_config(system, SpeedProfile(0.3 + 3.2 * i / max(drives - 1, 1)),
-                                    RunSettings(noise_seed=i), window_start_s=0.1))
+        speed = 0.3 + 3.2 * i / max(drives - 1, 1)
+        profile = SpeedProfile(speed)
+        settings = RunSettings(noise_seed=i)
+        if variant in ("servo", "kalman", "s-curve"):
+            settings = RunSettings(noise_seed=i, mode="servo", base_controller="patent-ff",
+                                   velocity_estimator="kalman" if variant == "kalman" else "lowpass")
+        if variant == "voltage":
+            system = system.replace(drive_mode="voltage")
+        if variant == "s-curve":
+            profile = SpeedProfile(speed, kind="move", distance_rev=1.0, ramp="s-curve",
+                                   accel_rps2=200.0)
+        configs.append(build_config(system, profile, settings, window_start_s=0.1))
     c = np.array(configs)
     s = np.array([initial_state(row) for row in c])
     laws = None
@@ -104,7 +118,7 @@ def measure(drives: int, periods: int, repeats: int) -> dict:
 
 def coverage() -> dict:
     """Share of the v3 quick board's drive-periods (one worker, in this process)
-    whose drives are of the lanes' variant, with and without the law."""
+    whose drives the lanes run, with and without the law."""
     from stepdamp_env import kernel as K
     from stepdamp_env import lanes
     from stepdamp_env.bench import run_leaderboard
@@ -172,7 +186,7 @@ def main() -> None:
                   f"{'the same bits' if r['same_bits'] else 'BITS DIFFER'}")
     if args.coverage:
         cov = coverage()
-        print(f"v3 quick board: {cov['in_lanes']:.1%} of its drive-periods are of the lanes' variant; "
+        print(f"v3 quick board: {cov['in_lanes']:.1%} of its drive-periods run in lanes; "
               f"{cov['with_law']:.1%} run a damping law; {cov['batches']} kernel calls of "
               f"{cov['mean_drives_per_batch']:.1f} drives on average")
 

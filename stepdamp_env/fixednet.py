@@ -30,39 +30,64 @@ def mlp_forward(x, weights, biases, sizes, activations):
     layer l maps sizes[l] inputs to sizes[l+1] outputs, ``weights`` holds every
     layer's (out, in) matrix row by row and ``biases`` their biases, one after
     the other, ``activations[l]`` is an ``ACTIVATION`` code. Every sum runs in
-    input order in float64, whatever the batch size; returns float64 (n x out)."""
+    input order in float64, whatever the batch size; returns float64 (n x out).
+
+    32 rows at a time, the loop over them innermost: SIMD across rows (no
+    reassociation within a row's sum, so the same bits as one row alone)."""
     n = x.shape[0]
+    rows = 32
     layers = activations.size
     width = 0
     for s in sizes:
         width = max(width, s)
     out = np.empty((n, sizes[layers]))
-    a = np.empty(width)
-    z = np.empty(width)
-    for row in range(n):
+    a = np.zeros((width, rows))
+    z = np.zeros((width, rows))
+    for first in range(0, n, rows):
+        m = min(rows, n - first)
         for i in range(sizes[0]):
-            a[i] = float(x[row, i])
+            for r in range(m):
+                a[i, r] = float(x[first + r, i])
         w_at = 0
         b_at = 0
         for layer in range(layers):
             n_in, n_out = sizes[layer], sizes[layer + 1]
             act = activations[layer]
             for o in range(n_out):
-                s = biases[b_at + o]
+                zo = z[o]
+                b = biases[b_at + o]
+                for r in range(rows):
+                    zo[r] = b
                 base = w_at + o * n_in
-                for i in range(n_in):
-                    s += weights[base + i] * a[i]
+                # Four inputs per pass over the rows, added in input order.
+                i = 0
+                while i + 4 <= n_in:
+                    w0, w1 = weights[base + i], weights[base + i + 1]
+                    w2, w3 = weights[base + i + 2], weights[base + i + 3]
+                    a0, a1, a2, a3 = a[i], a[i + 1], a[i + 2], a[i + 3]
+                    for r in range(rows):
+                        zo[r] = (((zo[r] + w0 * a0[r]) + w1 * a1[r]) + w2 * a2[r]) + w3 * a3[r]
+                    i += 4
+                while i < n_in:
+                    w = weights[base + i]
+                    ai = a[i]
+                    for r in range(rows):
+                        zo[r] += w * ai[r]
+                    i += 1
                 if act == ACTIVATION.RELU:
-                    s = s if s > 0.0 else 0.0
+                    for r in range(rows):
+                        zo[r] = zo[r] if zo[r] > 0.0 else 0.0
                 elif act == ACTIVATION.TANH:
-                    s = tanh(s)
-                z[o] = s
+                    for r in range(m):
+                        zo[r] = tanh(zo[r])
             for o in range(n_out):
-                a[o] = z[o]
+                for r in range(rows):
+                    a[o, r] = z[o, r]
             w_at += n_in * n_out
             b_at += n_out
-        for o in range(sizes[layers]):
-            out[row, o] = a[o]
+        for r in range(m):
+            for o in range(sizes[layers]):
+                out[first + r, o] = a[o, r]
     return out
 
 

@@ -9,15 +9,16 @@ kernel's own (:func:`kernel.control_period`, :func:`kernel.plant_step_in`,
 compiled for lanes: no branches), in the kernel's order (no FMA, no
 reassociation), so vectorising cannot change a bit.
 
-Lanes run one variant of the drive, v1's default: open loop, DQ current loops,
-the encoder's low-pass velocity, current sensors with or without noise, a
-constant-speed profile, with or without the damping law
-(:func:`run_batch_law_lanes`), one substep count per group of LANES. A drive of
-another variant is run by the kernel's own :func:`kernel.run_periods` for the
-whole call. A drive that leaves the branch-free path in a period (an angle
-beyond 1e6 rad for :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8
-rad for :func:`fixedmath.sincos_rotated`, a NaN) is run again by the kernel
-from its state at the period's start.
+Lanes run every variant of the drive: open loop or servo, current or voltage
+mode, any velocity estimator, any profile, with or without the damping law
+(:func:`run_batch_law_lanes`). Each variant's branches are computed and the
+drive's selected, so one group of LANES may mix variants; it shares one
+substep count, and a drive of another count is run by the kernel's own
+:func:`kernel.run_periods` for the whole call. A drive that leaves the
+branch-free path in a period (an angle beyond 1e6 rad for
+:func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8 rad for
+:func:`fixedmath.sincos_rotated`, a NaN) is run again by the kernel from its
+state at the period's start.
 
 ``StepperDampV1VectorEnv(simd=...)`` steps its drives here, and the board's
 batches of 32 runs or more (``StepperDampBatch.simd``; docs/performance.md,
@@ -33,7 +34,7 @@ from numba import njit, prange
 
 from .fixedmath import sincos
 from .kernel import (ACC, CONFIG, CTRL, INPUT, LAW, STATE, TRACE, control_period, controller_params,
-                     in_lanes_variant, law_input, load_controller, load_law, load_metrics, load_plant, plant_params,
+                     law_input, load_controller, load_law, load_metrics, load_plant, plant_params,
                      plant_step_in, run_periods, run_periods_law, store_controller, store_law,
                      store_metrics,
                      store_plant, without_law)
@@ -120,9 +121,9 @@ def workspace_size() -> int:
 
 @_jit
 def in_lanes(c, n_sub):
-    """True if the drive of CONFIG row ``c`` is of the variant that runs in lanes
-    (:data:`kernel.LANES_VARIANT`) with ``n_sub`` substeps."""
-    return in_lanes_variant(c) and int(c[CONFIG.SUBSTEPS]) == n_sub
+    """True if the drive of CONFIG row ``c`` runs in a group of lanes of ``n_sub``
+    substeps: any variant, one substep count per group."""
+    return int(c[CONFIG.SUBSTEPS]) == n_sub
 
 
 @_jit
@@ -186,8 +187,7 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
     (no damping law; pruned when compiled) or each drive's LAW row.
 
     A drive whose substep count is not that of the first drive of its group of
-    LANES, or that is not of the lanes' variant, runs through the kernel for the
-    whole call. Returns the number of drive-periods the kernel ran (those, and
+    LANES runs through the kernel for the whole call. Returns the number of drive-periods the kernel ran (those, and
     the periods run again).
     """
     n = LANES
@@ -202,7 +202,7 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
     for first in range(0, configs.shape[0], n):
         m = min(n, configs.shape[0] - first)
         n_sub = int(configs[first, CONFIG.SUBSTEPS])
-        # Drives of another variant: the kernel, for the whole call.
+        # Drives of another substep count: the kernel, for the whole call.
         fixed = np.zeros(n, dtype=np.bool_)
         for d in range(m):
             i = first + d

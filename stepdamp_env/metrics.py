@@ -4,7 +4,7 @@ merged across stretches of a run, and turned into :class:`RunMetrics` (SI)."""
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -80,13 +80,17 @@ class RunMetrics:
 
     def to_dict(self, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
         """JSON-ready; ``keys``: only these fields (e.g. :data:`METRICS_V0_V3`)."""
-        out = asdict(self)
+        # Shallow (dataclasses.asdict deep-copies: a fifth of a run's Python):
+        # every field is a number but the two dicts, made afresh here.
+        out = {name: getattr(self, name) for name in _FIELD_NAMES}
         out["harmonic_amplitude_rad_s"] = {str(h): v for h, v in
                                            self.harmonic_amplitude_rad_s.items()}
         out["harmonic_phasor_rad_s"] = {str(h): list(v) for h, v in
                                         self.harmonic_phasor_rad_s.items()}
         return out if keys is None else {k: out[k] for k in keys}
 
+
+_FIELD_NAMES = tuple(f.name for f in fields(RunMetrics))
 
 #: The fields a run's metrics held through 0.17 (stepdamp-bench v0-v3 record
 #: only these, so that their records stay as published).

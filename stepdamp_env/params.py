@@ -107,25 +107,25 @@ class Allowed:
     def check(self, name: str, value: Any) -> None:
         """Raise ``ParameterError`` naming ``name`` and this range if ``value`` is outside."""
         # numbers.Real admits numpy scalars; bool is a number only by accident.
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        if type(value) is not float and (isinstance(value, (bool, np.bool_))
+                                         or not isinstance(value, numbers.Real)):
             raise ParameterError(f"{name} must be a number, got {show_value(value)}")
-        lo_b = "(" if self.low_open else "["
-        hi_b = ")" if self.high_open else "]"
-        outside = (f"{name}={show_value(value)} is outside its allowed range "
-                   f"{lo_b}{self.low}, {self.high}{hi_b}")
         try:
-            # As a Python float: a float32 -2*pi must not compare in float32 arithmetic.
-            number = float(value)
+            number = float(value)       # a float32 -2*pi must compare as a Python float
         except OverflowError:
-            raise ParameterError(outside) from None
+            raise ParameterError(self.outside(name, value)) from None
         if not math.isfinite(number):
             raise ParameterError(f"{name} must be finite, got {show_value(value)}")
         if self.integer and number != int(value):
             raise ParameterError(f"{name} must be an integer, got {show_value(value)}")
-        lo_ok = number > self.low if self.low_open else number >= self.low
-        hi_ok = number < self.high if self.high_open else number <= self.high
-        if not (lo_ok and hi_ok):
-            raise ParameterError(outside)
+        if not ((number > self.low if self.low_open else number >= self.low)
+                and (number < self.high if self.high_open else number <= self.high)):
+            raise ParameterError(self.outside(name, value))
+
+    def outside(self, name: str, value: Any) -> str:
+        """The message for ``value`` outside this range."""
+        return (f"{name}={show_value(value)} is outside its allowed range {'(['[not self.low_open]}"
+                f"{self.low}, {self.high}{')]'[not self.high_open]}")
 
 
 @dataclass(frozen=True)
@@ -152,20 +152,21 @@ def _same_range_as(cls: type, name: str) -> Mapping[str, Allowed]:
     return next(f.metadata for f in fields(cls) if f.name == name)
 
 
+@functools.lru_cache(maxsize=None)
+def _checked_fields(cls: type) -> tuple[tuple[str, bool, "Allowed | OneOf"], ...]:
+    """(name, optional, allowed range) of each field of ``cls``, read once per class."""
+    return tuple((f.name, f.default is None, f.metadata["allowed"]) for f in fields(cls))
+
+
 def _validate_fields(obj: Any) -> None:
     """Check every set field against the range in its metadata; coerce to int or float."""
-    for f in fields(obj):
-        value = getattr(obj, f.name)
-        if value is None and f.default is None:      # an optional gain: derived
+    for name, optional, rng in _checked_fields(type(obj)):
+        value = getattr(obj, name)
+        if value is None and optional:      # an optional gain: derived
             continue
-        rng: Allowed | OneOf = f.metadata["allowed"]
-        rng.check(f.name, value)
-        if isinstance(rng, OneOf):
-            continue
-        if rng.integer:
-            object.__setattr__(obj, f.name, int(value))
-        else:
-            object.__setattr__(obj, f.name, float(value))
+        rng.check(name, value)
+        if not isinstance(rng, OneOf):
+            object.__setattr__(obj, name, int(value) if rng.integer else float(value))
 
 
 @dataclass(frozen=True)

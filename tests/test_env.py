@@ -89,6 +89,33 @@ def test_spaces_and_scaling():
     assert cur.sampler.action_scales[0] == pytest.approx(0.25 * 1.9)
 
 
+def test_each_env_has_its_own_spaces_of_read_only_bounds():
+    # The spaces of a layout are made once and copied: an env's space (its random
+    # generator) is its own, and the shared bounds cannot be changed in place.
+    a, b = StepperDampEnv(), StepperDampEnv()
+    assert a.observation_space is not b.observation_space
+    assert a.observation_space == b.observation_space and a.action_space == b.action_space
+    a.action_space.seed(1)
+    b.action_space.seed(2)
+    assert not np.array_equal(a.action_space.sample(), b.action_space.sample())
+    with pytest.raises(ValueError):
+        a.observation_space.high[0] = 0.0
+
+
+def test_run_metrics_dict_is_asdicts():
+    import dataclasses
+
+    env = StepperDampEnv(speed_rps=1.0, measure_from_s=0.1)
+    env.reset(seed=0)
+    for _ in range(400):
+        env.step(np.zeros(6, dtype=np.float32))
+    m = env.run_metrics()
+    want = dataclasses.asdict(m)
+    want["harmonic_amplitude_rad_s"] = {str(h): v for h, v in want["harmonic_amplitude_rad_s"].items()}
+    want["harmonic_phasor_rad_s"] = {str(h): list(v) for h, v in want["harmonic_phasor_rad_s"].items()}
+    assert m.to_dict() == want and list(m.to_dict()) == list(want)
+
+
 @pytest.mark.parametrize("mode", ["open-loop", "servo"])
 def test_harmonic_plus_current_is_both_modes_at_once(mode):
     """Its first six entries act as "harmonic" mode, the seventh as "current" mode:

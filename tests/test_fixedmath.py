@@ -155,6 +155,47 @@ def test_mlp_forward_is_the_network_and_independent_of_the_batch():
     assert np.array_equal(got, one)
 
 
+def _mlp_row_by_row(x, weights, biases, sizes, acts):
+    """mlp_forward's contract written plainly: one row at a time, each sum in
+    input order from the bias (Python floats: no reassociation, no FMA)."""
+    out = []
+    for row in np.asarray(x, dtype=float):
+        a = list(row)
+        w_at = b_at = 0
+        for layer, act in enumerate(acts):
+            n_in, n_out = int(sizes[layer]), int(sizes[layer + 1])
+            z = []
+            for o in range(n_out):
+                s = float(biases[b_at + o])
+                for i in range(n_in):
+                    s += float(weights[w_at + o * n_in + i]) * a[i]
+                if act == fn.ACTIVATION.RELU:
+                    s = s if s > 0.0 else 0.0
+                elif act == fn.ACTIVATION.TANH:
+                    s = fm.tanh(s)
+                z.append(s)
+            a = z
+            w_at += n_in * n_out
+            b_at += n_out
+        out.append(a)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("n", [1, 31, 32, 33, 103])      # mlp_forward computes 32 rows at a time
+def test_mlp_forward_in_blocks_of_rows_has_each_rows_bits(n):
+    # Widths that are not multiples of the four inputs per pass; a NaN row.
+    rng = np.random.default_rng(n)
+    sizes = np.array([7, 13, 6, 2])
+    acts = np.array([fn.ACTIVATION.RELU, fn.ACTIVATION.TANH, fn.ACTIVATION.IDENTITY])
+    weights = rng.normal(0.0, 1.0, 7 * 13 + 13 * 6 + 6 * 2)
+    biases = rng.normal(0.0, 1.0, 13 + 6 + 2)
+    x = rng.normal(0.0, 3.0, (n, 7)).astype(np.float32)
+    x[n // 2, 3] = np.nan
+    got = fn.mlp_forward(x, weights, biases, sizes, acts)
+    assert np.array_equal(got.view(np.uint64), _mlp_row_by_row(x, weights, biases, sizes,
+                                                               acts).view(np.uint64))
+
+
 def test_lstm_step_is_the_lstm_cell_and_keeps_each_runs_memory():
     """Gates i, f, g, o in torch's order: c' = f c + i g, h' = o tanh(c'), against a
     numpy cell; the rows given move on, the others keep their memory."""

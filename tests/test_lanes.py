@@ -2,8 +2,10 @@
 
 The branch-free pieces equal the kernel's branchy ones bit for bit on their
 domain; a batch stepped in lanes equals ``kernel.run_batch`` (and ``run_batch_law``)
-bit for bit, for drives of the lanes' variant and for every other drive, which the
-kernel runs again; and LLVM really did vectorise the loops over lanes.
+bit for bit, for a group of lanes that mixes every variant of the drive (open
+loop and servo, current and voltage mode, each velocity estimator and profile),
+the periods that leave the branch-free path being run again by the kernel; and
+LLVM really did vectorise the loops over lanes.
 """
 
 from __future__ import annotations
@@ -81,9 +83,8 @@ def test_log_lane_is_log_for_positive_normal_numbers():
 
 
 def _batch(n: int):
-    """n drives: mostly the lanes' variant (noise on some, inputs on some), every
-    other variant, which the kernel runs, and drives that leave the branch-free
-    path: beyond 1e6 rad of rotor or command angle, or turning fast enough for an
+    """n drives of every variant (noise on some, inputs on some), mixed in each
+    group of lanes, and drives that leave the branch-free path: beyond 1e6 rad of rotor or command angle, or turning fast enough for an
     RK4 stage to shift the angle by more than 1/8 rad. The second group of LANES
     starts with a drive of two substeps, so its others are left to the kernel."""
     names = ("patent", "qsh4218-51-10-049", "qsh5718-56-28-126", "qsh6018-65-28-210")
@@ -113,6 +114,19 @@ def _batch(n: int):
             settings = RunSettings(base_controller="patent-ff")
         elif kind == 9:
             profile = SpeedProfile(0.0)       # at rest: the rotor sticks
+        elif kind == 13:
+            profile = SpeedProfile(-3.0, kind="move", distance_rev=-0.05, ramp="s-curve",
+                                   accel_rps2=400.0)
+            settings = RunSettings(mode="servo", base_controller="patent-ff")
+        elif kind == 14:
+            system = system.replace(drive_mode="voltage", current_noise_a=0.02)
+            settings = RunSettings(mode="servo", velocity_estimator="kalman")
+        elif kind == 15:
+            # Voltage mode fast enough that its angle turns by more than 1/8 rad a period.
+            system = system.replace(drive_mode="voltage")
+            profile = SpeedProfile(9.0, accel_rps2=2000.0)
+        elif kind == 16:
+            settings = RunSettings(mode="servo", velocity_estimator="back-emf")
         # Half the drives' windows close inside the run (a move's cruise, v4).
         c = build_config(system, profile, settings, window_start_s=0.02,
                          window_end_s=0.06 if i % 2 else math.inf)
@@ -128,7 +142,7 @@ def _batch(n: int):
     return np.array(configs), np.array(states), new_accumulators(n), inputs
 
 
-KINDS = 13
+KINDS = 17
 
 
 def _laws(n: int) -> np.ndarray:
@@ -143,7 +157,7 @@ def _laws(n: int) -> np.ndarray:
 
 @pytest.mark.parametrize("with_law", [False, True])
 def test_a_batch_in_lanes_is_the_kernels_batch(with_law):
-    n = lanes.LANES + 9                 # a full group of lanes and a part of one
+    n = lanes.LANES + KINDS             # a full group of lanes and a part of one
     c, s, a, u = _batch(n)
     laws = _laws(n)
     got = [s.copy(), a.copy(), laws.copy()]
@@ -158,8 +172,8 @@ def test_a_batch_in_lanes_is_the_kernels_batch(with_law):
             again += lanes.run_batch_lanes(c, got[0], got[1], u, periods)
     for x, y in zip(got, want):
         assert np.array_equal(_bits(x), _bits(y))
-    # The kernel ran the other variants' drives and the far ones' periods; the
-    # fast one's for a while.
+    # The kernel ran the drives of another substep count and the far ones'
+    # periods; the fast one's for a while.
     first = (np.arange(n) // lanes.LANES) * lanes.LANES
     others = sum(not lanes.in_lanes(c[i], int(c[first[i], K.CONFIG.SUBSTEPS])) for i in range(n))
     far = sum(i % KINDS in (10, 11) and lanes.in_lanes(c[i], int(c[first[i], K.CONFIG.SUBSTEPS]))

@@ -58,7 +58,7 @@ def _voltage_step(system, theta, ia, ib, period, speed_rps):
     c = build_config(system, SpeedProfile(speed_rps, accel_rps2=1e9), RunSettings())
     q = K.controller_params(c)
     cs = (1.0, 2.0, theta, 2 * math.pi * speed_rps, 0.0, theta, ia, ib, 0.0, 0.0)
-    return c, K.control_step(float(period), theta, ia, ib, cs, q, (0.0,) * len(K.INPUT))
+    return c, K.control_step(float(period), theta, ia, ib, cs, q, (0.0,) * len(K.INPUT))[:3]
 
 
 @pytest.mark.slow

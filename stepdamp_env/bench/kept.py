@@ -57,17 +57,20 @@ class KeptResults:
         code_root: the folder of the package whose code computes the results
             (its ``.py`` sources join the key); None: this package's alone.
 
+        code: this package's :func:`.provenance.code_fingerprint`, if the caller
+            read it already (a board reads it once per worker); None: read now.
+
     The code is read when this object is made: make one per preparation (a
     batch), not one per process.
     """
 
-    def __init__(self, kind: str, code_root: str | None = None) -> None:
+    def __init__(self, kind: str, code_root: str | None = None, code: str | None = None) -> None:
         self.where = cache_dir(kind)
         self.kind = kind
         self.code = ""
         if self.where is not None:
             extra = "" if code_root is None else tree_digest(code_root, (".py",))
-            self.code = code_fingerprint() + extra
+            self.code = (code_fingerprint() if code is None else code) + extra
 
     def _path(self, key: Any) -> tuple[str, str] | None:
         if self.where is None:

@@ -85,6 +85,7 @@ _WORKER: dict[str, Any] = {}
 def _init_worker(motors: tuple[ProtocolMotor, ...], knowledge: dict, protocol: Protocol,
                  sources: dict[str, PolicySource] | None, runner: str = "batched") -> None:
     _WORKER["runner"] = runner
+    _WORKER.pop("code", None)
     _WORKER["motors"] = motors
     _WORKER["knowledge"] = knowledge
     _WORKER["protocol"] = protocol
@@ -106,13 +107,14 @@ def _make(spec: str, training_seed: int | None) -> Any:
     return source.make() if training_seed is None else source.training_seeds[training_seed]()
 
 
-def identify_cached(system: SystemParams, method: str, seed: int) -> FeedforwardModel | str:
+def identify_cached(system: SystemParams, method: str, seed: int,
+                    code: str | None = None) -> FeedforwardModel | str:
     """``identify(system, method=method, noise_seed=seed).model``, or the failure
     as a string ("ErrorType: message"), kept on disk (:class:`.kept.KeptResults`
     "identify") per system, method, seed and code (the package's sources and
-    dependency versions): identification is deterministic, so a kept model is
-    the one it would compute."""
-    kept = KeptResults("identify")
+    dependency versions; ``code``: their fingerprint if read already):
+    identification is deterministic, so a kept model is the one it would compute."""
+    kept = KeptResults("identify", code=code)
     key = {"system": system.to_dict(), "method": method, "seed": seed}
     content = kept.get(key)
     try:
@@ -133,15 +135,15 @@ def identify_cached(system: SystemParams, method: str, seed: int) -> Feedforward
 
 
 def identify_motor(protocol: Protocol, motor: ProtocolMotor, seed: int,
-                   cached: bool = True) -> FeedforwardModel | str:
+                   cached: bool = True, code: str | None = None) -> FeedforwardModel | str:
     """The model a protocol's drive identifies on ``motor`` with noise ``seed``, or
     the failure as a string. ``cached``: read and keep it in the identification
-    cache (:func:`identify_cached`); False computes it here and now."""
+    cache (:func:`identify_cached`, ``code`` as there); False computes it here and now."""
     system = motor.system
     if system.drive.drive_mode != "current":    # a drive commissions with its current loop
         system = system.replace(drive_mode="current")
     if cached:
-        return identify_cached(system, protocol.identification_method, seed)
+        return identify_cached(system, protocol.identification_method, seed, code)
     try:
         return identify(system, method=protocol.identification_method, noise_seed=seed).model
     except (RuntimeError, ParameterError) as exc:
@@ -153,7 +155,9 @@ def _identify_job(args: tuple[int, int]) -> FeedforwardModel | str:
     and the protocol then leaves the drive its nominal model (else an error)."""
     motor_index, seed = args
     protocol = _WORKER["protocol"]
-    model = identify_motor(protocol, _WORKER["motors"][motor_index], seed)
+    if "code" not in _WORKER:       # read once per worker and board, not per motor
+        _WORKER["code"] = code_fingerprint()
+    model = identify_motor(protocol, _WORKER["motors"][motor_index], seed, code=_WORKER["code"])
     if isinstance(model, str) and not protocol.nominal_on_failed_identification:
         raise ParameterError(f"identification of motor "
                              f"{_WORKER['motors'][motor_index].name!r} (seed {seed}) failed: "

@@ -10,6 +10,8 @@ with one too, so a seed gives the same motor and speed in v0 and v1.
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
 from typing import Any
 
@@ -28,6 +30,28 @@ from .options import PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_acti
 __all__ = ["EpisodeSampler"]
 
 TWO_PI = 2.0 * math.pi
+
+
+# The spaces of a layout, made once (gymnasium's Box checks its bounds: a tenth of
+# an env's construction); each env gets its own copy (its own random generator)
+# of bounds that are read-only.
+@functools.lru_cache(maxsize=None)
+def _observation_box(obs_dim: int, act_dim: int) -> spaces.Box:
+    high = np.full(obs_dim, C.OBS_BOUND, dtype=np.float32)
+    high[OBS.sin_x:OBS.cos_4x + 1] = 1.0
+    high[len(C.OBS):len(C.OBS) + act_dim] = 1.0
+    return _read_only(spaces.Box(-high, high, dtype=np.float32))
+
+
+@functools.lru_cache(maxsize=None)
+def _action_box(act_dim: int) -> spaces.Box:
+    return _read_only(spaces.Box(-1.0, 1.0, shape=(act_dim,), dtype=np.float32))
+
+
+def _read_only(box: spaces.Box) -> spaces.Box:
+    box.low.flags.writeable = False
+    box.high.flags.writeable = False
+    return box
 
 
 class EpisodeSampler(EnvTask):
@@ -129,14 +153,10 @@ class EpisodeSampler(EnvTask):
 
     # -- spaces ------------------------------------------------------------------
     def observation_space(self) -> spaces.Box:
-        n_act = self._act_dim
-        high = np.full(self._obs_dim, C.OBS_BOUND, dtype=np.float32)
-        high[OBS.sin_x:OBS.cos_4x + 1] = 1.0
-        high[len(C.OBS):len(C.OBS) + n_act] = 1.0
-        return spaces.Box(-high, high, dtype=np.float32)
+        return copy.copy(_observation_box(self._obs_dim, self._act_dim))
 
     def action_space(self) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, shape=(self._act_dim,), dtype=np.float32)
+        return copy.copy(_action_box(self._act_dim))
 
     # -- drawing -----------------------------------------------------------------
     def draw_system(self, rng: np.random.Generator) -> SystemParams:

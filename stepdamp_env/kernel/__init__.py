@@ -32,10 +32,11 @@ importable from here.
 
 from __future__ import annotations
 
-from .control import (LANES_VARIANT, command, constant_speed_command, control_step, controller_params,
-                      current_command, current_loop, estimate_velocity, feedforward_torque,
-                      gaussian_pair, in_lanes_variant, move_command, quantise, sense_currents, splitmix64,
-                      uniform_pair, voltage_drive)
+from .control import (command, command_in, constant_speed_command, control_step,
+                      controller_params, current_command, current_command_lanes, current_loop,
+                      estimate_velocity, estimate_velocity_lanes, feedforward_torque,
+                      gaussian_pair, move_command, quantise, s_curve_command, s_curve_lanes,
+                      sense_currents, splitmix64, uniform_pair, voltage_drive, voltage_drive_lanes)
 from .layout import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, MODE, PLANT, PROFILE, STATE, TRACE,
                      TRACE_NAMES, TRACE_UNITS, VEL_EST, ControllerState, LawState, Metrics,
                      Sample)
@@ -64,7 +65,8 @@ __all__ = ["CONFIG", "DRIVE", "VEL_EST", "MODE", "PROFILE", "PLANT", "CTRL", "ST
            "resonant_phasor", "law_input", "law_current", "run_batch", "run_batch_law",
            "run_batch_parallel", "run_batch_law_parallel", "merge_rows", "step_batch",
            "step_batch_parallel", "without_law", "ControllerState", "Sample", "Metrics",
-           "LANES_VARIANT", "in_lanes_variant", "accumulate", "control_period", "load_controller",
+           "command_in", "s_curve_command", "s_curve_lanes", "estimate_velocity_lanes",
+           "current_command_lanes", "voltage_drive_lanes", "accumulate", "control_period", "load_controller",
            "store_controller", "load_plant", "store_plant", "load_metrics", "store_metrics",
            "load_law", "store_law", "LawState",
            "plant_step_in", "rk4_moving"]

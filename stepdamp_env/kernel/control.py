@@ -9,14 +9,15 @@ import math
 import numpy as np
 from numba import njit
 
-from ..fixedmath import log_in, sincos, sincos_in, sincos_shifted
+from ..fixedmath import log_in, sincos, sincos_in, sincos_lane, sincos_rotated, sincos_shifted
 from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST, ControllerState, Sample
 from .plant import harmonic_series, inverse_park_sc, park_sc, pi_output, pi_update, svpwm_legs
 
 __all__ = ["splitmix64", "uniform_pair", "gaussian_pair", "quantise", "constant_speed_command",
-           "move_command", "s_curve_command", "command", "LANES_VARIANT", "in_lanes_variant", "controller_params",
-           "feedforward_torque", "sense_currents", "estimate_velocity", "current_command",
-           "voltage_drive", "current_loop", "control_step"]
+           "move_command", "s_curve_command", "s_curve_lanes", "command", "command_in",
+           "controller_params", "feedforward_torque", "sense_currents", "estimate_velocity",
+           "estimate_velocity_lanes", "current_command", "current_command_lanes", "voltage_drive",
+           "voltage_drive_lanes", "current_loop", "control_step"]
 
 # No Python error checks on division: the inputs are validated before they get here.
 # No fastmath, not even contraction: a fused multiply-add rounds once where a CPU
@@ -157,26 +158,49 @@ def command(t, kind, speed, accel, distance):
     return s_curve_command(t, speed, accel, distance)
 
 
-#: The drive variant that runs in SIMD lanes (:mod:`stepdamp_env.lanes`): open
-#: loop, current mode, the encoder's low-pass velocity, a constant-speed profile.
-LANES_VARIANT = {"mode": MODE.OPEN_LOOP, "drive": DRIVE.CURRENT, "vel_est": VEL_EST.LOWPASS,
-                 "profile": PROFILE.CONSTANT}
-_L_MODE, _L_DRIVE, _L_VEL_EST, _L_PROFILE = (float(LANES_VARIANT[k]) for k in
-                                             ("mode", "drive", "vel_est", "profile"))
+@_jit_inline
+def s_curve_lanes(t, speed, accel, distance):
+    """:func:`s_curve_command` without branches, for SIMD lanes: the same bits
+    (one branch-free sine and cosine at the ramp that applies; its argument is
+    at most pi there)."""
+    sgn = 1.0 if distance >= 0.0 else -1.0
+    d = abs(distance)
+    vmax = abs(speed)
+    vmax = math.sqrt(2.0 * accel * d / math.pi) if math.pi * vmax * vmax / (2.0 * accel) > d else vmax
+    t_acc = math.pi * vmax / (2.0 * accel)
+    d_acc = 0.5 * vmax * t_acc
+    t_flat = (d - 2.0 * d_acc) / vmax if vmax > 0.0 else 0.0
+    k = math.pi / t_acc if t_acc > 0.0 else 0.0
+    td = t - t_acc - t_flat
+    rising = t < t_acc
+    sk, ck = sincos_lane(k * t if rising else k * td)
+    up = (sgn * 0.5 * vmax * (t - sk / k), sgn * 0.5 * vmax * (1.0 - ck))
+    cruise = (sgn * (d_acc + vmax * (t - t_acc)), sgn * vmax)
+    down = (sgn * (d - d_acc + 0.5 * vmax * (td + sk / k)), sgn * 0.5 * vmax * (1.0 + ck))
+    falling = td < t_acc
+    flat = t < t_acc + t_flat
+    return ((up[0] if rising else (cruise[0] if flat else (down[0] if falling else sgn * d))),
+            (up[1] if rising else (cruise[1] if flat else (down[1] if falling else 0.0))))
 
 
 @_jit_inline
-def in_lanes_variant(c):
-    """True if the drive of CONFIG row ``c`` is of :data:`LANES_VARIANT`."""
-    return (c[CONFIG.MODE] == _L_MODE and c[CONFIG.DRIVE_MODE] == _L_DRIVE
-            and c[CONFIG.VEL_EST] == _L_VEL_EST and c[CONFIG.PROFILE] == _L_PROFILE)
+def command_in(t, kind, speed, accel, distance, lanes):
+    """:func:`command`; for SIMD lanes (``lanes`` not None) every profile
+    computed and the drive's selected (a group of lanes may mix them)."""
+    if lanes is None:
+        return command(t, kind, speed, accel, distance)
+    p0, v0 = constant_speed_command(t, speed, accel)
+    p1, v1 = move_command(t, speed, accel, distance)
+    p2, v2 = s_curve_lanes(t, speed, accel, distance)
+    constant = kind == PROFILE.CONSTANT
+    move = kind == PROFILE.MOVE
+    return (p0 if constant else (p1 if move else p2)), (v0 if constant else (v1 if move else v2))
 
 
 @_jit
 def controller_params(c, lanes=None):
-    """The controller's constants as a tuple, the form :func:`control_step` takes;
-    for SIMD lanes (``lanes`` not None) the variant's codes are constants
-    (:data:`LANES_VARIANT`), so the other variants' branches compile away.
+    """The controller's constants as a tuple, the form :func:`control_step` takes
+    (``lanes``: kept for the callers that pass it; the same tuple).
 
     Positions are the ``Q_*`` names: (dt, Nr, holding current, microstep angle,
     Kp_i, Ki_i, encoder angle, velocity filter alpha, Kp_vel, Kp_pos, Ki_pos,
@@ -185,10 +209,8 @@ def controller_params(c, lanes=None):
     velocity estimator, Kalman k0, k1, back-EMF G1, G2, drive mode, R and L of
     the voltage mode's winding model).
     """
-    mode = c[CONFIG.MODE] if lanes is None else _L_MODE
-    drive = c[CONFIG.DRIVE_MODE] if lanes is None else _L_DRIVE
-    vel_est = c[CONFIG.VEL_EST] if lanes is None else _L_VEL_EST
-    profile = c[CONFIG.PROFILE] if lanes is None else _L_PROFILE
+    mode, drive = c[CONFIG.MODE], c[CONFIG.DRIVE_MODE]
+    vel_est, profile = c[CONFIG.VEL_EST], c[CONFIG.PROFILE]
     return (c[CONFIG.DT], c[CONFIG.NR], c[CONFIG.HOLD], c[CONFIG.MICROSTEP], c[CONFIG.KP_I], c[CONFIG.KI_I],
             c[CONFIG.ENCODER], c[CONFIG.VEL_ALPHA], c[CONFIG.KP_VEL], c[CONFIG.KP_POS], c[CONFIG.KI_POS],
             mode, c[CONFIG.BASE_CONTROLLER], c[CONFIG.KM_EST], c[CONFIG.FS_EST],
@@ -260,6 +282,31 @@ def estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_p
 
 
 @_jit_inline
+def estimate_velocity_lanes(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_prev, ib_prev,
+                            va_old, vb_old, theta_cmd, omega_cmd, q):
+    """:func:`estimate_velocity` for SIMD lanes: the three estimates computed and
+    the drive's selected (the same bits); also whether the back-EMF's angle
+    left the branch-free sine's range (beyond 1e6 rad, or NaN)."""
+    dt, nr = q[CTRL.DT], q[CTRL.NR]
+    ea = va_old - q[CTRL.BEMF_G1] * ia + q[CTRL.BEMF_G2] * ia_prev
+    eb = vb_old - q[CTRL.BEMF_G1] * ib + q[CTRL.BEMF_G2] * ib_prev
+    x_mid = (nr * (theta_cmd - 0.5 * dt * omega_cmd) if q[CTRL.MODE] == MODE.OPEN_LOOP
+             else nr * (theta_fb + 0.5 * q[CTRL.ENCODER]))
+    s_p, c_p = sincos_lane(x_mid)
+    w_raw = (c_p * eb - s_p * ea) * (1.0 / q[CTRL.KM_EST])
+    w_bemf = omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb)
+    predicted = theta_est + dt * omega_fb
+    innovation = theta_fb + 0.5 * q[CTRL.ENCODER] - predicted
+    w_kf = omega_fb + q[CTRL.KF_K1] * innovation
+    theta_kf = predicted + q[CTRL.KF_K0] * innovation
+    w_lp = omega_fb + q[CTRL.VEL_ALPHA] * ((theta_fb - theta_fb_prev) * (1.0 / dt) - omega_fb)
+    bemf = q[CTRL.VEL_EST] == VEL_EST.BACK_EMF
+    kalman = q[CTRL.VEL_EST] == VEL_EST.KALMAN
+    far = bemf & ((abs(x_mid) >= 1e6) | (x_mid != x_mid))
+    return (w_bemf if bemf else (w_kf if kalman else w_lp)), (theta_kf if kalman else theta_est), far
+
+
+@_jit_inline
 def current_command(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lanes=None):
     """The mode's current command: returns (pos_int, Park angle (rad), its sine
     and cosine, id_cmd, iq_cmd, iq_injected (A)). ``lanes``: see :func:`control_step`."""
@@ -291,6 +338,29 @@ def current_command(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lan
 
 
 @_jit_inline
+def current_command_lanes(theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u):
+    """:func:`current_command` for SIMD lanes: both modes computed, the drive's
+    selected, one branch-free sine and cosine at its angle (the same bits)."""
+    nr, dt = q[CTRL.NR], q[CTRL.DT]
+    open_loop = q[CTRL.MODE] == MODE.OPEN_LOOP
+    theta_meas = theta_fb + 0.5 * q[CTRL.ENCODER]
+    angle = nr * quantise(theta_cmd, q[CTRL.MICROSTEP]) if open_loop else nr * theta_meas
+    sin_a, cos_a = sincos_lane(angle)
+    ff = feedforward_torque(sin_a, cos_a, q, u)
+    iq_open = ff * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ]
+    theta_err = theta_cmd - theta_meas
+    pos_int_servo = pos_int + theta_err * dt
+    fs_ff = q[CTRL.FS_EST] if omega_cmd > 0.0 else (-q[CTRL.FS_EST] if omega_cmd < 0.0 else 0.0)
+    iq_inj = (ff + q[CTRL.BASE_CONTROLLER] * fs_ff) * (1.0 / q[CTRL.KM_EST]) + u[INPUT.IQ]
+    tau_fb = (q[CTRL.KP_VEL] * (omega_cmd - omega_fb) + q[CTRL.KP_POS] * theta_err
+              + q[CTRL.KI_POS] * pos_int_servo)
+    iq_servo = tau_fb * (1.0 / q[CTRL.KM_EST]) + iq_inj
+    return ((pos_int if open_loop else pos_int_servo), angle, sin_a, cos_a,
+            (q[CTRL.HOLD] if open_loop else 0.0), (iq_open if open_loop else iq_servo),
+            (iq_open if open_loop else iq_inj))
+
+
+@_jit_inline
 def voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q):
     """Voltage mode: no current feedback; the winding voltages (va, vb in V) for
     the commanded currents.
@@ -308,6 +378,26 @@ def voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q):
     va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
     v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
     return v_alpha - v_gamma, v_beta - v_gamma
+
+
+@_jit_inline
+def voltage_drive_lanes(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q):
+    """:func:`voltage_drive` for SIMD lanes: both of :func:`.fixedmath.sincos_shifted`'s
+    ways computed and the one it takes selected (the same bits); also whether
+    its angle left the branch-free sine's range."""
+    w_e = q[CTRL.NR] * omega_cmd
+    r_est, l_est = q[CTRL.R_EST], q[CTRL.L_EST]
+    vd = r_est * id_cmd - w_e * l_est * iq_cmd
+    vq = r_est * iq_cmd + w_e * l_est * id_cmd + q[CTRL.KM_EST] * omega_cmd
+    delta = 1.5 * q[CTRL.DT] * w_e
+    wide = abs(delta) > 0.125
+    s_far, c_far = sincos_lane(angle + delta)
+    s_near, c_near = sincos_rotated(sin_a, cos_a, delta)
+    sin_v, cos_v = (s_far if wide else s_near), (c_far if wide else c_near)
+    va_dem, vb_dem = inverse_park_sc(vd, vq, sin_v, cos_v)
+    v_alpha, v_beta, v_gamma = svpwm_legs(va_dem, vb_dem, q[CTRL.VDC])
+    far = wide & ((abs(angle + delta) >= 1e6) | (angle + delta != angle + delta))
+    return v_alpha - v_gamma, v_beta - v_gamma, far
 
 
 @_jit_inline
@@ -344,35 +434,55 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
     ``q`` is :func:`controller_params`, ``u`` the external inputs.
 
     ``lanes`` None: a drive's own loop. Not None: compiled for SIMD lanes
-    (:mod:`stepdamp_env.lanes`; ``q`` from ``controller_params(c, lanes)``):
-    the branch-free sine, cosine and logarithm, both branches of the sensor
-    noise computed and one selected, so a loop over lanes vectorises; the same
+    (:mod:`stepdamp_env.lanes`): every variant's branch computed and the
+    drive's selected (the ``*_lanes`` pieces), the branch-free sine, cosine and
+    logarithm, so a loop over lanes of any mix of variants vectorises; the same
     arithmetic, so the same bits.
 
     Returns (the new :class:`.layout.ControllerState`, (va, vb) winding voltages
-    to apply next period, the period's :class:`.layout.Sample`).
+    to apply next period, the period's :class:`.layout.Sample`, whether a
+    lane's back-EMF or voltage-mode angle left the branch-free path: beyond
+    1e6 rad or NaN; False for a drive's loop).
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
         vb_old = cs
     t = period * q[CTRL.DT]
-    theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL], q[CTRL.DISTANCE])
+    theta_cmd, omega_cmd = command_in(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL],
+                                      q[CTRL.DISTANCE], lanes)
     # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[CTRL.ENCODER])
     ia, ib = sense_currents(period, ia, ib, q, lanes)
-    omega_fb, theta_est = estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib,
-                                            ia_prev, ib_prev, va_old, vb_old, theta_cmd,
-                                            omega_cmd, q)
-    pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command(
-        theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lanes)
-    id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
-    if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
-        va, vb = voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
+    if lanes is None:
+        omega_fb, theta_est = estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia,
+                                                ib, ia_prev, ib_prev, va_old, vb_old, theta_cmd,
+                                                omega_cmd, q)
+        pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command(
+            theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u, lanes)
+        id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
+        if q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE:
+            va, vb = voltage_drive(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
+        else:
+            int_d, int_q, va, vb = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a,
+                                                cos_a, q)
+        far = False
     else:
-        int_d, int_q, va, vb = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a,
-                                            cos_a, q)
+        omega_fb, theta_est, far_est = estimate_velocity_lanes(
+            theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_prev, ib_prev, va_old,
+            vb_old, theta_cmd, omega_cmd, q)
+        pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command_lanes(
+            theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u)
+        id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
+        va_v, vb_v, far_v = voltage_drive_lanes(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
+        int_d_c, int_q_c, va_c, vb_c = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m,
+                                                    sin_a, cos_a, q)
+        voltage = q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE
+        va, vb = (va_v if voltage else va_c), (vb_v if voltage else vb_c)
+        int_d, int_q = (int_d if voltage else int_d_c), (int_q if voltage else int_q_c)
+        far = far_est | (voltage & far_v)
     return (ControllerState(int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
                             vb_old),
             (va, vb),
-            Sample(theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a))
+            Sample(theta_fb, theta_cmd, omega_cmd, id_m, iq_m, iq_cmd, iq_inj, angle, sin_a, cos_a),
+            far)
 
 

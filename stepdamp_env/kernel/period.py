@@ -8,9 +8,8 @@ functions: a row's field j is ``a[at + j*step]`` (``at`` the row's start and
 ``step`` 1 for a row of its own; in the lanes' workspace ``at`` is the
 block's first row times LANES plus the lane, and ``step`` LANES), and
 ``lanes`` None compiles the drive's loop (with branches) while the lane count
-compiles the lanes' (both branches computed and one selected, the branch-free
-sine, cosine and logarithm, :data:`.control.LANES_VARIANT`'s codes as
-constants). The arithmetic is the same, in the same order, so both give the
+compiles the lanes' (every variant's branches computed and the drive's
+selected, the branch-free sine, cosine and logarithm). The arithmetic is the same, in the same order, so both give the
 same bits."""
 
 from __future__ import annotations
@@ -159,12 +158,12 @@ def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_
     t = period * q[CTRL.DT]
     # Computation delay: this period applies what the previous one computed.
     va, vb = v_next
-    cs, v_next, obs = control_step(period, x[0], x[2], x[3], cs, q, u, lanes)
+    cs, v_next, obs, far = control_step(period, x[0], x[2], x[3], cs, q, u, lanes)
     # What this period applies is, at the next sample, the period that just ended.
     cs = ControllerState(cs.int_d, cs.int_q, cs.theta_fb_prev, cs.omega_fb, cs.pos_int,
                          cs.theta_est, cs.ia_prev, cs.ib_prev, va, vb)
     m, ref_off = accumulate(m, t, x, obs, win_start, win_end, ref_rate, lanes)
-    off_path = (abs(obs.angle) >= 1e6) | (obs.angle != obs.angle) | ref_off
+    off_path = (abs(obs.angle) >= 1e6) | (obs.angle != obs.angle) | ref_off | far
     return cs, (va, vb), v_next, obs, m, off_path
 
 
