@@ -183,6 +183,27 @@ def test_a_batch_in_lanes_is_the_kernels_batch(with_law):
     assert got[0][9, K.STATE.OMEGA] == 0.0                # stuck
 
 
+def test_a_nan_command_is_the_kernels_nan():
+    # An S-curve whose ramp time underflows (accel/speed beyond 1e308): the
+    # command is NaN from the first period; the lanes leave such a period to the
+    # kernel, so even the NaNs' bits are the kernel's.
+    c, s, a, u = _batch(lanes.LANES)
+    profile = SpeedProfile(1e-6, kind="move", distance_rev=0.05, ramp="s-curve",
+                           accel_rps2=1e307)
+    system = load_system("patent")
+    for i in (3, 20):
+        c[i] = build_config(system, profile, RunSettings(mode="servo"), window_start_s=0.0)
+        s[i] = initial_state(c[i])
+    want, got = [s.copy(), a.copy()], [s.copy(), a.copy()]
+    for periods in (1, 49):
+        K.run_batch(c, want[0], want[1], u, periods)
+        lanes.run_batch_lanes(c, got[0], got[1], u, periods)
+        if periods == 1:
+            assert np.isnan(want[0][3, K.STATE.THETA_CMD])
+        for x, y in zip(got, want):
+            assert np.array_equal(_bits(x), _bits(y))
+
+
 def test_resonant_terms_switched_on_between_calls():
     c, s, a, u = _batch(lanes.LANES)
     keep = np.array([i % KINDS in (0, 1, 8) for i in range(lanes.LANES)])

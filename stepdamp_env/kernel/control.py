@@ -441,8 +441,8 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
 
     Returns (the new :class:`.layout.ControllerState`, (va, vb) winding voltages
     to apply next period, the period's :class:`.layout.Sample`, whether a
-    lane's back-EMF or voltage-mode angle left the branch-free path: beyond
-    1e6 rad or NaN; False for a drive's loop).
+    lane's back-EMF or voltage-mode angle left the branch-free path (beyond
+    1e6 rad or NaN) or its command is NaN; False for a drive's loop).
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
         vb_old = cs
@@ -478,7 +478,8 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
         voltage = q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE
         va, vb = (va_v if voltage else va_c), (vb_v if voltage else vb_c)
         int_d, int_q = (int_d if voltage else int_d_c), (int_q if voltage else int_q_c)
-        far = far_est | (voltage & far_v)
+        # A NaN command (an S-curve whose ramp time underflows): the kernel's NaN, not the lanes'.
+        far = far_est | (voltage & far_v) | (theta_cmd != theta_cmd) | (omega_cmd != omega_cmd)
     return (ControllerState(int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
                             vb_old),
             (va, vb),
