@@ -174,20 +174,22 @@ class ResidualAgent(RowPolicy):
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         obs = np.asarray(observations, dtype=np.float32)
-        x = self._rows.augment(obs, rows)
         if self.residual_action != "feedback":
-            r = np.asarray(predict_rows(self.model, x), dtype=np.float64)
+            r = np.asarray(predict_rows(self.model, self._rows.augment(obs, rows)),
+                           dtype=np.float64)
             return self._rows.env_action(r, self.residual_scale, self.residual_action,
                                          rows).astype(np.float32)
         from .residual import feedback_current
 
-        vel = x[:, obs.shape[1]].astype(np.float64)
+        # The network sees the whole agent observation only when it sets the gain.
+        vel = self._rows.velocity_feature(obs, rows).astype(np.float64)
         if self._rows_step > 0:
             self._rows_sq[rows] += vel * vel
         if self._rows_step % self.hold_steps == 0:
             rms = (np.sqrt(self._rows_sq[rows] / self.hold_steps) if self._rows_step > 0
                    else np.zeros(len(rows)))
-            x_in = np.concatenate([x, rms.astype(np.float32)[:, None]], axis=1)
+            x_in = np.concatenate([self._rows.augment(obs, rows),
+                                   rms.astype(np.float32)[:, None]], axis=1)
             self._rows_gain[rows] = np.asarray(predict_rows(self.model, x_in),
                                                dtype=np.float64).reshape(-1)
             self._rows_sq[rows] = 0.0

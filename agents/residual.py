@@ -157,12 +157,16 @@ class EpisodeConstants:
         self.base_action[i] = dc if base == "ff-delay-comp" else 0.0
         self.velocity_gain[i] = velocity_feature_gain(nominal, speed_rps)
 
+    def velocity_feature(self, obs: np.ndarray, rows: Any = slice(None)) -> np.ndarray:
+        """The velocity feature of env observations (n, d): (n,) float32, the
+        first column :meth:`augment` adds."""
+        return np.clip(obs[:, OBS.velocity_error] * self.velocity_gain[rows], -FEATURE_BOUND,
+                       FEATURE_BOUND).astype(np.float32)
+
     def augment(self, obs: np.ndarray, rows: Any = slice(None)) -> np.ndarray:
         """Env observations (n, d) -> agent observations (n, d + N_FEATURES)."""
-        vel = np.clip(obs[:, OBS.velocity_error] * self.velocity_gain[rows], -FEATURE_BOUND,
-                      FEATURE_BOUND)
-        return np.concatenate([obs, vel[:, None].astype(np.float32), self.features[rows]],
-                              axis=1)
+        return np.concatenate([obs, self.velocity_feature(obs, rows)[:, None],
+                               self.features[rows]], axis=1)
 
     def env_action(self, residual: np.ndarray, residual_scale: float, residual_action: str,
                    rows: Any = slice(None)) -> np.ndarray:

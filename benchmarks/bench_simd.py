@@ -13,8 +13,10 @@ second. Variants: ``plain`` (no current noise: what ``bench_sim.py`` times),
 ``noise`` (current-sensor noise on every drive), ``law+noise`` (and a damping law
 with resonant terms, as the board's adaptive entries run); with noise too,
 ``servo`` (servo mode with the patent's feedforward), ``voltage`` (open loop in
-voltage mode), ``kalman`` (servo with the Kalman velocity) and ``s-curve`` (servo
-moves of one revolution with S-curve ramps).
+voltage mode), ``kalman`` (servo with the Kalman velocity), ``s-curve`` (servo
+moves of one revolution with S-curve ramps) and ``fast`` (open loop at 6-16
+rev/s, where the RK4 stages shift the electrical angle by 1/8 rad or more: the
+lanes' wide plant).
 
 ``--cpus`` repeats the measurement in children whose numba compiles for another
 CPU (``NUMBA_CPU_NAME`` with that CPU's features only: ``haswell`` is AVX2, 4
@@ -35,7 +37,7 @@ import time
 
 import numpy as np
 
-VARIANTS = ("plain", "noise", "law+noise", "servo", "voltage", "kalman", "s-curve")
+VARIANTS = ("plain", "noise", "law+noise", "servo", "voltage", "kalman", "s-curve", "fast")
 
 
 def batch(drives: int, variant: str):
@@ -53,6 +55,8 @@ def batch(drives: int, variant: str):
         if variant != "plain":
             system = system.replace(current_noise_a=0.02)
         speed = 0.3 + 3.2 * i / max(drives - 1, 1)
+        if variant == "fast":
+            speed = 6.0 + 10.0 * i / max(drives - 1, 1)
         profile = SpeedProfile(speed)
         settings = RunSettings(noise_seed=i)
         if variant in ("servo", "kalman", "s-curve"):

@@ -255,11 +255,19 @@ def sincos_in(x, lanes):
 
 
 @_inline
-def sincos_shifted_in(x0, s0, c0, delta, lanes):
-    """:func:`sincos_shifted`, or :func:`sincos_rotated` where ``lanes`` is not None."""
+def sincos_shifted_in(x0, s0, c0, delta, lanes, wide):
+    """:func:`sincos_shifted`, or where ``lanes`` is not None :func:`sincos_rotated`
+    (``wide`` None: |delta| <= 1/8 only) or, ``wide`` not None, both it and
+    :func:`sincos_lane` of x0 + delta with :func:`sincos_shifted`'s choice
+    selected (its bits for |x0 + delta| < 1e6; the choices are made when compiled)."""
     if lanes is None:
         return sincos_shifted(x0, s0, c0, delta)
-    return sincos_rotated(s0, c0, delta)
+    if wide is None:
+        return sincos_rotated(s0, c0, delta)
+    s_near, c_near = sincos_rotated(s0, c0, delta)
+    s_far, c_far = sincos_lane(x0 + delta)
+    big = abs(delta) > 0.125
+    return (s_far if big else s_near), (c_far if big else c_near)
 
 
 @_inline

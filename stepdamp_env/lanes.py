@@ -18,7 +18,10 @@ substep count, and a drive of another count is run by the kernel's own
 branch-free path in a period (an angle beyond 1e6 rad for
 :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8 rad for
 :func:`fixedmath.sincos_rotated`, a NaN) is run again by the kernel from its
-state at the period's start.
+state at the period's start. In a period that starts with a rotor of its group
+turning fast (an RK4 stage shift near 1/8 rad, :data:`WIDE_SHIFT`), the group's
+plant computes each stage's full sine as well and selects as the kernel does,
+so a fast rotor stays in lanes.
 
 ``StepperDampV1VectorEnv(simd=...)`` steps its drives here, and the board's
 batches of 32 runs or more (``StepperDampBatch.simd``; docs/performance.md,
@@ -54,6 +57,10 @@ _controller_params = njit(error_model="numpy", inline="always")(
 
 #: Drives stepped together (a multiple of every vector width).
 LANES = 32
+#: A group's plant computes wide RK4 stage shifts (each stage's full sine as well
+#: as the rotation) in periods that start with a rotor turning Nr * h * omega past
+#: this (rad; the rotation alone holds to 1/8 rad).
+WIDE_SHIFT = 0.1
 
 Blocks = namedtuple("Blocks", "CFG ST AC IN LW ST0 AC0 LW0 SIN COS VA VB RARE ROWS")
 
@@ -157,16 +164,17 @@ def control_lanes(w, law):
 
 
 @_jit
-def plant_lanes(w):
+def plant_lanes(w, wide):
     """One plant step (:func:`kernel.plant_step_in`, compiled for lanes) for every
-    lane, in place."""
+    lane, in place; ``wide`` not None: RK4 stage shifts beyond 1/8 rad computed
+    too (a fast rotor stays in lanes; each variant compiled once)."""
     n = LANES
     for d in range(n):
         c = _config_column(w, ROW.CFG, d)
         at = ROW.ST * n + d
         x, off_path = plant_step_in(load_plant(w, at, n), w[ROW.VA * n + d], w[ROW.VB * n + d],
                                     _plant_params(c), c[CONFIG.DT] / int(c[CONFIG.SUBSTEPS]),
-                                    c[CONFIG.W_STICK], n)
+                                    c[CONFIG.W_STICK], n, wide)
         store_plant(w, at, n, x)
         w[ROW.RARE * n + d] = 1.0 if off_path | (w[ROW.RARE * n + d] != 0.0) else 0.0
 
@@ -198,6 +206,7 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
     s_one = np.empty(len(STATE))
     a_one = np.empty(len(ACC))
     l_one = np.empty(len(LAW))
+    shift_per_speed = np.empty(n)
     again = 0
     for first in range(0, configs.shape[0], n):
         m = min(n, configs.shape[0] - first)
@@ -236,7 +245,16 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
                     if w[(ROW.LW + j) * n + d] != 0.0:
                         on = 1.0
                 w[(ROW.LW + LAW.RESONANT) * n + d] = on
+        # A stage shift of the electrical angle is about Nr * h * omega (rad).
+        for d in range(n):
+            shift_per_speed[d] = (w[(ROW.CFG + CONFIG.NR) * n + d]
+                                  * w[(ROW.CFG + CONFIG.DT) * n + d] / n_sub)
         for _ in range(n_periods):
+            # The wide plant where a rotor turns fast enough to shift past 1/8 rad
+            # (near it: a period it shifts past is run again by the kernel).
+            wide = False
+            for d in range(n):
+                wide = wide | (abs(w[_st(STATE.OMEGA, d)]) * shift_per_speed[d] > WIDE_SHIFT)
             for j in range(ROW.ST * n, ROW.IN * n):
                 w[j + (ROW.ST0 - ROW.ST) * n] = w[j]
             if laws is not None:
@@ -244,7 +262,10 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
                     w[j + (ROW.LW0 - ROW.LW) * n] = w[j]
             control_lanes(w, law)
             for _ in range(n_sub):
-                plant_lanes(w)
+                if wide:
+                    plant_lanes(w, 1)
+                else:
+                    plant_lanes(w, None)
             for d in range(m):
                 if not fixed[d] and w[ROW.RARE * n + d] != 0.0:
                     # The kernel runs this drive's period again from its start.

@@ -116,6 +116,23 @@ def test_deterministic_and_independent_of_workers(tiny_board):
     assert numbers(serial) == numbers(tiny_board)
 
 
+def test_the_outputs_of_a_board_without_its_fingerprint_carry_it(tiny_board, tmp_path):
+    # The CLI leaves the fingerprint to write_outputs (computed while the runs
+    # file compresses): the files are those of the board with it, byte for byte.
+    from stepdamp_env.bench.report import write_outputs
+
+    bare = {k: v for k, v in tiny_board.items() if k != "fingerprint"}
+    write_outputs(dict(tiny_board), str(tmp_path / "with"), tiny_protocol(), plots=False)
+    write_outputs(bare, str(tmp_path / "without"), tiny_protocol(), plots=False)
+    assert bare["fingerprint"] == tiny_board["fingerprint"]
+    names = sorted(os.listdir(tmp_path / "with"))
+    assert names == sorted(os.listdir(tmp_path / "without")) and "leaderboard.json" in names
+    for name in names:
+        assert ((tmp_path / "with" / name).read_bytes()
+                == (tmp_path / "without" / name).read_bytes()), name
+    assert load_leaderboard(str(tmp_path / "without"))["fingerprint"] == tiny_board["fingerprint"]
+
+
 def test_none_is_one_and_the_oracle_far_below(tiny_board):
     for suite in ("open-loop", "servo"):
         e = {x["name"]: x for x in tiny_board["entries"] if x["suite"] == suite}

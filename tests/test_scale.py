@@ -140,6 +140,43 @@ def test_batch_refuses_envs_of_two_layouts():
         StepperDampBatch([a, b])
 
 
+def test_a_batch_of_tasks_is_the_batch_of_their_reset_envs():
+    from stepdamp_env.env import StepperDampV1Env
+
+    kinds = [(StepperDampEnv, dict(motor="patent", speed_rps=0.5, measure_from_s=0.1)),
+             (StepperDampEnv, dict(motor="qsh4218-51-10-049", speed_rps=2.0,
+                                   measure_from_s=0.05, mode="servo")),
+             (StepperDampV1Env, dict(motor="patent", speed_rps=0.7, measure_from_s=0.1,
+                                     agent_hz=100, history=4, context="visible")),
+             (StepperDampV1Env, dict(motor="qsh5718-56-28-126", nominal="patent", speed_rps=1.1,
+                                     measure_from_s=0.1, agent_hz=100, history=4,
+                                     context="visible", base_controller="ff-delay-comp"))]
+    for version in (StepperDampEnv, StepperDampV1Env):
+        options = [o for cls, o in kinds if cls is version]
+        envs = [version(**o) for o in options]
+        for seed, env in enumerate(envs):
+            env.reset(seed=seed + 7)
+        want = StepperDampBatch(envs)
+        got = StepperDampBatch.of_tasks([version.task_of(**o) for o in options], [7, 8])
+        for _ in range(130 if version is StepperDampEnv else 15):     # past 0.1 s
+            actions = np.full((2, envs[0].action_space.shape[0]), 0.25, dtype=np.float32)
+            for name in ("obs", "time_s", "speeds_rps"):
+                assert np.array_equal(getattr(got, name), getattr(want, name))
+            for a, b in zip(got.step(actions), want.step(actions)):
+                assert np.array_equal(a, b)
+        for i in (0, 1):
+            assert (json.dumps(got.run_metrics(i).to_dict(), sort_keys=True)
+                    == json.dumps(want.run_metrics(i).to_dict(), sort_keys=True))
+    with pytest.raises(ValueError, match="one layout"):
+        StepperDampBatch.of_tasks([StepperDampEnv.task_of(**o) for _, o in kinds[:1]]
+                                  + [StepperDampEnv.task_of(**kinds[0][1], action_mode="current")],
+                                  [0, 0])
+    with pytest.raises(ValueError, match="measure_from_s"):
+        StepperDampBatch.of_tasks([StepperDampEnv.task_of(motor="patent")], [0])
+    with pytest.raises(ValueError, match="one seed per task"):
+        StepperDampBatch.of_tasks([StepperDampEnv.task_of(**kinds[0][1])], [0, 1])
+
+
 def test_predict_rows_is_sb3_predict_to_float32_and_the_same_for_any_batch():
     """The learned entries are evaluated by the fixed-order network (fixednet.mlp_forward):
     it agrees with SB3's torch predict to float32 rounding, and its rows do not

@@ -285,7 +285,7 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
                     workers: int | None = None, progress: bool = True,
                     resume_dir: str | None = None,
                     backend: Callable[..., list[Any]] | None = None,
-                    runner: str = "batched") -> dict[str, Any]:
+                    runner: str = "batched", fingerprint: bool = True) -> dict[str, Any]:
     """Evaluate policies (registered names, module paths, model files) under ``protocol``.
 
     ``policies`` defaults to :func:`.registry.default_policy_names`; the
@@ -305,7 +305,9 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     backend, :mod:`stepdamp_env.ray_backend`). ``runner``: "batched"
     (:func:`.runner.run_episodes`) or "scalar" (each run alone through
     :func:`.runner.run_episode`: the same numbers, slower; the reference of
-    ``benchmarks/bench_scale.py`` and of the tests).
+    ``benchmarks/bench_scale.py`` and of the tests). ``fingerprint`` False:
+    the board without its ``"fingerprint"``, which :func:`.report.write_outputs`
+    then computes while the runs file compresses (the CLI's way).
     """
     if runner not in ("batched", "scalar"):
         raise ParameterError(f"runner={runner!r} is not one of ['batched', 'scalar']")
@@ -336,7 +338,8 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     board["wall_seconds"] = time.perf_counter() - wall_start
     _move_last(board, ("simulated_seconds", "simulated_seconds_detail"))
     board["environment"] = environment()
-    board["fingerprint"] = board_fingerprint(board)
+    if fingerprint:
+        board["fingerprint"] = board_fingerprint(board)
     return board
 
 

@@ -15,7 +15,9 @@ import gzip
 import json
 import lzma
 import os
-from typing import Any, Mapping
+import queue
+import threading
+from typing import Any, Callable, Mapping
 
 from ..io import atomic_path, read_json, write_json, write_text
 from ..params import ParameterError
@@ -114,41 +116,90 @@ def _split(board: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     return compact, raw
 
 
-def write_outputs(board: Mapping[str, Any], out_dir: str, protocol: Protocol,
+def write_outputs(board: dict[str, Any], out_dir: str, protocol: Protocol,
                   plots: bool = True) -> list[str]:
     """Write leaderboard.json, its runs file, LEADERBOARD.md and the figures into
-    ``out_dir``, each atomically; returns the file names written."""
+    ``out_dir``, each atomically; returns the file names written. A board without
+    its ``"fingerprint"`` (``run_leaderboard(..., fingerprint=False)``) gets it,
+    computed while the runs file compresses."""
     os.makedirs(out_dir, exist_ok=True)
-    compact, raw = _split(board)
+    raw = _split(board)[1]
     written = ["leaderboard.json", RUNS_FILE, "LEADERBOARD.md"]
-    write_json(os.path.join(out_dir, written[0]), compact)
-    with atomic_path(os.path.join(out_dir, RUNS_FILE)) as tmp:
-        # xz stores no time: the same board gives the same bytes.
-        with lzma.open(tmp, "wb", preset=1) as fh:
-            fh.write(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
-    write_text(os.path.join(out_dir, written[2]), render_markdown(board))
-    if scored_in_db(board):
-        for suite in board["protocol"]["suites"]:
-            write_text(os.path.join(out_dir, suite_page(suite)), render_suite_page(board, suite))
-            written.append(suite_page(suite))
-    if plots:
-        if has_splits(board):
-            plot_performance_profile(board, os.path.join(out_dir, "performance_profile.png"))
-            written.append("performance_profile.png")
-        if "open-loop" in board["protocol"]["suites"]:
-            plot_overview(board, os.path.join(out_dir, "overview.png"), protocol)
-            written.append("overview.png")
-        for suite in board["protocol"]["suites"]:
-            if get_suite(suite).profile == "move":      # v4's moves: through each move
-                plot_move_traces(board, suite, os.path.join(out_dir, f"velocity_error_{suite}.png"),
-                                 protocol)
-                written.append(f"velocity_error_{suite}.png")
-                continue
-            for name, plot in ((f"ripple_vs_speed_{suite}.png", plot_ripple),
-                               (f"velocity_error_resonances_{suite}.png", None)):
-                if plot is None:
-                    plot_resonance_traces(board, suite, os.path.join(out_dir, name), protocol)
-                else:
-                    plot(board, suite, os.path.join(out_dir, name))
-                written.append(name)
+
+    def pages() -> None:
+        if "fingerprint" not in board:
+            board["fingerprint"] = board_fingerprint(board)
+        write_json(os.path.join(out_dir, written[0]), _split(board)[0])
+        write_text(os.path.join(out_dir, written[2]), render_markdown(board))
+        if scored_in_db(board):
+            for suite in board["protocol"]["suites"]:
+                write_text(os.path.join(out_dir, suite_page(suite)),
+                           render_suite_page(board, suite))
+                written.append(suite_page(suite))
+        if plots:
+            written.extend(_write_figures(board, out_dir, protocol))
+
+    _write_runs_file(os.path.join(out_dir, RUNS_FILE), raw, meanwhile=pages)
+    return written
+
+
+def _write_runs_file(path: str, raw: Mapping[str, Any], meanwhile: Callable[[], None]) -> None:
+    """The runs file, atomically: the JSON of ``raw`` into xz at preset 1, the
+    bytes of one ``write(json.dumps(raw))`` (xz stores no time: the same board
+    gives the same bytes). A thread compresses (lzma lets go of the GIL) while
+    this one encodes the entries, then runs ``meanwhile`` (the queue is not
+    bounded: the JSON waits in it, as ``json.dumps`` held it whole before)."""
+    chunks: queue.Queue[bytes | None] = queue.Queue()
+    failed: list[BaseException] = []
+    with atomic_path(path) as tmp, lzma.open(tmp, "wb", preset=1) as fh:
+        def compress() -> None:
+            while (chunk := chunks.get()) is not None:
+                if not failed:
+                    try:
+                        fh.write(chunk)
+                    except BaseException as exc:    # noqa: BLE001 - raised again below
+                        failed.append(exc)
+
+        worker = threading.Thread(target=compress, name="runs-file", daemon=True)
+        worker.start()
+        try:
+            if set(raw) != {"entries"}:
+                chunks.put(json.dumps(raw, separators=(",", ":"), allow_nan=True).encode())
+            else:
+                chunks.put(b'{"entries":[')
+                for i, entry in enumerate(raw["entries"]):
+                    text = json.dumps(entry, separators=(",", ":"), allow_nan=True)
+                    chunks.put(("," + text if i else text).encode())
+                chunks.put(b"]}")
+            chunks.put(None)
+            meanwhile()
+        finally:
+            chunks.put(None)
+            worker.join()
+        if failed:
+            raise failed[0]
+
+
+def _write_figures(board: Mapping[str, Any], out_dir: str, protocol: Protocol) -> list[str]:
+    """The board's figures into ``out_dir``; returns their file names."""
+    written: list[str] = []
+    if has_splits(board):
+        plot_performance_profile(board, os.path.join(out_dir, "performance_profile.png"))
+        written.append("performance_profile.png")
+    if "open-loop" in board["protocol"]["suites"]:
+        plot_overview(board, os.path.join(out_dir, "overview.png"), protocol)
+        written.append("overview.png")
+    for suite in board["protocol"]["suites"]:
+        if get_suite(suite).profile == "move":      # v4's moves: through each move
+            plot_move_traces(board, suite, os.path.join(out_dir, f"velocity_error_{suite}.png"),
+                             protocol)
+            written.append(f"velocity_error_{suite}.png")
+            continue
+        for name, plot in ((f"ripple_vs_speed_{suite}.png", plot_ripple),
+                           (f"velocity_error_resonances_{suite}.png", None)):
+            if plot is None:
+                plot_resonance_traces(board, suite, os.path.join(out_dir, name), protocol)
+            else:
+                plot(board, suite, os.path.join(out_dir, name))
+            written.append(name)
     return written

@@ -170,10 +170,11 @@ class EpisodeSpec:
     ramp: str = "trapezoid"
 
 
-def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
-              render: str | None, lag_limit_steps: float | None = None
-              ) -> tuple[Any, float, float, float, dict[str, Any]]:
-    """The episode's env (not reset), window (start, length), end time and options."""
+def _env_setup(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
+               lag_limit_steps: float | None = None
+               ) -> tuple[type, dict[str, Any], float, float, float, dict[str, Any]]:
+    """The episode's env class and its options, window (start, length), end time and
+    the policy's options."""
     system = spec.system
     if spec.accel_rps2 is not None:
         accel_rps2 = spec.accel_rps2
@@ -197,17 +198,21 @@ def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, wind
         end = start + length - slack
     if spec.until_s is not None:
         end = spec.until_s
-    env: Any
+    kwargs = dict(motor=system, mode=mode, speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
+                  measure_from_s=start, **options, **protocol_options)
     if policy_env_id(policy) == ENV_ID_V1:
-        env = StepperDampV1Env(motor=system, nominal=spec.knowledge.nominal, mode=mode,
-                               speed_rps=spec.speed_rps, accel_rps2=accel_rps2,
-                               measure_from_s=start, episode_s=end + 1.0, render_mode=render,
-                               **options, **protocol_options)
-    else:
-        env = StepperDampEnv(motor=system, mode=mode, speed_rps=spec.speed_rps,
-                             accel_rps2=accel_rps2, measure_from_s=start, render_mode=render,
-                             **options, **protocol_options)
-    return env, start, length, end, options
+        kwargs.update(nominal=spec.knowledge.nominal, episode_s=end + 1.0)
+        return StepperDampV1Env, kwargs, start, length, end, options
+    return StepperDampEnv, kwargs, start, length, end, options
+
+
+def _make_env(policy: Any, spec: EpisodeSpec, mode: str, accel_rps2: float, window_s: float,
+              render: str | None, lag_limit_steps: float | None = None
+              ) -> tuple[Any, float, float, float, dict[str, Any]]:
+    """The episode's env (not reset), window (start, length), end time and options."""
+    env_class, kwargs, start, length, end, options = _env_setup(
+        policy, spec, mode, accel_rps2, window_s, lag_limit_steps)
+    return env_class(render_mode=render, **kwargs), start, length, end, options
 
 
 def run_episode(policy: Policy, knowledge: MotorKnowledge, system: SystemParams, *,
@@ -294,12 +299,12 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
     """
     policy = batch_policy(make_policy)
     n = len(specs)
-    envs, ends, windows, contexts = [], np.zeros(n), [], []
+    tasks, ends, windows, contexts = [], np.zeros(n), [], []
     for i, spec in enumerate(specs):
-        env, start, length, end, options = _make_env(policy, spec, mode, accel_rps2, window_s,
-                                                     None, lag_limit_steps)
-        env.reset(seed=spec.seed)
-        envs.append(env)
+        # The env's task only: its batch row is what the env reset with the seed holds.
+        env_class, kwargs, start, length, end, options = _env_setup(
+            policy, spec, mode, accel_rps2, window_s, lag_limit_steps)
+        tasks.append(env_class.task_of(**kwargs))
         ends[i] = end
         windows.append((start, length))
         contexts.append(policy_context(
@@ -309,13 +314,14 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
     calibration = getattr(policy, "row_calibration_s", None)
     results: list[EpisodeResult | None] = [None] * n
     groups: dict[tuple, list[int]] = {}
-    for i, env in enumerate(envs):
-        groups.setdefault(StepperDampBatch.layout_of(env), []).append(i)
+    for i, task in enumerate(tasks):
+        groups.setdefault(task.layout(), []).append(i)
     for members in groups.values():
         # One batch: its runs are rows 0..k-1 of one reset_batch; they leave as they end.
         index = np.asarray(members, dtype=np.int64)
         policy.reset_batch([contexts[i] for i in members])
-        batch = StepperDampBatch([envs[i] for i in members])
+        batch = StepperDampBatch.of_tasks([tasks[i] for i in members],
+                                          [specs[i].seed for i in members])
         rows = np.arange(len(members))
         ends_rows = ends[index]
         no = np.zeros(len(members), dtype=bool)
@@ -362,6 +368,4 @@ def run_episodes(make_policy: Callable[[], Any], specs: Sequence[EpisodeSpec], *
             n_steps += 1
             if terminated.any():
                 finish(terminated, terminated, step_loss, overcurrent)
-    for env in envs:
-        env.close()
     return [r for r in results if r is not None]

@@ -128,7 +128,8 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
             clear_resume_dir(resume)
         board = run_leaderboard(protocol, chosen + extra, workers=args.workers,
                                 progress=not args.no_progress, resume_dir=resume,
-                                backend=backend_map(args.backend, args.ray_address))
+                                backend=backend_map(args.backend, args.ray_address),
+                                fingerprint=False)
         with staged_directory(args.out, RESULT_FILES,
                               own_dirs={RESUME_DIR: finish_resume_dir}) as stage:
             written = write_outputs(board, stage, protocol, plots=not args.no_plots)

@@ -119,6 +119,12 @@ class StepperDampEnv(OneDriveEnv, gym.Env):
         self._measuring = self.options.measure_from_s is not None
         self._attach(f, mode)
 
+    @staticmethod
+    def task_of(**options: Any) -> EpisodeSampler:
+        """The task of ``StepperDampEnv(**options)`` (the options checked), without
+        the env: what :meth:`.engine.StepperDampBatch.of_tasks` builds batches of."""
+        return EpisodeSampler(EnvOptions.from_kwargs(options))
+
     # -- public read-outs ------------------------------------------------------
     @property
     def drive_config(self) -> np.ndarray:

@@ -336,6 +336,12 @@ class StepperDampV1Env(OneDriveEnv, gym.Env):
         self.task = TaskV1(self.options)
         self._attach(self.task, mode)
 
+    @classmethod
+    def task_of(cls, **options: Any) -> TaskV1:
+        """The task of ``cls(**options)`` (the options checked), without the env:
+        what :meth:`.engine.StepperDampBatch.of_tasks` builds batches of."""
+        return TaskV1(EnvOptionsV1.from_kwargs(options, cls.env_id))
+
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self._check_steppable()
         d = self._drives
@@ -447,6 +453,10 @@ class StepperDampV2Env(StepperDampV1Env):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         super().__init__(render_mode=render_mode, **_with_defaults(self.defaults, options))
+
+    @classmethod
+    def task_of(cls, **options: Any) -> TaskV1:
+        return super().task_of(**_with_defaults(cls.defaults, options))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:

@@ -213,33 +213,42 @@ def rk4_step(x, va, vb, p, h):
     """
     x0 = p[PLANT.NR] * x[0]
     s0, c0 = sincos(x0)
-    return rk4_moving(x, x0, s0, c0, va, vb, p, h, None)[0]
+    return rk4_moving(x, x0, s0, c0, va, vb, p, h, None, None)[0]
 
 
 @_jit_inline
-def rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes):
+def rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes, wide):
     """:func:`rk4_step` given x0 = Nr*theta and its sine and cosine; returns the
-    new ``x`` and whether a stage shifted x0 by more than 1/8 rad (beyond
-    :func:`..fixedmath.sincos_rotated`'s range: only lanes, ``lanes`` not None,
-    need to know)."""
+    new ``x`` and whether a stage left the lanes' branch-free path (only lanes,
+    ``lanes`` not None, need to know): shifted x0 by more than 1/8 rad (beyond
+    :func:`..fixedmath.sincos_rotated`'s range), or, ``wide`` not None (wide
+    shifts computed too), to an angle beyond 1e6 rad or NaN."""
     w, ia, ib = x[1], x[2], x[3]
     nr = p[PLANT.NR]
     hh = 0.5 * h
     k1 = motor_derivative_sc(s0, c0, w, ia, ib, va, vb, p)
     shift2 = nr * hh * k1[0]
-    s2, c2 = sincos_shifted_in(x0, s0, c0, shift2, lanes)
+    s2, c2 = sincos_shifted_in(x0, s0, c0, shift2, lanes, wide)
     k2 = motor_derivative_sc(s2, c2, w + hh * k1[1], ia + hh * k1[2], ib + hh * k1[3],
                              va, vb, p)
     shift3 = nr * hh * k2[0]
-    s3, c3 = sincos_shifted_in(x0, s0, c0, shift3, lanes)
+    s3, c3 = sincos_shifted_in(x0, s0, c0, shift3, lanes, wide)
     k3 = motor_derivative_sc(s3, c3, w + hh * k2[1], ia + hh * k2[2], ib + hh * k2[3],
                              va, vb, p)
     shift4 = nr * h * k3[0]
-    s4, c4 = sincos_shifted_in(x0, s0, c0, shift4, lanes)
+    s4, c4 = sincos_shifted_in(x0, s0, c0, shift4, lanes, wide)
     k4 = motor_derivative_sc(s4, c4, w + h * k3[1], ia + h * k3[2], ib + h * k3[3],
                              va, vb, p)
     far = (abs(shift2) > 0.125) | (abs(shift3) > 0.125) | (abs(shift4) > 0.125)
+    if wide is not None:
+        far = _out_of_range(x0 + shift2) | _out_of_range(x0 + shift3) | _out_of_range(x0 + shift4)
     return rk4_combine(x, k1, k2, k3, k4, h), far
+
+
+@_jit_inline
+def _out_of_range(angle):
+    """Beyond :func:`..fixedmath.sincos_lane`'s range: |angle| >= 1e6 rad, or NaN."""
+    return (abs(angle) >= 1e6) | (angle != angle)
 
 
 @_jit_inline
@@ -266,16 +275,18 @@ def plant_step(x, va, vb, p, h, w_stick):
     (the kinetic energy removed, 0.5*J*w^2, is booked as friction loss) and
     friction holds it for the step. Returns the new ``x`` (see rk4_step).
     """
-    return plant_step_in(x, va, vb, p, h, w_stick, None)[0]
+    return plant_step_in(x, va, vb, p, h, w_stick, None, None)[0]
 
 
 @_jit_inline
-def plant_step_in(x, va, vb, p, h, w_stick, lanes):
+def plant_step_in(x, va, vb, p, h, w_stick, lanes, wide):
     """:func:`plant_step`, the one definition for a drive's own loop (``lanes``
     None: branches) and for SIMD lanes (``lanes`` not None, chosen when
-    compiled: both steps computed, one selected). Returns the new ``x`` and,
+    compiled: both steps computed, one selected; ``wide`` not None: stage
+    shifts beyond 1/8 rad too, :func:`rk4_moving`). Returns the new ``x`` and,
     for lanes, whether the step left their branch-free path (an angle beyond
-    1e6 rad or NaN, a stage shift beyond 1/8 rad); False for a drive's loop."""
+    1e6 rad or NaN, a stage shift beyond 1/8 rad unless wide); False for a
+    drive's loop."""
     x0 = p[PLANT.NR] * x[0]
     s0, c0 = sincos_in(x0, lanes)
     # The stick decision: the driving torque at rest, at x0 (computed only for a
@@ -285,7 +296,7 @@ def plant_step_in(x, va, vb, p, h, w_stick, lanes):
         stuck = stuck & (abs(driving_torque_sc(s0, c0, 0.0, x[2], x[3], p)) <= p[PLANT.FS])
     if lanes is None and stuck:
         return rk4_step_stuck(x, va, vb, p, h), False
-    moving, far = rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes)
+    moving, far = rk4_moving(x, x0, s0, c0, va, vb, p, h, lanes, wide)
     if lanes is None:
         return moving, False
     held = rk4_step_stuck(x, va, vb, p, h)
