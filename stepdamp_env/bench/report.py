@@ -171,10 +171,9 @@ def _write_runs_file(path: str, raw: Mapping[str, Any], meanwhile: Callable[[], 
                     text = json.dumps(entry, separators=(",", ":"), allow_nan=True)
                     chunks.put(("," + text if i else text).encode())
                 chunks.put(b"]}")
-            chunks.put(None)
             meanwhile()
         finally:
-            chunks.put(None)
+            chunks.put(None)            # the thread ends when it has written the rest
             worker.join()
         if failed:
             raise failed[0]
