@@ -27,8 +27,8 @@ SMALL = dict(suites=("open-loop", "servo"), servo_factors=(0.28, 0.56, 1.1), ser
              extrapolation_pairs=((0, "inertia"), (1, "0.9-degree")))
 
 
-def test_v3_is_the_default_protocol():
-    assert DEFAULT_VERSION == "v3"
+def test_v3_stays_runnable_after_v4_became_the_default():
+    assert DEFAULT_VERSION == "v4"
     assert isinstance(protocol_for("v3", quick=True), ProtocolV3)
 
 
@@ -405,27 +405,27 @@ def test_first_band_only_scan_finds_the_same_band():
 
 
 @pytest.mark.slow
-def test_default_leaderboard_is_v3_with_its_figures_report_and_check(tmp_path, capsys):
+def test_default_leaderboard_is_v4_with_its_figures_report_and_check(tmp_path, capsys):
     import json
 
     from stepdamp_env.cli import main
 
     out = tmp_path / "lb"
-    assert main(["leaderboard", "--quick", "--entries", "ff-delay-comp", "--out", str(out),
-                 "--no-progress", "--workers", "2"]) == 0
+    assert main(["leaderboard", "--quick", "--entries", "ff-delay-comp", "--eval-seeds", "1",
+                 "--out", str(out), "--no-progress", "--workers", "2"]) == 0
     board = json.loads((out / "leaderboard.json").read_text())
-    assert board["protocol"]["version"] == "v3"
+    assert board["protocol"]["version"] == "v4"
     keys = {(e["name"], e["suite"], e["split"]) for e in board["entries"]}
     assert keys == {(n, s, sp) for n in (REFERENCE_ROW, "none", "ff-delay-comp")
-                    for s in ("open-loop", "servo", "mid-band")
-                    for sp in ("interpolation", "extrapolation")}
+                    for s in ("open-loop", "servo", "mid-band", "moves")
+                    for sp in ("interpolation", "extrapolation", "catalogue")}
     for name in ("performance_profile.png", "overview.png", "ripple_vs_speed_servo.png",
-                 "velocity_error_resonances_mid-band.png"):
+                 "velocity_error_resonances_mid-band.png", "velocity_error_moves.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = (out / "LEADERBOARD.md").read_text()
-    assert "(LEADERBOARD_mid-band.md), extrapolation" in md and len(md.encode()) < 5000
+    assert "(LEADERBOARD_moves.md), extrapolation" in md and len(md.encode()) < 8000
     page = (out / "LEADERBOARD_mid-band.md").read_text()
-    assert "## mid-band, extrapolation" in page and "gap closed" in page
+    assert "## mid-band, catalogue" in page and "gap closed" in page
     capsys.readouterr()
     assert main(["report", str(out)]) == 0
     assert "attenuation" in capsys.readouterr().out
@@ -442,8 +442,8 @@ def test_custom_motors_under_v3_keep_their_encoder_and_rank_per_motor(tmp_path, 
     motors.write_text(json.dumps([{"base": "patent", "name": "my-nema23", "encoder_cpr": 131072},
                                   {"base": "qsh4218-51-10-049", "name": "my-nema17"}]))
     out = tmp_path / "board"
-    assert main(["leaderboard", "--quick", "--motors", str(motors), "--suite", "servo",
-                 "--entries", "ff-delay-comp", "--no-plots", "--no-progress", "--out",
+    assert main(["leaderboard", "--protocol", "v3", "--quick", "--motors", str(motors),
+                 "--suite", "servo", "--entries", "ff-delay-comp", "--no-plots", "--no-progress", "--out",
                  str(out)]) == 0
     printed = capsys.readouterr().out
     assert "Per motor, servo, custom (attenuation in dB" in printed

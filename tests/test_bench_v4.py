@@ -218,3 +218,16 @@ def test_v4_on_a_users_motors_runs_and_checks_its_bound_there(tmp_path):
     assert t["bound_check"]["holds"] == 2, t["bound_check"]
     assert t["saturated"] is None and "fewer than the 3" in t["saturated_why"]
     assert "bound holds on" in (out / "LEADERBOARD_open-loop.md").read_text()
+
+
+def test_report_check_reruns_a_board_of_one_split_and_fewer_seeds(tmp_path, capsys):
+    """`report --check` rebuilds the protocol with the board's --split and
+    --eval-seeds (it once said such a board was of no built-in protocol)."""
+    out = tmp_path / "board"
+    assert main(["leaderboard", "--quick", "--split", "catalogue", "--eval-seeds", "1",
+                 "--suite", "open-loop", "--entries", "none", "--out", str(out), "--no-plots",
+                 "--no-progress", "--workers", "1"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(out), "--check", "--sample", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "DIFFERS" not in printed and printed.strip().endswith("checks reproduce")

@@ -42,8 +42,13 @@ def test_results_tables_are_generated_from_the_committed_leaderboards():
     import subprocess
     import sys
 
+    v4 = load_leaderboard(os.path.join(RESULTS, "v4"), runs=False)
+    assert render_ladder(v4).strip() in RESULTS_PAGE
+    assert v4["protocol"]["variant"] == "full" and v4["protocol"]["version"] == "v4"
+    # Published without its runs file (43 MB): `stepdamp leaderboard` writes it again.
+    assert not os.path.exists(os.path.join(RESULTS, "v4", "leaderboard_runs.json.xz"))
     v3 = load_leaderboard(os.path.join(RESULTS, "v3"))
-    assert render_ladder(v3).strip() in README and render_ladder(v3).strip() in RESULTS_PAGE
+    assert render_ladder(v3).strip() in RESULTS_PAGE
     assert v3["protocol"]["variant"] == "full" and v3["protocol"]["version"] == "v3"
     board = load_leaderboard(RESULTS)
     assert render_ladder(board).strip() in RESULTS_PAGE
@@ -91,3 +96,17 @@ def test_per_speed_figures_in_the_readme_come_from_the_committed_board():
     assert "| ars-per-step | 0.77; 0.76 | 0.35; 0.95 | 0.64; 0.90 | 0.87; 0.60 |" in out
     assert "| ars-per-step | 0.96; 0.56 | 0.45; 0.82 | 0.56; 0.68 | 1.56; 0.24 |" in out
     assert "(ARS 0.35\nand 0.64 inside the training range, 0.45 and 0.56 outside)" in AGENTS
+
+
+def test_a_published_board_without_its_runs_file_says_how_to_get_it(capsys):
+    """v4's published board keeps its scores only: `report` says in one line how
+    to write the runs file again, and `--no-verify` shows the scores."""
+    from stepdamp_env.cli import main
+
+    v4 = os.path.join(RESULTS, "v4")
+    assert main(["report", v4]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "leaderboard_runs.json.xz" in err
+    assert "--protocol v4" in err and "--no-verify" in err
+    assert main(["report", v4, "--no-verify"]) == 0
+    assert "plant-bound" in capsys.readouterr().out

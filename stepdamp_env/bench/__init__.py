@@ -9,9 +9,9 @@ protocol      the protocol contract (``Protocol``: what every version says)
               and the settings all versions share
 protocols     the versions, one module each (its docstring is its spec):
               ``v0``, ``v1`` (splits, servo grid, settling, ``--motors``
-              files), ``v2`` (the mid-band suite), ``v3`` (the default: dB,
-              reference rows, dev split), ``v4`` (paired ranks, seeds,
-              per-cell eligibility, catalogue split); ``protocol_for`` by name
+              files), ``v2`` (the mid-band suite), ``v3`` (dB, reference
+              rows, dev split), ``v4`` (the default: paired ranks, seeds,
+              per-cell eligibility, catalogue split, moves); ``protocol_for`` by name
               (``full_protocol``/``quick_protocol`` are v0's, frozen)
 motors        ``ProtocolMotor`` and what the versions share to draw motors
 policy        the policy contract: ``Policy`` (and ``BatchPolicy``, one

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -44,14 +44,29 @@ def protocol_of_board(board: Mapping[str, Any]) -> Any:
             break
         if tuple(recorded.get("suites", ())) != tuple(protocol.suites):
             protocol = protocol.with_suites(tuple(recorded.get("suites", ())))
-        if tuple(recorded.get("splits", ())) == ("custom",):
+        splits = tuple(recorded.get("splits", ()))
+        if splits == ("custom",):
             protocol = protocol.with_custom_motors(
                 [system_from_mapping(m["parameters"]) for m in board["protocol"]["motors"]])
+        elif len(splits) == 1 and splits != tuple(protocol.to_dict().get("splits", ())):
+            protocol = _or_same(protocol, lambda p: p.with_splits(splits))     # --split
+        seeds = recorded.get("eval_seeds")
+        if isinstance(seeds, list) and seeds != list(protocol.to_dict().get("eval_seeds", seeds)):
+            protocol = _or_same(protocol, lambda p: p.with_eval_seeds(len(seeds)))  # --eval-seeds
         if _same(protocol.to_dict(), recorded):
             return protocol
     raise ParameterError(f"the board's protocol (version {version!r}) is none of the built-in "
                          "protocols or their quick variants; it cannot be re-run from the "
                          "command line")
+
+
+def _or_same(protocol: Any, change: Callable[[Any], Any]) -> Any:
+    """``change(protocol)`` (a CLI option the board was run with), or the
+    protocol as it is where the option does not apply to it."""
+    try:
+        return change(protocol)
+    except ParameterError:
+        return protocol
 
 
 def _sample(board: Mapping[str, Any], size: int) -> list[tuple[Mapping, Mapping]]:

@@ -59,9 +59,13 @@ def open_runs_file(path: str | os.PathLike[str]) -> Any:
     return opener(path, "rt", encoding="utf-8")
 
 
-def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
+def load_leaderboard(directory: str | os.PathLike[str], runs: bool | None = True
+                     ) -> dict[str, Any]:
     """The board as :func:`~.leaderboard.run_leaderboard` returned it, read from
-    ``leaderboard.json`` and its runs file."""
+    ``leaderboard.json`` and its runs file. ``runs`` False: the scores only
+    (the entries without their ``scores`` and ``runs``; a published board may
+    leave its runs file out, as v4's does); None: the runs where the runs file
+    is there. A missing runs file is a one-line ``ParameterError`` otherwise."""
     board = read_json(os.path.join(directory, "leaderboard.json"), "board")
     protocol = board.get("protocol") if isinstance(board, dict) else None
     if not (isinstance(board, dict) and isinstance(board.get("entries"), list)
@@ -76,6 +80,18 @@ def load_leaderboard(directory: str | os.PathLike[str]) -> dict[str, Any]:
         raise ParameterError(f"board {directory!r}: runs_file must be a file name beside it, "
                              f"got {runs_file!r}")
     path = os.path.join(directory, runs_file)
+    if runs is None:
+        runs = os.path.exists(path)
+    if not runs:
+        board.pop("runs_file", None)
+        return board
+    if not os.path.exists(path):
+        version = protocol.get("version")
+        raise ParameterError(
+            f"board {os.fspath(directory)!r} holds its scores but not its runs file {runs_file} "
+            f"(a published board may leave it out): `stepdamp leaderboard --protocol {version}"
+            f"{' --quick' if protocol.get('variant') == 'quick' else ''} --out DIR` writes it "
+            "again with the same fingerprint; --no-verify shows the scores")
     raw = read_json(path, "runs file", opener=lzma.open if path.endswith(".xz") else gzip.open)
     try:
         by_key = {(r["name"], r["suite"], r.get("split")): r for r in raw["entries"]}

@@ -20,7 +20,7 @@ __all__ = ["register_protocol", "protocol_versions", "protocol_for", "protocol_c
            "protocol_about", "known_suites", "DEFAULT_VERSION"]
 
 # What `stepdamp leaderboard` runs without --protocol.
-DEFAULT_VERSION = "v3"
+DEFAULT_VERSION = "v4"
 
 _REGISTRY: dict[str, dict[str, Any]] = {}
 

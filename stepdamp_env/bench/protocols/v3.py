@@ -143,5 +143,5 @@ def quick_protocol_v3() -> ProtocolV3:
 
 
 PROTOCOL = {"version": "v3", "full": full_protocol_v3, "quick": quick_protocol_v3,
-            "about": "scored in dB with reference rows, a dev split for tuning",
+            "about": "frozen; scored in dB with reference rows, a dev split for tuning",
             "quick_about": "v2's quick motors and one dev motor per preset, 0.1 s window"}

@@ -575,5 +575,5 @@ def quick_protocol_v4() -> ProtocolV4:
 
 PROTOCOL = {"version": "v4", "full": full_protocol_v4, "quick": quick_protocol_v4,
             "about": "paired ranks, three evaluation seeds, per-cell eligibility, a catalogue "
-                     "split of real motors",
+                     "split of real motors, a moves suite",
             "quick_about": "v3's quick motors, three catalogue motors, two evaluation seeds"}
