@@ -88,9 +88,15 @@ def from_namespace(cls: type, ns: argparse.Namespace) -> Any:
 
 
 def check_ranges(obj: Any) -> None:
-    """Every integer field with a range inside it (each entry of a tuple), else a
-    one-line ``ParameterError`` that names the option and its allowed range."""
+    """Every integer field with a range inside it (each entry of a tuple), and
+    every field with choices one of them (as the CLI checks, for objects built in
+    code), else a one-line ``ParameterError`` that names the option and what it
+    allows."""
     for f in dataclasses.fields(obj):
+        choices, value = f.metadata.get("choices"), getattr(obj, f.name)
+        if choices is not None and not (value is None and f.default is None) \
+                and value not in choices:
+            raise ParameterError(f"{_flag(f)} {value!r} is not one of {list(choices)}")
         low, high = f.metadata.get("low"), f.metadata.get("high")
         if low is None:
             continue

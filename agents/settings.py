@@ -87,6 +87,11 @@ def _int_or_text(text: str) -> int | str:
         return text
 
 
+#: ``--eval-rng``: validations isolated from the training's generators, or drawing
+#: torch's as before 0.18.0 (the committed models).
+EVAL_RNG_CHOICES = ("isolated", "shared")
+
+
 @dataclass
 class Args:
     """All arguments of a training run; each field is its ``--name-with-dashes``
@@ -120,6 +125,12 @@ class Args:
                                         flag="--envs-per-preset")
     eval_freq: int = option(5_000, "agent steps between validations (0: never)",
                             metavar="STEPS", low=0, high=1e12)
+    eval_rng: str = option("isolated", "what a validation may draw: 'isolated' (default), "
+                           "nothing the training draws (torch's, numpy's and Python's global "
+                           "generators are put back after it), so --eval-freq changes no "
+                           "model; 'shared', as before 0.18.0: loading the model for a "
+                           "validation draws torch's generator (how the committed models were "
+                           "trained)", choices=EVAL_RNG_CHOICES)
     val_seed: int = option(900_000, "seed of the validation motors' draw",
                            low=0, high=TRAINING_SEED_LIMIT - 1001)
     val_motors_per_preset: int = option(2, "validation motors drawn around each preset",
@@ -169,11 +180,8 @@ def load_hyperparams(args: Args) -> dict[str, Any]:
 
 def check_args(args: Args) -> None:
     """Every argument in its range, else a one-line ``ParameterError``."""
-    check_ranges(args)         # env seeds 1000*seed + k stay below TRAINING_SEED_LIMIT
-    if args.env not in ENV_IDS:
-        raise ParameterError(f"--env {args.env!r} is not one of {list(ENV_IDS)}")
-    if args.backend not in ("local", "ray"):
-        raise ParameterError(f"--backend {args.backend!r} is not one of ['local', 'ray']")
+    # Ranges (env seeds 1000*seed + k stay below TRAINING_SEED_LIMIT) and choices.
+    check_ranges(args)
     if args.ray_address is not None and args.backend != "ray":
         raise ParameterError("--ray-address needs --backend ray")
     import numba

@@ -43,13 +43,14 @@ What it does, in order, for each seed:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
 import os
 import sys
 import time
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -263,7 +264,8 @@ def train(args: Args) -> dict[str, Any]:
     def evaluate(tag: str) -> dict[str, Any]:
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
-        res = validator.score(path)
+        with kept_generators(args.eval_rng == "isolated"):
+            res = validator.score(path)
         res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
         log["evaluations"].append(res)
         head = f"[{res['wall_s']:7.1f} s] step {res['step']:>8d}  "
@@ -332,6 +334,27 @@ def train(args: Args) -> dict[str, Any]:
           + (", best.zip" if validator else "") + ", train_log.json", flush=True)
     env.close()
     return log
+
+
+@contextlib.contextmanager
+def kept_generators(keep: bool = True) -> Iterator[None]:
+    """Put torch's, numpy's and Python's global generators back as they were
+    (``keep``): a validation loads the model, whose construction draws torch's
+    generator, which the training's next update draws too."""
+    if not keep:
+        yield
+        return
+    import random
+
+    import torch
+
+    states = torch.get_rng_state(), np.random.get_state(), random.getstate()
+    try:
+        yield
+    finally:
+        torch.set_rng_state(states[0])
+        np.random.set_state(states[1])
+        random.setstate(states[2])
 
 
 def training_threads(args: Args) -> int:

@@ -25,8 +25,11 @@ def pytest_configure(config):
     from stepdamp_env.bench.warmup import warm_lanes, warm_up
 
     try:
-        warm_up(get_preset("patent"), workers=2)
-        warm_lanes(workers=2, always=True, here=False)   # xdist's workers do not fork from here
+        kernels = warm_up(get_preset("patent"), workers=2)
+        lanes = warm_lanes(workers=2, always=True, here=False)   # workers do not fork from here
+        # On CI's log: the compile is a large share of CI's time on a cold cache.
+        print(f"conftest: numba's cache warm after {kernels:.0f} s (kernels) + {lanes:.0f} s "
+              "(SIMD lanes)", flush=True)
     except Exception:       # noqa: BLE001 - only a head start: the workers compile it
         pass
 

@@ -333,3 +333,30 @@ def test_recurrent_network_refuses_what_it_cannot_read_and_bad_calls():
     memory[0][:] = 1.0
     fresh = network.initial_state(2)            # what a new reset_batch starts from
     assert not fresh[0].any() and not fresh[1].any()
+
+
+@pytest.mark.slow
+def test_validations_change_no_model_unless_they_share_the_generators(tmp_path):
+    """--eval-freq once changed the model it trained (a validation loads the model,
+    which draws torch's generator): isolated (the default), the validations leave
+    the training's generators as they were; 'shared' keeps the old behaviour that
+    the committed models were trained with."""
+    import zipfile
+
+    from stepdamp_agents.train import train
+
+    def weights(eval_freq: int, eval_rng: str = "isolated") -> bytes:
+        out = str(tmp_path / f"e{eval_freq}{eval_rng}")
+        train(Args(algo="ppo", out=out, total_timesteps=512, motors=MOTORS[:1],
+                   envs_per_motor=2, eval_freq=eval_freq, eval_rng=eval_rng,
+                   val_motors_per_preset=1, checkpoint_freq=0, progress=False,
+                   tensorboard=False, extra={"n_steps": 64, "batch_size": 64, "n_epochs": 1,
+                                             "env_kwargs": SHORT}))
+        with zipfile.ZipFile(os.path.join(out, "final.zip")) as z:
+            return z.read("policy.pth")
+
+    alone = weights(0)
+    assert weights(256) == alone
+    assert weights(256, "shared") != alone
+    with pytest.raises(ParameterError, match="--eval-rng"):
+        train(Args(algo="ppo", out=str(tmp_path / "x"), eval_rng="both", progress=False))

@@ -45,8 +45,6 @@ def test_results_tables_are_generated_from_the_committed_leaderboards():
     v4 = load_leaderboard(os.path.join(RESULTS, "v4"), runs=False)
     assert render_ladder(v4).strip() in RESULTS_PAGE
     assert v4["protocol"]["variant"] == "full" and v4["protocol"]["version"] == "v4"
-    # Published without its runs file (43 MB): `stepdamp leaderboard` writes it again.
-    assert not os.path.exists(os.path.join(RESULTS, "v4", "leaderboard_runs.json.xz"))
     v3 = load_leaderboard(os.path.join(RESULTS, "v3"))
     assert render_ladder(v3).strip() in RESULTS_PAGE
     assert v3["protocol"]["variant"] == "full" and v3["protocol"]["version"] == "v3"
@@ -98,15 +96,21 @@ def test_per_speed_figures_in_the_readme_come_from_the_committed_board():
     assert "(ARS 0.35\nand 0.64 inside the training range, 0.45 and 0.56 outside)" in AGENTS
 
 
-def test_a_published_board_without_its_runs_file_says_how_to_get_it(capsys):
+def test_a_published_board_without_its_runs_file_says_how_to_get_it(tmp_path, capsys):
     """v4's published board keeps its scores only: `report` says in one line how
     to write the runs file again, and `--no-verify` shows the scores."""
+    import shutil
+
     from stepdamp_env.cli import main
 
-    v4 = os.path.join(RESULTS, "v4")
+    v4 = str(tmp_path / "v4")        # the committed files (a run may write its runs file back)
+    os.makedirs(v4)
+    shutil.copy(os.path.join(RESULTS, "v4", "leaderboard.json"), v4)
     assert main(["report", v4]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "leaderboard_runs.json.xz" in err
     assert "--protocol v4" in err and "--no-verify" in err
     assert main(["report", v4, "--no-verify"]) == 0
     assert "plant-bound" in capsys.readouterr().out
+    assert main(["report", v4, "--check", "--no-verify"]) == 2      # --check needs the runs
+    assert "runs file" in capsys.readouterr().err

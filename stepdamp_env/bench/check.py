@@ -1,7 +1,8 @@
 """``stepdamp report DIR --check``: does a results directory reproduce here?
 
 The board's protocol is rebuilt from what ``leaderboard.json`` records (the
-built-in protocols, their quick variants, a suite subset, custom motors); its
+built-in protocols, their quick variants, a suite subset, custom motors, one
+split, a count of evaluation seeds); its
 motors must come out the same; then a sample of its cells (runs, spread evenly
 over every entry, suite and split) is run again, with each sampled motor and
 seed identified again, and each record compared bit for bit with the board's.

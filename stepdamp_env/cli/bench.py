@@ -42,7 +42,7 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                         "(default: all; 'none' always runs)")
     p.add_argument("--suite", choices=[*known_suites(), "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
-                        "in each suite beside its knowledge (the README's table)")
+                        "in each suite beside its knowledge (docs/results.md's tables)")
     p.add_argument("--split", choices=["dev", "interpolation", "extrapolation", "catalogue"],
                    default=None,
                    help="v3 or later: run one split; 'dev' is the split for tuning, ablations "
@@ -62,7 +62,7 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
     p.add_argument("dir", metavar="DIR", help="a directory `stepdamp leaderboard` wrote")
     p.add_argument("--suite", choices=[*known_suites(), "all"], default="all",
                    help="one suite's ranked table; 'all' (default): every entry's headline "
-                        "in each suite beside its knowledge (the README's table)")
+                        "in each suite beside its knowledge (docs/results.md's tables)")
     p.add_argument("--full", action="store_true", help="the whole LEADERBOARD.md table")
     p.add_argument("--check", action="store_true",
                    help="re-run a sample of the board's cells here and say, per cell, whether "
@@ -71,7 +71,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                    help="cells --check re-runs, spread over every entry, suite and split")
     p.add_argument("--no-verify", action="store_true",
                    help="show a board whose numbers do not match its fingerprint (edited or "
-                        "damaged files; by default that is an error)")
+                        "damaged files; by default that is an error), or the scores of a "
+                        "board published without its runs file")
     p.set_defaults(func=_cmd_report)
 
     from stepdamp_agents.train import ALGO_CHOICES, add_arguments
@@ -154,8 +155,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if not os.path.isfile(path):
         raise ParameterError(f"DIR {args.dir!r} holds no leaderboard.json (write one with "
                              "`stepdamp leaderboard --out DIR`)")
-    # --no-verify shows a board published without its runs file (its scores).
-    board = load_leaderboard(args.dir, runs=None if args.no_verify else True)
+    # --no-verify shows a board published without its runs file (its scores);
+    # --check needs the runs.
+    board = load_leaderboard(args.dir, runs=None if args.no_verify and not args.check else True)
     if not (args.no_verify or args.check):      # --check says so among its findings
         verify_fingerprint(board, args.dir)
     if args.check:

@@ -1,5 +1,6 @@
 """``stepdamp-bench v3``: suites that measure damping, scored in decibels from "no
-damping" (0 dB) to "no torque ripple" (gap closed = 1). The default protocol.
+damping" (0 dB) to "no torque ripple" (gap closed = 1). The default protocol
+until 0.18.0 (now v4), frozen.
 
 v1 and v2 stay frozen. v3 keeps v2's motors (the same draws, seed 7_733_052),
 suites (open-loop, servo, mid-band), ramp, window, settling and identification,
