@@ -443,8 +443,8 @@ def test_custom_motors_under_v3_keep_their_encoder_and_rank_per_motor(tmp_path, 
                                   {"base": "qsh4218-51-10-049", "name": "my-nema17"}]))
     out = tmp_path / "board"
     assert main(["leaderboard", "--protocol", "v3", "--quick", "--motors", str(motors),
-                 "--suite", "servo", "--entries", "ff-delay-comp", "--no-plots", "--no-progress", "--out",
-                 str(out)]) == 0
+                 "--suite", "servo", "--entries", "ff-delay-comp", "--no-plots", "--no-progress",
+                 "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "Per motor, servo, custom (attenuation in dB" in printed
     board = json.loads((out / "leaderboard.json").read_text())
