@@ -1,10 +1,13 @@
 """StepperDamp: active electronic damping of hybrid stepper motors (US 7,733,051)."""
 
+from . import numba_inline
 from .numba_cache import use_user_cache_dir
 
 # Before anything compiles: numba's on-disk cache goes to a per-user directory,
-# never into the installed package (an uninstall could not remove it).
+# never into the installed package (an uninstall could not remove it); numba's
+# inliner copies a callee's blocks once (compiles about 3x faster, same code).
 use_user_cache_dir()
+numba_inline.apply()
 
 from .params import FeedforwardModel, DriveParams, MotorParams, ParameterError, ServoParams, SystemParams, predicted_resonances
 from .motorfile import load_system

@@ -202,7 +202,10 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
     w = np.zeros(ROW.ROWS * n)
     law = None if laws is None else w
     empty = np.zeros((0, len(TRACE)))
-    every = np.int64(1)
+    # Typed int64, not a literal 1: a literal would compile the kernel's loop (and
+    # the wide plant) once more for it, minutes of compiling.
+    one = np.int64(1)
+    every = one
     s_one = np.empty(len(STATE))
     a_one = np.empty(len(ACC))
     l_one = np.empty(len(LAW))
@@ -263,7 +266,7 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
             control_lanes(w, law)
             for _ in range(n_sub):
                 if wide:
-                    plant_lanes(w, 1)
+                    plant_lanes(w, one)
                 else:
                     plant_lanes(w, None)
             for d in range(m):
@@ -275,11 +278,11 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
                     for j in range(len(ACC)):
                         a_one[j] = w[(ROW.AC0 + j) * n + d]
                     if laws is None:
-                        run_periods(configs[first + d], s_one, a_one, inputs[first + d], 1, empty, every)
+                        run_periods(configs[first + d], s_one, a_one, inputs[first + d], one, empty, every)
                     else:
                         for j in range(len(LAW)):
                             l_one[j] = w[(ROW.LW0 + j) * n + d]
-                        run_periods_law(configs[first + d], s_one, a_one, inputs[first + d], l_one, 1,
+                        run_periods_law(configs[first + d], s_one, a_one, inputs[first + d], l_one, one,
                                         empty, every)
                         for j in range(len(LAW)):
                             w[(ROW.LW + j) * n + d] = l_one[j]

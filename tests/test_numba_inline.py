@@ -1,0 +1,68 @@
+"""numba's inliner with one copy memo per callee (``stepdamp_env.numba_inline``):
+applied on import, and the machine code it compiles is numba's own."""
+
+from __future__ import annotations
+
+import re
+
+import numba
+import numpy as np
+
+from stepdamp_env import numba_inline
+
+
+@numba.njit(inline="always")
+def _leaf(x, k):
+    # Branches and a loop: a callee of several blocks.
+    acc = 0.0
+    for i in range(k):
+        if x > i:
+            acc += x * 0.5 - i
+        else:
+            acc -= x * 0.25
+    return acc
+
+
+@numba.njit(inline="always")
+def _middle(x, k):
+    # The same callee inlined twice in one function: the copies must not share objects.
+    a = _leaf(x, k)
+    b = _leaf(x + 1.0, k + 1)
+    return a * b if a > b else a - b
+
+
+def _outer(xs):
+    out = np.empty_like(xs)
+    for i in range(xs.size):
+        out[i] = _middle(xs[i], 3) + _leaf(xs[i] * 2.0, 2)
+    return out
+
+
+def _machine_code(dispatcher, xs):
+    dispatcher(xs)
+    asm = "".join(dispatcher.inspect_asm().values())
+    # The instructions alone (symbols and labels carry each compile's unique names).
+    return [re.sub(r"[_.\w]*outer[\w.$]*", "F", line.split("#")[0].strip())
+            for line in asm.splitlines() if line.startswith("\t") and not line.startswith("\t.")]
+
+
+def test_the_package_patches_numbas_inliner():
+    # Fails on a numba whose inliner changed shape: the kernels then compile unpatched (slower).
+    import stepdamp_env  # noqa: F401 - applies it
+
+    assert numba_inline.applied()
+
+
+def test_the_patched_inliner_compiles_the_same_code():
+    xs = np.random.default_rng(3).normal(size=64) * 4.0
+    numba_inline.restore()
+    try:
+        plain = numba.njit(_outer)
+        want, want_code = plain(xs), _machine_code(plain, xs)
+    finally:
+        numba_inline.apply()
+    patched = numba.njit(_outer)
+    got, got_code = patched(xs), _machine_code(patched, xs)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert got_code == want_code
+    assert len(got_code) > 50
