@@ -109,9 +109,11 @@ class CalibratedTable(DelayCompensatedFF):
             raise ValueError("calibrated-table needs a calibration rig (MotorKnowledge.rig)")
         model = estimate_model(self.estimate, knowledge)
         key = (rig.key, context.mode, repr(model), self.iterations, self.window_s)
-        if key not in _TABLES:
-            _TABLES[key] = self._kept_calibration(key, knowledge, context.mode, model)
-        torque, self.calibration_s = _TABLES[key]
+        # The nominal model picks the calibration speeds: part of the key here too.
+        memo = (*key, repr(knowledge.nominal))
+        if memo not in _TABLES:
+            _TABLES[memo] = self._kept_calibration(key, knowledge, context.mode, model)
+        torque, self.calibration_s = _TABLES[memo]
         g = torque_paths(knowledge.nominal, context.mode, context.speed_rps, model)
         self._action = harmonic_actions(torque / g, phasors(model), context.action_scale)
 

@@ -13,17 +13,21 @@ kernel's loop compiled in 55 s instead of 152 s on one core (AVX2 machine).
 IR in this process, not what it compiles (``tests/test_numba_inline.py``
 compares the machine code, and the fingerprint tests the bits). It applies
 only where numba's inliner still has the shape it relies on; elsewhere it
-leaves numba alone and the compile is only slower.
+leaves numba alone and the compile is only slower. ``STEPDAMP_NUMBA_INLINER=numba``
+in the environment leaves numba's inliner as it is (``benchmarks/bench_cold_start.py``
+compares the two).
 """
 
 from __future__ import annotations
 
 import copy
 import functools
+import os
+import sys
 import types
 from typing import Any
 
-__all__ = ["apply", "restore", "applied"]
+__all__ = ["ENV", "CHOICES", "apply", "restore", "applied"]
 
 # The memo of the copy under way and the scope of the blocks it copies.
 _current: dict[str, Any] = {"scope": None, "memo": {}}
@@ -52,13 +56,23 @@ def _fits(icc: types.ModuleType) -> bool:
             and any(getattr(c, "co_name", "") == "copy_ir" for c in consts))
 
 
+#: The environment variable and its values ("patched", the default, or "numba").
+ENV = "STEPDAMP_NUMBA_INLINER"
+CHOICES = ("patched", "numba")
+
+
 def apply() -> bool:
-    """Patch numba's inliner (idempotent). Returns whether it is patched."""
+    """Patch numba's inliner (idempotent) unless ``STEPDAMP_NUMBA_INLINER=numba``.
+    Returns whether it is patched."""
     from numba.core import inline_closurecall as icc
 
+    choice = os.environ.get(ENV, "") or CHOICES[0]
+    if choice not in CHOICES:
+        print(f"{ENV}: {choice!r} is not one of {', '.join(CHOICES)}; using {CHOICES[0]}",
+              file=sys.stderr)
     if _original:
         return True
-    if not _fits(icc):
+    if choice == "numba" or not _fits(icc):
         return False
     shim = types.ModuleType("copy")
     shim.__dict__.update(copy.__dict__)

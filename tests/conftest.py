@@ -34,6 +34,17 @@ def pytest_configure(config):
         pass
 
 
+#: Files whose tests take minutes (CI's log, --durations): collected first, so
+#: that pytest-xdist's --dist loadfile starts them at once, not last and alone.
+LONG_FIRST = ("test_cpu_determinism.py", "test_agents.py", "test_properties.py",
+              "test_bench_v1.py", "test_zoo.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FIRST)))   # stable
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _sb3_logs_in_the_tests_tmp(tmp_path_factory):
     """SB3's ``learn`` without a logger of its own makes a folder ``SB3-<date>``

@@ -22,11 +22,6 @@ import cpu_variants as V
 pytestmark = pytest.mark.slow
 
 
-def test_the_quick_boards_here_are_the_stored_ones():
-    got = V.quick_boards(workers=2)
-    assert V.differences(V.stored(), got) == []
-
-
 # CI's budget (20 minutes) keeps two cells here: the oldest CPU (every library
 # on its x86-64-v2 path, numba generic, the C library without FMA) and OpenBLAS's
 # AVX-512 kernels. The AVX2 machine, the other variants and all five protocols:
@@ -52,6 +47,12 @@ def emulated():
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+
+
+def test_the_quick_boards_here_are_the_stored_ones(emulated):
+    # The emulated CPUs' processes (the fixture) run meanwhile: CI's time.
+    got = V.quick_boards(workers=2)
+    assert V.differences(V.stored(), got) == []
 
 
 @pytest.mark.parametrize("variant", EMULATED)

@@ -3,6 +3,7 @@ rehearsals and ``calibrated-table``'s calibration find is read back from disk
 bit for bit, never reused by other code or another input, and computed again
 when its file is damaged."""
 
+import dataclasses
 import json
 import math
 import os
@@ -117,5 +118,11 @@ def test_calibrated_table_reads_its_table_back_bit_for_bit(cache, monkeypatch):
     learning._TABLES.clear()
     CalibratedTable(iterations=2).configure(ctx)
     assert len(_files(cache, "calibrated-table")) == 2
+    # So is another nominal motor (it picks the speeds), in this process too.
+    heavier = system.replace(J=2.0 * system.motor.J)
+    other = dataclasses.replace(ctx, knowledge=dataclasses.replace(ctx.knowledge, nominal=heavier))
+    CalibratedTable(iterations=3).configure(ctx)
+    CalibratedTable(iterations=3).configure(other)
+    assert len(_files(cache, "calibrated-table")) == 3
     learning._TABLES.clear()
     assert os.path.isdir(cache / "calibrated-table")

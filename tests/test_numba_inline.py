@@ -3,7 +3,10 @@ applied on import, and the machine code it compiles is numba's own."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 
 import numba
 import numpy as np
@@ -50,7 +53,18 @@ def test_the_package_patches_numbas_inliner():
     # Fails on a numba whose inliner changed shape: the kernels then compile unpatched (slower).
     import stepdamp_env  # noqa: F401 - applies it
 
-    assert numba_inline.applied()
+    assert numba_inline.applied() == (os.environ.get(numba_inline.ENV) != "numba")
+
+
+def test_the_environment_variable_leaves_numbas_inliner_or_names_its_values():
+    code = "import stepdamp_env.numba_inline as n; print(n.applied())"
+    for value, applied, said in (("numba", "False", ""), ("patched", "True", ""),
+                                 ("fast", "True", "STEPDAMP_NUMBA_INLINER: 'fast' is not one of "
+                                  "patched, numba; using patched")):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env={**os.environ, numba_inline.ENV: value}, check=True)
+        assert out.stdout.strip() == applied
+        assert out.stderr.strip() == said
 
 
 def test_the_patched_inliner_compiles_the_same_code():

@@ -12,9 +12,6 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-# One local Ray per process: under xdist (CI: --dist loadgroup) these tests share a worker.
-pytestmark = pytest.mark.xdist_group("ray")
-
 from stepdamp_env.bench import protocol_motors, quick_protocol_v1, run_leaderboard  # noqa: E402
 from stepdamp_env.motorfile import load_system  # noqa: E402
 from stepdamp_env.ray_backend import ray_map  # noqa: E402
