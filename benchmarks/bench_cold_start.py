@@ -1,7 +1,7 @@
 """The first board on a fresh machine against the next one (issue: cold start).
 
 Run: ``PYTHONPATH=. python benchmarks/bench_cold_start.py [--quick] [--workers 2]
-[--skip-board] [--skip-numba-inliner]``.
+[--skip-board] [--skip-serial] [--skip-numba-inliner]``.
 
 * **Compile**: :func:`stepdamp_env.bench.leaderboard.warm_up` (the kernels) and
   :func:`stepdamp_env.bench.warmup.warm_lanes` (the SIMD lanes) in a fresh numba
@@ -69,16 +69,19 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--quick", action="store_true", help="the quick board instead of the full")
     p.add_argument("--skip-board", action="store_true", help="the compile times only")
+    p.add_argument("--skip-serial", action="store_true", help="no serial compile")
     p.add_argument("--skip-numba-inliner", action="store_true",
                    help="no compile with numba's own inliner (the slow reference)")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        serial = compile_time(1, os.path.join(tmp, "c1"))
         parallel = compile_time(args.workers, os.path.join(tmp, "c2"))
         warm = compile_time(args.workers, os.path.join(tmp, "c2"))
-        print(f"compile (kernels + SIMD lanes, fresh numba cache): serial {_seconds(serial)}, "
-              f"{args.workers} processes {_seconds(parallel)} "
-              f"(ratio {sum(parallel) / sum(serial):.2f}); warm load {_seconds(warm)}")
+        print(f"compile (kernels + SIMD lanes, fresh numba cache): {args.workers} processes "
+              f"{_seconds(parallel)}; warm load {_seconds(warm)}")
+        if not args.skip_serial:
+            serial = compile_time(1, os.path.join(tmp, "c1"))
+            print(f"compile serially: {_seconds(serial)} ({args.workers} processes / serial "
+                  f"= {sum(parallel) / sum(serial):.2f})")
         if not args.skip_numba_inliner:
             plain = compile_time(args.workers, os.path.join(tmp, "c3"), "numba")
             print(f"compile with numba's own inliner, {args.workers} processes: "

@@ -29,18 +29,20 @@ from typing import Any
 
 __all__ = ["ENV", "CHOICES", "apply", "restore", "applied"]
 
-# The memo of the copy under way and the scope of the blocks it copies.
-_current: dict[str, Any] = {"scope": None, "memo": {}}
+# Inside an inlining (numba compiles under its global lock): the memo of the
+# copy under way and the scope of the blocks it copies.
+_current: dict[str, Any] = {"inside": False, "scope": None, "memo": {}}
 _original: dict[str, Any] = {}
 
 
 def _deepcopy(x: Any, memo: dict | None = None) -> Any:
-    """copy.deepcopy, except that the blocks of one callee (one scope), copied one
-    after the other by numba's copy_ir, share a memo. A block seen again starts
-    a new copy (the same IR copied twice), as does another scope."""
+    """copy.deepcopy, except that inside ``inline_ir`` the blocks of one callee
+    (one scope), copied one after the other by its copy_ir, share a memo. A
+    block seen again starts a new copy (the same IR copied twice), as does
+    another scope."""
     from numba.core import ir
 
-    if memo is None and isinstance(x, ir.Block):
+    if _current["inside"] and memo is None and isinstance(x, ir.Block):
         if _current["scope"] is not x.scope or id(x) in _current["memo"]:
             _current["scope"], _current["memo"] = x.scope, {}
         return copy.deepcopy(x, _current["memo"])
@@ -66,12 +68,12 @@ def apply() -> bool:
     Returns whether it is patched."""
     from numba.core import inline_closurecall as icc
 
+    if _original:
+        return True
     choice = os.environ.get(ENV, "") or CHOICES[0]
     if choice not in CHOICES:
         print(f"{ENV}: {choice!r} is not one of {', '.join(CHOICES)}; using {CHOICES[0]}",
               file=sys.stderr)
-    if _original:
-        return True
     if choice == "numba" or not _fits(icc):
         return False
     shim = types.ModuleType("copy")
@@ -82,11 +84,12 @@ def apply() -> bool:
     @functools.wraps(inline_ir)
     def fresh_memo_inline_ir(self, *args, **kwargs):
         # Each inlining copies from scratch: no object outlives it in the memo.
-        _current["scope"], _current["memo"] = None, {}
+        outer = dict(_current)
+        _current.update(inside=True, scope=None, memo={})
         try:
             return inline_ir(self, *args, **kwargs)
         finally:
-            _current["scope"], _current["memo"] = None, {}
+            _current.update(outer)
 
     _original.update(copy=icc.copy, inline_ir=inline_ir)
     icc.copy = shim

@@ -16,12 +16,16 @@ from stepdamp_env.simulation import (RunSettings, SpeedProfile, build_config, in
 
 
 def pytest_configure(config):
-    """Under pytest-xdist, the controller compiles (where numba's cache is cold)
-    the kernels, env steps and SIMD lanes once, on two processes, before the
-    workers start; otherwise every worker compiles the same code at once, which
-    costs CI minutes. Without xdist, or in a worker, nothing happens here."""
+    """Under pytest-xdist, the files run in collection order (LONG_FIRST; xdist
+    otherwise sorts --dist loadfile's files by their test counts), and the
+    controller compiles (where numba's cache is cold) the kernels, env steps and
+    SIMD lanes once, on two processes, before the workers start; otherwise every
+    worker compiles the same code at once, which costs CI minutes. Without
+    xdist, or in a worker, nothing happens here."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
     from stepdamp_env.bench.warmup import warm_lanes, warm_up
 
     try:

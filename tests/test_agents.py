@@ -151,13 +151,13 @@ def test_hyperparams_files_parse():
 @pytest.mark.slow
 def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
     out = str(tmp_path / "run")
-    # 800 decisions (2 evaluations, a checkpoint): CI's budget.
-    log = train(Args(algo="sac", env=RESIDUAL_ENV_ID, seed=4, out=out, total_timesteps=800,
+    # 400 decisions (2 evaluations, a checkpoint): CI's budget.
+    log = train(Args(algo="sac", env=RESIDUAL_ENV_ID, seed=4, out=out, total_timesteps=400,
                      motors=(MOTOR,),
-                     envs_per_motor=4, eval_freq=400, val_motors_per_preset=1,
-                     checkpoint_freq=400, progress=False, tensorboard=False,
-                     extra={"learning_starts": 200, "batch_size": 64}))
-    assert log["total_timesteps"] == 800 and len(log["evaluations"]) >= 2
+                     envs_per_motor=4, eval_freq=200, val_motors_per_preset=1,
+                     checkpoint_freq=200, progress=False, tensorboard=False,
+                     extra={"learning_starts": 100, "batch_size": 64}))
+    assert log["total_timesteps"] == 400 and len(log["evaluations"]) >= 2
     for name in ("final.zip", "final.agent.json", "best.zip", "train_log.json"):
         assert os.path.isfile(os.path.join(out, name))
     assert os.path.isdir(os.path.join(out, "checkpoints"))

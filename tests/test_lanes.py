@@ -253,19 +253,23 @@ def test_resonant_terms_switched_on_between_calls():
 
 
 def test_the_loops_over_lanes_are_vectorised():
-    # The code users run (loaded from numba's cache, or compiled here if cold):
-    # its optimised LLVM module must multiply vectors of doubles in the control
-    # with and without the law and in both plants. A cached function cannot be
-    # inspected by numba's public API; the module it links into callers can
-    # (numba's private _get_module_for_linking: if numba renames it, this fails).
-    w = np.zeros(lanes.workspace_size())
-    for fn, args in ((lanes.control_lanes, (w, w)), (lanes.control_lanes, (w, None)),
-                     (lanes.plant_lanes, (w, None)), (lanes.plant_lanes, (w, 1))):
-        fn(*args)
-        lib = fn.overloads[tuple(numba.typeof(a) for a in args)].library
-        ir = str(lib._get_module_for_linking())
-        assert re.search(r"fmul (\w+ )*<\d+ x double>", ir), \
-            f"{fn.__name__}{tuple(type(a).__name__ for a in args)}: not vectorised"
+    # The code users run (loaded from numba's cache, or compiled here if cold),
+    # with the argument types step_lanes passes (the law: none, or an optional
+    # row; the board's cache index lists these): its optimised LLVM must multiply
+    # vectors of doubles in both controls and both plants. A cached function
+    # cannot be inspected by numba's public API; the module it links into
+    # callers can (numba's private _get_module_for_linking: if numba renames it,
+    # this fails).
+    row = numba.typeof(np.zeros(lanes.workspace_size()))
+    for fn, sig in ((lanes.control_lanes, (row, numba.types.none)),
+                    (lanes.control_lanes, (row, numba.types.Optional(row))),
+                    (lanes.plant_lanes, (row, numba.types.none)),
+                    (lanes.plant_lanes, (row, numba.types.int64))):
+        fn.compile(sig)
+        cres = fn.overloads[sig]
+        # The function's own body, not the callees linked into its module.
+        ir = str(cres.library._get_module_for_linking().get_function(cres.fndesc.llvm_func_name))
+        assert re.search(r"fmul (\w+ )*<\d+ x double>", ir), f"{fn.__name__}{sig}: not vectorised"
 
 
 def test_lanes_give_up_no_drive_of_their_variant():

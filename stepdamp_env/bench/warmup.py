@@ -96,7 +96,7 @@ def warm_up(system: SystemParams, workers: int = 1, progress: bool = False) -> f
     ``progress``. Returns the seconds spent."""
     return _compile_once(compiled_marker(), _warm_part,
                          [(k, system) for k in range(len(_WARM_PARTS))], workers, progress,
-                         "the simulation kernels", "under a minute")
+                         "the simulation kernels", "one to two minutes")
 
 
 def _warm_lanes(action_mode: str) -> None:
@@ -118,14 +118,14 @@ def warm_lanes(workers: int = 1, progress: bool = False, always: bool = False,
     """:func:`warm_up` for the SIMD lanes, where batches step in them by default
     (:func:`.lanes.simd_by_default`; else nothing to do, unless ``always``,
     as the tests, which step in lanes on any CPU): compiled in ``workers``
-    processes first where this code's cache is cold (a few minutes, announced
+    processes first where this code's cache is cold (about a minute, announced
     on stderr if ``progress``), then loaded here unless not ``here`` (processes
     that do not fork from this one: only the cache is filled). Returns the seconds
     spent."""
     if not (always or lanes.simd_by_default(lanes.LANES)):
         return 0.0
     return _compile_once(compiled_marker("lanes"), _warm_lanes, list(LANES_PARTS), workers,
-                         progress, "the SIMD lanes", "a few minutes", here)
+                         progress, "the SIMD lanes", "about a minute", here)
 
 
 def _compile_once(marker: str | None, part: Callable[[Any], None], jobs: list[Any],
