@@ -7,11 +7,13 @@ deep-copy memo of its own, so the callee's whole scope (every variable) is
 copied once per block, and a nest of inlined functions multiplies that
 (numba/numba#8989 and #9204; numba 0.68 still does it). Here the blocks of one
 copy share one memo: one scope for all of them, as in the callee itself. The
-kernel's loop compiled in 55 s instead of 152 s on one core (AVX2 machine).
+kernels and SIMD lanes compiled in 150.5 s instead of 565.8 s on two processes
+(AVX2 machine; ``benchmarks/bench_cold_start.py``, docs/performance.md).
 
 :func:`apply` runs when the package is imported. It changes how numba copies
 IR in this process, not what it compiles (``tests/test_numba_inline.py``
-compares the machine code, and the fingerprint tests the bits). It applies
+compiles a nest of inlined functions both ways and compares the instructions;
+the fingerprint tests compare the bits). It applies
 only where numba's inliner still has the shape it relies on; elsewhere it
 leaves numba alone and the compile is only slower. ``STEPDAMP_NUMBA_INLINER=numba``
 in the environment leaves numba's inliner as it is (``benchmarks/bench_cold_start.py``
