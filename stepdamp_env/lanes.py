@@ -278,12 +278,13 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
                     for j in range(len(ACC)):
                         a_one[j] = w[(ROW.AC0 + j) * n + d]
                     if laws is None:
-                        run_periods(configs[first + d], s_one, a_one, inputs[first + d], one, empty, every)
+                        run_periods(configs[first + d], s_one, a_one, inputs[first + d], one, empty,
+                                    every)
                     else:
                         for j in range(len(LAW)):
                             l_one[j] = w[(ROW.LW0 + j) * n + d]
-                        run_periods_law(configs[first + d], s_one, a_one, inputs[first + d], l_one, one,
-                                        empty, every)
+                        run_periods_law(configs[first + d], s_one, a_one, inputs[first + d], l_one,
+                                        one, empty, every)
                         for j in range(len(LAW)):
                             w[(ROW.LW + j) * n + d] = l_one[j]
                     for j in range(len(STATE)):

@@ -87,12 +87,12 @@ def load_leaderboard(directory: str | os.PathLike[str], runs: bool | None = True
         return board
     if not os.path.exists(path):
         version = protocol.get("version")
+        quick = " --quick" if protocol.get("variant") == "quick" else ""
         raise ParameterError(
             f"board {os.fspath(directory)!r} holds its scores but not its runs file {runs_file} "
             "(a published board may leave it out): the command that made it (`stepdamp "
-            f"leaderboard --protocol {version}{' --quick' if protocol.get('variant') == 'quick' else ''}"
-            " --out DIR` and its options) writes the runs again with the same fingerprint; "
-            "--no-verify shows the scores")
+            f"leaderboard --protocol {version}{quick} --out DIR` and its options) writes the "
+            "runs again with the same fingerprint; --no-verify shows the scores")
     raw = read_json(path, "runs file", opener=lzma.open if path.endswith(".xz") else gzip.open)
     try:
         by_key = {(r["name"], r["suite"], r.get("split")): r for r in raw["entries"]}
