@@ -29,7 +29,7 @@ import sys
 import tempfile
 
 __all__ = ["use_user_cache_dir", "user_cache_dir", "active_cache_dir", "code_key",
-           "call_with_frame_room", "remove_private_folders"]
+           "package_subpath", "call_with_frame_room", "remove_private_folders"]
 
 _active = ""            # the folder numba caches this package's code in ("" none)
 _told: set[str] = set()  # notes printed, one line each per process
@@ -229,12 +229,14 @@ def _install_guard() -> None:
         return
     if getattr(plain, "stepdamp_guard", False):
         return
-    guarded = _guarded_caches(caching)
+    guarded, package = _guarded_caches(caching)
 
     def function_cache(py_func):
         ours = (getattr(py_func, "__module__", "") or "").split(".")[0] == __package__
+        if ours and not _active:        # no folder of ours (said at import)
+            return caching.NullCache()
         try:
-            cache = guarded(py_func)
+            cache = (package if ours else guarded)(py_func)
         except Exception as e:          # noqa: BLE001 - numba found no folder it can write
             _note("off", f"numba cannot cache in {_active or 'any folder'} ({_why(e)}); "
                          f"compiling without a cache")
@@ -251,7 +253,9 @@ def _install_guard() -> None:
 
 def _guarded_caches(caching):
     """numba's ``FunctionCache`` and its index/data file, guarded (see
-    :func:`_install_guard`); outside this package's folder they behave as numba's."""
+    :func:`_install_guard`; outside this package's folder they behave as numba's),
+    and the same cache located by the code's place in this package, for its own
+    functions (``PackageLocator``)."""
 
     class GuardedFile(caching.IndexDataCacheFile):
         def __init__(self, cache_path, filename_base, source_stamp):
@@ -292,6 +296,27 @@ def _guarded_caches(caching):
                 self.discard_damaged(e)
                 return None
 
+    class PackageLocator(caching.UserProvidedCacheLocator):
+        """This package's functions: cached under their folder's path inside the
+        package, not under the install path (numba's own locator hashes the absolute
+        folder), so ``pip install .`` and ``pip install -e .`` of the same code, or
+        two checkouts of it, share one compile. The folder is already this code's
+        (:func:`code_key`) and numba stamps each file by its content."""
+
+        def __init__(self, py_func, py_file):
+            super().__init__(py_func, py_file)
+            self._cache_path = os.path.join(os.path.dirname(self._cache_path),
+                                            package_subpath(py_file))
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not package_subpath(py_file):
+                return None
+            return super().from_function(py_func, py_file)
+
+    class PackageImpl(caching.CompileResultCacheImpl):
+        _locator_classes = [PackageLocator]
+
     class GuardedCache(caching.FunctionCache):
         def __init__(self, py_func):
             super().__init__(py_func)
@@ -316,7 +341,24 @@ def _guarded_caches(caching):
                 _note("unwritten", f"cannot write numba's cache in {_active} ({_why(e)}); "
                                    f"compiled code is not kept")
 
-    return GuardedCache
+    class PackageCache(GuardedCache):
+        _impl_class = PackageImpl
+
+    return GuardedCache, PackageCache
+
+
+def package_subpath(py_file: str) -> str:
+    """The folder of ``py_file`` inside this package as numba's cache names it
+    (``stepdamp_env.kernel``), or "" for a file outside the package."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    folder = os.path.dirname(os.path.abspath(py_file))
+    try:
+        if os.path.commonpath([folder, here]) != here:
+            return ""
+    except ValueError:                  # another drive
+        return ""
+    rel = os.path.relpath(folder, os.path.dirname(here))
+    return rel.replace(os.sep, ".")
 
 
 def _call(fn, args):

@@ -21,7 +21,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FLOORS = {
     "stepdamp_env.version": 0, "stepdamp_env.params": 0, "stepdamp_env.presets": 0,
     "stepdamp_env.io": 0, "stepdamp_env.parallel": 0, "stepdamp_env.kernel": 0,
-    "stepdamp_env.limits": 0, "stepdamp_env.errors": 0,
+    "stepdamp_env.limits": 0, "stepdamp_env.errors": 0, "stepdamp_env.interrupts": 0,
     "stepdamp_env.lanes": 0,
     "stepdamp_env.estimators": 0, "stepdamp_env.numba_cache": 0, "stepdamp_env.fixedmath": 0,
     "stepdamp_env.fixednet": 0,

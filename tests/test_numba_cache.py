@@ -31,11 +31,11 @@ def _env(xdg) -> dict:
     return env
 
 
-def _run(code: str | tuple, env: dict, args=None) -> subprocess.CompletedProcess:
+def _run(code: str | tuple, env: dict, args=None, cwd=None) -> subprocess.CompletedProcess:
     """Runs ``code`` (parts dedented one by one) or ``args``; no failure, no traceback."""
     parts = code if isinstance(code, tuple) else (code,)
     cmd = args or [sys.executable, "-c", "\n".join(textwrap.dedent(p) for p in parts)]
-    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300, cwd=cwd)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Traceback" not in out.stderr, out.stderr
     return out
@@ -207,3 +207,32 @@ def test_a_child_reuses_its_parents_temporary_folder_quietly(tmp_path):
     parent, child = out.stdout.splitlines()
     assert parent == child
     assert len(_note_lines(out.stderr)) == 1
+
+
+def test_two_installs_of_the_same_code_share_one_compile(tmp_path):
+    """``pip install .`` and ``pip install -e .`` put the same code at two paths;
+    numba's own locator keys its cache on the path, so each compiled anew. Here
+    two copies of the package: the second loads what the first compiled."""
+    import shutil
+
+    import stepdamp_env
+
+    source = os.path.dirname(os.path.abspath(stepdamp_env.__file__))
+    stats = """
+        s = fm.dot.stats
+        print(fm.__file__, sum(s.cache_hits.values()), sum(s.cache_misses.values()),
+              s.cache_path)
+        """
+    seen = []
+    for name in ("site-packages", "checkout"):
+        shutil.copytree(source, tmp_path / name / "stepdamp_env",
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        env = {**_env(tmp_path / "cache"), "PYTHONPATH": str(tmp_path / name)}
+        # Not from the working directory (python -c puts it first on the path).
+        out = _run((CALL, stats), env, cwd=tmp_path)
+        where, hits, misses, path = out.stdout.split()[-4:]
+        assert where == str(tmp_path / name / "stepdamp_env" / "fixedmath.py")
+        seen.append((int(hits), int(misses), path))
+        assert _note_lines(out.stderr) == []
+    assert seen[0][:2] == (0, 1) and seen[1][:2] == (1, 0), seen     # compiled, then loaded
+    assert seen[0][2] == seen[1][2] and seen[0][2].endswith(os.sep + "stepdamp_env")

@@ -70,7 +70,7 @@ def test_zoo_trains_and_evaluates_every_yaml_on_v2(tmp_path, algo):
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "StepperDamp-v2",
            "--gym-packages", package,
            "--conf-file", os.path.join(ROOT, "agents", "hyperparams", f"{algo}.yml"),
-           "-n", "2000", "--eval-freq", "500", "--eval-episodes", "2", "--seed", "1",
+           "-n", "800", "--eval-freq", "400", "--eval-episodes", "2", "--seed", "1",
            "--log-folder", str(tmp_path / "logs"), "-params", *V2_PARAMS[algo]]
     out = subprocess.run(cmd, cwd=tmp_path, env=dict(os.environ, MPLBACKEND="Agg"),
                          capture_output=True, text=True, timeout=900)

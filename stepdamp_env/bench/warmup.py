@@ -4,7 +4,6 @@ is cold), so that the workers inherit them."""
 
 from __future__ import annotations
 
-import hashlib
 import os
 import sys
 import time
@@ -27,16 +26,14 @@ __all__ = ["warm_up", "warm_lanes", "compiled_marker"]
 
 
 def compiled_marker(part: str = "") -> str | None:
-    """The file the warm-up leaves once this code, installed where it is, has
-    compiled (None: nothing is cached); ``part`` "lanes": the SIMD lanes'
-    (:func:`warm_lanes`). Numba keys its cache on the source files' paths too,
-    so a copy of the same code elsewhere (``pip install .`` beside ``-e .``, a
-    CI checkout) is cold though its code is not."""
+    """The file the warm-up leaves once this code has compiled (None: nothing is
+    cached); ``part`` "lanes": the SIMD lanes' (:func:`warm_lanes`). Like numba's
+    cache (:func:`.numba_cache.package_subpath`), it is the code's, wherever the
+    code is installed (``pip install .`` beside ``-e .``, a CI checkout)."""
     where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
     if not where:
         return None
-    here = hashlib.sha256(os.path.dirname(os.path.abspath(__file__)).encode()).hexdigest()
-    return os.path.join(where, f"compiled-{part + '-' if part else ''}{here[:16]}")
+    return os.path.join(where, f"compiled{'-' + part if part else ''}")
 
 
 def _warm_plain(system: SystemParams) -> None:
