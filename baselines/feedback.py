@@ -15,13 +15,14 @@ measures it). All models are the nominal ones (datasheet), except the oracle's.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Sequence
 
 import numpy as np
 
 from stepdamp_env import fixedmath as fm
-from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
+from stepdamp_env.bench.firmware import FilteredFeedback, FirmwareLaw, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        RowPolicy, estimate_model)
 from stepdamp_env.bench.suites import nearest_suite, suite_of, tuned_suite
@@ -95,13 +96,41 @@ class _FeedbackOnFF(DelayCompensatedFF):
             out["privileged"] = True
         return out
 
+    #: The exported law's :class:`FilteredFeedback` kind ("encoder", "back-emf").
+    filter_kind = ""
+
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
-        """Not exportable (see :mod:`stepdamp_env.bench.firmware`): the feedback runs
-        through filters at the agent rate, state that a table and gains do not hold."""
-        raise ParameterError(f"entry {self.name!r} cannot be exported: its feedback current "
-                             "comes from filters run at the agent rate (state, not a table "
-                             "and gains); export tuned-constant-gain (the kernel's stateless "
-                             "velocity feedback) or ff-delay-comp (its feedforward)")
+        """The law this entry runs in ``context`` (see
+        :mod:`stepdamp_env.bench.firmware`): ``ff-delay-comp``'s table, and its
+        feedback current computed every agent step from the same filters, gains and
+        float32 action, held in between (:class:`FilteredFeedback`, format /3);
+        open loop only, as the entry runs."""
+        if context.mode == "servo":
+            raise ParameterError(f"entry {self.name!r} cannot be exported in servo: "
+                                 f"{self.card.not_in_suites}")
+        self.reset(context)
+        table = DelayCompensatedFF(self.estimate).firmware_law(context)
+        a, b = self.gains
+        pwm_hz = context.knowledge.nominal.drive.pwm_hz
+        feedback = FilteredFeedback(
+            kind=self.filter_kind, periods_per_update=int(round(pwm_hz / context.agent_hz)),
+            gain_a=a, gain_b=b, lowpass_beta=self._beta,
+            highpass_alpha=self._hp_alpha if self.filter_kind == "encoder" else 0.0,
+            current_scale_a=context.current_scale_a)
+        cutoff = context.knowledge.nominal.servo.velocity_cutoff_hz
+        estimator = ("the drive's encoder difference through a first-order low-pass at "
+                     f"{cutoff!r} Hz" if self.filter_kind == "encoder" else
+                     "the back-EMF, v - R*i - L*di/dt over each PWM period projected on the "
+                     f"command's electrical angle, through a first-order low-pass at "
+                     f"{cutoff!r} Hz")
+        return dataclasses.replace(
+            table, entry=self.name, filtered_feedback=feedback,
+            velocity_estimator=f"{estimator}, read every agent step ({context.agent_hz!r} Hz)",
+            notes=(f"{self.name}: ff-delay-comp's table (the {self.estimate} detent model "
+                   "through the inverse current path at the held speed) plus its feedback "
+                   f"current for an added damping ratio of {self.zeta_add!r} at the nominal "
+                   f"wn, its signals low-passed at {self.filter_hz!r} Hz, computed every "
+                   "agent step and held in between, as the benchmark applies it."))
 
     def _feedforward(self, context: PolicyContext, system: SystemParams) -> np.ndarray:
         """ff-delay-comp's actions, with the current path of ``system``."""
@@ -181,6 +210,8 @@ class VelocityFeedback(_FeedbackOnFF):
                  filter_hz: float = DEFAULT_FILTER_HZ) -> None:
         super().__init__("velocity-feedback", zeta_add, filter_hz)
 
+    filter_kind = "encoder"
+
     def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal
         wn = self._start(context, nominal)
@@ -246,6 +277,8 @@ class SensorlessDamping(_FeedbackOnFF):
     def __init__(self, zeta_add: float = DEFAULT_SENSORLESS_ZETA_ADD,
                  filter_hz: float = DEFAULT_SENSORLESS_FILTER_HZ) -> None:
         super().__init__("sensorless-damping", zeta_add, filter_hz)
+
+    filter_kind = "back-emf"
 
     def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal

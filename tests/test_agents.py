@@ -156,7 +156,8 @@ def test_short_training_end_to_end_and_deterministic_reload(tmp_path):
                      motors=(MOTOR,),
                      envs_per_motor=4, eval_freq=200, val_motors_per_preset=1,
                      checkpoint_freq=200, progress=False, tensorboard=False,
-                     extra={"learning_starts": 100, "batch_size": 64}))
+                     # One thread: beside another xdist worker, two spin on two cores.
+                     num_threads=1, extra={"learning_starts": 100, "batch_size": 64}))
     assert log["total_timesteps"] == 400 and len(log["evaluations"]) >= 2
     for name in ("final.zip", "final.agent.json", "best.zip", "train_log.json"):
         assert os.path.isfile(os.path.join(out, name))

@@ -14,10 +14,13 @@ import pytest
 
 from stepdamp_baselines import make_baseline
 from stepdamp_env import kernel as K
+from stepdamp_env.env.layout import OBS
 from stepdamp_env.bench import MotorKnowledge, run_episode
-from stepdamp_env.bench.firmware import (FirmwareLaw, c_source, correction, entry_law,
-                                         export_law, firmware_knowledge, from_json,
-                                         microstep_table, policy_law, position_lowpass, to_json)
+from stepdamp_env.bench.firmware import (FilteredFeedback, FirmwareLaw, c_source, correction,
+                                         entry_law, export_law, filtered_feedback_currents,
+                                         firmware_knowledge, from_json, microstep_table,
+                                         policy_law, position_lowpass, to_json)
+from stepdamp_env.bench.firmware_schedule import build_schedule, export_schedule
 from stepdamp_env.bench.policy import PolicyCard
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.bench.rig import CalibrationRig
@@ -95,6 +98,121 @@ def test_the_python_law_is_what_the_simulation_applies(knowledge, entry, mode):
         plain = correction(law, angle[1:], e_w, tr[1:, K.TRACE.OMEGA_CMD])
         assert np.max(np.abs(plain - expected)) > 1e-3
     assert (law.friction_a > 0.0) == (mode == "servo")
+
+
+FILTERED = ("velocity-feedback", "sensorless-damping")
+
+
+def _filtered_run(entry, knowledge, speed, until_s=0.2):
+    """A run of a filtered-feedback entry: each agent step's speed and position
+    errors as its policy read them (rad/s, rad), the current its action held (A),
+    and every PWM period (kernel.TRACE columns), per step."""
+    policy = resolve_policy(entry).make()
+    seen, held = [], []
+    act = policy.act
+
+    def recording(observation):
+        action = act(observation)
+        seen.append(np.array(observation, dtype=np.float64))
+        held.append(float(action[6]))
+        return action
+
+    policy.act = recording
+    result = run_episode(policy, knowledge, knowledge.plant, mode="open-loop", speed_rps=speed,
+                         seed=3, measure_from_s=0.0, window_s=until_s, until_s=until_s,
+                         on_step=lambda env, obs, start: env.step_trace, pwm_trace=True)
+    assert not result.terminated
+    obs = np.array(seen)
+    nominal = knowledge.nominal
+    e_w = obs[:, OBS.velocity_error] * (2.0 * math.pi * abs(speed))
+    e_theta = obs[:, OBS.position_error] * nominal.motor.full_step_rad
+    return e_w, e_theta, np.array(held), result.trace
+
+
+@pytest.mark.parametrize("entry", FILTERED)
+def test_the_filtered_feedback_is_what_the_simulation_applies(knowledge, entry):
+    """velocity-feedback and sensorless-damping: the exported law's update, fed the
+    errors the policy read at each agent step, gives its action's current bit for
+    bit; the table plus the held current is the kernel's injected q current at
+    every PWM period, to 1e-12 A."""
+    plant = knowledge.plant
+    speed = plant.predicted_resonances_rps()[4]
+    law = entry_law(entry, knowledge, speed_rps=speed)
+    f = law.filtered_feedback
+    assert f is not None and f.kind == ("encoder" if entry == "velocity-feedback"
+                                        else "back-emf")
+    assert to_json(law)["format"].endswith("/3") and from_json(to_json(law)) == law
+    e_w, e_theta, action, trace = _filtered_run(entry, knowledge, speed)
+    currents = filtered_feedback_currents(law, e_w, e_theta)
+    np.testing.assert_array_equal(currents, action.astype(np.float32).astype(np.float64)
+                                  * f.current_scale_a)
+    assert np.max(np.abs(currents)) > 1e-3                  # the feedback acts
+    m = plant.motor
+    step = m.full_step_rad / plant.drive.microsteps
+    for k, rows in enumerate(trace):
+        assert len(rows) == f.periods_per_update
+        angle = m.Nr * (np.floor(rows[:, K.TRACE.THETA_CMD] * (1.0 / step)) * step)
+        np.testing.assert_allclose(rows[:, K.TRACE.IQ_FF], correction(law, angle) + currents[k],
+                                   rtol=0.0, atol=1e-12)
+    # The law with another gain differs: the test sees the gains.
+    other = FilteredFeedback(**{**f.__dict__, "gain_a": f.gain_a * 1.5})
+    assert not np.array_equal(filtered_feedback_currents(
+        FirmwareLaw(**{**law.__dict__, "filtered_feedback": other}), e_w, e_theta), currents)
+
+
+_FILTERED_DRIVER = """#include <stdio.h>
+#include "{prefix}.h"
+
+int main(void)
+{{
+    struct {prefix}_feedback_state state = {{0.0, 0.0, 0.0, 0}};
+    double e, p;
+
+    while (scanf("%lf %lf", &e, &p) == 2) {{
+        printf("%.17g\\n", {prefix}_feedback_update_a(e, p, &state));
+    }}
+    return 0;
+}}
+"""
+
+
+@pytest.mark.parametrize("entry", FILTERED)
+def test_the_c_filtered_feedback_computes_the_simulations_currents(tmp_path, knowledge, entry):
+    """The C update function, compiled with the strict flags and fed a simulated
+    run's errors step by step, returns the currents the simulation held, cell for
+    cell; the schedule over speed carries the same function."""
+    cc = _compiler()
+    plant = knowledge.plant
+    speed = plant.predicted_resonances_rps()[4]
+    law = entry_law(entry, knowledge, speed_rps=speed)
+    e_w, e_theta, action, _ = _filtered_run(entry, knowledge, speed, until_s=0.1)
+    # Far errors too: both sides of the bound.
+    e_w = np.concatenate([e_w, [40.0, -40.0, 0.0, 1e3, -1e3]])
+    e_theta = np.concatenate([e_theta, [0.02, -0.02, 0.0, 0.5, -0.5]])
+    expected = filtered_feedback_currents(law, e_w, e_theta)
+    assert set(np.round(np.abs(expected[-5:]) / law.filtered_feedback.current_scale_a, 9)) \
+        & {1.0}
+    held = action.astype(np.float32).astype(np.float64) * law.filtered_feedback.current_scale_a
+    np.testing.assert_array_equal(expected[:len(held)], held)
+    text = "".join(f"{a!r} {b!r}\n" for a, b in zip(e_w.tolist(), e_theta.tolist()))
+    for kind in ("law", "schedule"):
+        out_dir = tmp_path / kind
+        if kind == "law":
+            paths = export_law(law, "c", out_dir, "law_under_test")
+        else:
+            schedule = build_schedule(lambda v: entry_law(entry, knowledge, speed_rps=v),
+                                      0.5 * speed, 1.5 * speed, 3)
+            paths = export_schedule(schedule, "c", out_dir, "law_under_test")
+        (out_dir / "main.c").write_text(_FILTERED_DRIVER.format(prefix="law_under_test"))
+        exe = str(out_dir / "driver")
+        build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1],
+                                str(out_dir / "main.c"), "-lm"],
+                               capture_output=True, text=True, timeout=120)
+        assert build.returncode == 0, build.stderr
+        run = subprocess.run([exe], input=text, capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0, run.stderr
+        got = np.array([float(v) for v in run.stdout.split()])
+        np.testing.assert_array_equal(got, expected)
 
 
 def _compiler() -> str:
@@ -264,14 +382,15 @@ class _Learned:
 
 @pytest.mark.parametrize("entry, why", [
     ("none", "adds no correction"), ("adaptive-ff", "adapts its harmonic table on line"),
-    ("velocity-feedback", "filters run at the agent rate"),
-    ("sensorless-damping", "filters run at the agent rate"),
     ("repetitive-control", "changes while it runs"), ("oracle-floor", "oracle"),
+    ("velocity-feedback@servo", "in servo: the servo's own loop is velocity feedback"),
+    ("sensorless-damping@servo", "in servo: a servo closes its loop on an encoder"),
     ("privileged-bound", "oracle"), ("plant-bound", "oracle")])
 def test_entries_that_cannot_be_exported_say_why_in_one_line(entry, why):
-    with pytest.raises(ParameterError, match=f"entry '{entry}' cannot be exported: .*{why}") \
+    entry, _, mode = entry.partition("@")
+    with pytest.raises(ParameterError, match=f"entry '{entry}' cannot be exported.*{why}") \
             as info:
-        entry_law(entry, firmware_knowledge(get_preset("patent")))
+        entry_law(entry, firmware_knowledge(get_preset("patent")), mode=mode or "open-loop")
     assert "\n" not in str(info.value)
 
 
@@ -317,4 +436,18 @@ def test_bad_arguments_name_the_parameter(tmp_path):
         FirmwareLaw(**{**law.__dict__, "amplitude_a": (0.1, math.nan, 0.0)})
     with pytest.raises(ParameterError, match="feedback_limit_a"):
         FirmwareLaw(**{**law.__dict__, "feedback_limit_a": 0.0})
+    good = dict(kind="encoder", periods_per_update=20, gain_a=0.02, gain_b=-40.0,
+                lowpass_beta=0.17, highpass_alpha=0.15, current_scale_a=0.5)
+    assert FilteredFeedback(**good).periods_per_update == 20
+    for name, value in (("kind", "pid"), ("periods_per_update", 0), ("gain_a", math.inf),
+                        ("lowpass_beta", 0.0), ("highpass_alpha", 1.5),
+                        ("current_scale_a", -1.0)):
+        with pytest.raises(ParameterError, match=f"{name}="):
+            FilteredFeedback(**{**good, name: value})
+    with pytest.raises(ParameterError, match="highpass_alpha must be 0 for kind 'back-emf'"):
+        FilteredFeedback(**{**good, "kind": "back-emf"})
+    with pytest.raises(ParameterError, match="no per-period gains"):
+        FirmwareLaw(**{**law.__dict__, "filtered_feedback": FilteredFeedback(**good)})
+    with pytest.raises(ParameterError, match="has no filtered feedback"):
+        filtered_feedback_currents(law, [0.0])
     assert os.listdir(tmp_path) == []

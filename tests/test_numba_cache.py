@@ -221,7 +221,7 @@ def test_two_installs_of_the_same_code_share_one_compile(tmp_path):
     stats = """
         s = fm.dot.stats
         print(fm.__file__, sum(s.cache_hits.values()), sum(s.cache_misses.values()),
-              s.cache_path)
+              s.cache_path, sep="\\n")
         """
     seen = []
     for name in ("site-packages", "checkout"):
@@ -230,7 +230,7 @@ def test_two_installs_of_the_same_code_share_one_compile(tmp_path):
         env = {**_env(tmp_path / "cache"), "PYTHONPATH": str(tmp_path / name)}
         # Not from the working directory (python -c puts it first on the path).
         out = _run((CALL, stats), env, cwd=tmp_path)
-        where, hits, misses, path = out.stdout.split()[-4:]
+        where, hits, misses, path = out.stdout.splitlines()[-4:]     # paths with spaces
         assert where == str(tmp_path / name / "stepdamp_env" / "fixedmath.py")
         seen.append((int(hits), int(misses), path))
         assert _note_lines(out.stderr) == []

@@ -18,10 +18,15 @@ MOTOR = os.path.join(ROOT, "docs", "motors", "17hs4401.json")
 
 def test_the_exportable_entries_are_what_export_can_write():
     names = exportable_entries(load_system(MOTOR))
-    assert {"ff-delay-comp", "tuned-constant-gain", "tuned-gain-pair"} <= set(names)
-    # Not exportable: adaptive, stateful filters, oracles, learned agents, no damping.
-    assert not {"none", "adaptive-ff", "velocity-feedback", "plant-bound",
+    assert {"ff-delay-comp", "tuned-constant-gain", "tuned-gain-pair", "velocity-feedback",
+            "sensorless-damping"} <= set(names)
+    # Not exportable: adaptive, oracles, learned agents, no damping; in servo the
+    # open-loop feedback laws (a servo closes its own loop).
+    assert not {"none", "adaptive-ff", "repetitive-control", "plant-bound",
                 "oracle-floor"} & set(names)
+    servo = exportable_entries(load_system(MOTOR), "servo")
+    assert "tuned-gain-pair" in servo and not {"velocity-feedback",
+                                               "sensorless-damping"} & set(servo)
 
 
 @pytest.mark.slow

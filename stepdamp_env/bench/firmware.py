@@ -38,9 +38,12 @@ with :func:`harmonic_law`) can be exported; :class:`~.policy.ZeroAction` (the
 ``patent-ff-*`` entries) is handled here. :func:`entry_law` turns an entry name
 and a :class:`~.policy.MotorKnowledge` (:func:`firmware_knowledge` for a motor
 file) into its law, or a one-line ``ParameterError`` saying why it cannot be
-exported (learned agents, laws that change while they run or filter at the
-agent rate, oracles). A law's one state, the high-pass of ``tuned-gain-pair``'s
-position term, is the caller's.
+exported (learned agents, laws that change while they run, oracles). A law's
+state is the caller's: the high-pass of ``tuned-gain-pair``'s position term,
+or the filters of a :class:`FilteredFeedback` (``velocity-feedback``,
+``sensorless-damping``: a current computed every agent step from low-passed
+signals and held in between, format /3; :func:`filtered_feedback_currents`
+is its reference).
 
 The law's definition, reference and JSON live in :mod:`.firmware_law`, its C in
 :mod:`.firmware_c`; this module re-exports them and builds laws from entries.
@@ -60,15 +63,17 @@ from ..analysis import bridge_limit_rps
 from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
 from .firmware_c import FORMATS, c_source, default_prefix, write_law_files
-from .firmware_law import (FORMAT_ID, FirmwareLaw, correction, from_json, microstep_table,
+from .firmware_law import (FORMAT_ID, FilteredFeedback, FirmwareLaw, correction,
+                           filtered_feedback_currents, from_json, microstep_table,
                            position_lowpass, to_json)
 from .policy import (MotorKnowledge, PolicyContext, ZeroAction, estimate_model, policy_card,
                      policy_context, policy_env_options)
 from .registry import resolve_policy
 from .rig import CalibrationRig
 
-__all__ = ["FirmwareLaw", "FORMATS", "FORMAT_ID", "correction", "microstep_table", "to_json",
-           "from_json", "c_source", "export_law", "position_lowpass", "default_prefix",
+__all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correction",
+           "microstep_table", "to_json", "from_json", "c_source", "export_law",
+           "position_lowpass", "filtered_feedback_currents", "default_prefix",
            "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law"]
 
 
@@ -86,13 +91,15 @@ def harmonic_law(context: PolicyContext, entry: str, coefficients_nm: Sequence[f
                  model: FeedforwardModel, *, velocity_gain_a_s_per_rad: float = 0.0,
                  feedback_limit_a: float = math.inf, velocity_estimator: str = "",
                  notes: str = "", position_gain_a_per_rad: float = 0.0,
-                 position_highpass_alpha: float = 0.0) -> FirmwareLaw:
+                 position_highpass_alpha: float = 0.0,
+                 filtered_feedback: FilteredFeedback | None = None) -> FirmwareLaw:
     """The law of a drive whose base controller is the patent feedforward with
     ``model`` (its Km divides the torque; in servo its Fs is fed forward with the
     command's sign, as the kernel does), applying the torque coefficients
     ``coefficients_nm`` (N*m, (s1, c1, s2, c2, s4, c4): s_h sin(h x) + c_h cos(h x)),
-    plus an optional velocity and high-passed position feedback, at ``context``'s
-    mode and held speed on its knowledge's nominal drive."""
+    plus an optional velocity and high-passed position feedback per PWM period, or
+    a filtered feedback held over agent steps, at ``context``'s mode and held
+    speed on its knowledge's nominal drive."""
     c = [float(v) for v in coefficients_nm]
     if len(c) != 2 * len(DETENT_HARMONICS):
         raise ParameterError(f"coefficients_nm must hold {2 * len(DETENT_HARMONICS)} numbers "
@@ -111,7 +118,7 @@ def harmonic_law(context: PolicyContext, entry: str, coefficients_nm: Sequence[f
         velocity_gain_a_s_per_rad=velocity_gain_a_s_per_rad, feedback_limit_a=feedback_limit_a,
         velocity_estimator=velocity_estimator, notes=notes,
         position_gain_a_per_rad=position_gain_a_per_rad,
-        position_highpass_alpha=position_highpass_alpha)
+        position_highpass_alpha=position_highpass_alpha, filtered_feedback=filtered_feedback)
 
 
 def firmware_knowledge(system: SystemParams, identified: FeedforwardModel | None = None, *,

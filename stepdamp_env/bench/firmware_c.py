@@ -12,7 +12,8 @@ from ..params import ParameterError
 from ..version import __version__
 from .firmware_law import FirmwareLaw, microstep_table
 
-__all__ = ["c_source", "default_prefix", "check_prefix", "write_law_files", "FORMATS"]
+__all__ = ["c_source", "filtered_feedback_c", "default_prefix", "check_prefix",
+           "write_law_files", "FORMATS"]
 
 #: What a law is written as: "json" (``<prefix>.json``) or "c" (``<prefix>.h``, ``<prefix>.c``).
 FORMATS = ("c", "json")
@@ -62,6 +63,87 @@ def _comment(text: str) -> str:
     return "\n".join(f" * {x}" for x in lines + ([line] if line else []))
 
 
+def filtered_feedback_c(law: FirmwareLaw, prefix: str) -> tuple[str, str]:
+    """(header part, source part) of the law's filtered feedback
+    (:class:`.firmware_law.FilteredFeedback`): a state struct, the update
+    period and ``<prefix>_feedback_update_a``; ("", "") for a law without it."""
+    f = law.filtered_feedback
+    if f is None:
+        return "", ""
+    macro = prefix.upper()
+    state, fn = f"{prefix}_feedback_state", f"{prefix}_feedback_update_a"
+    encoder = f.kind == "encoder"
+    what = ("gain_a*lp(e_w) + gain_b*lp(hp(e_theta)): lp a low-pass, hp a high-pass of the "
+            "position error" if encoder else
+            "gain_a*lp(e_w) + gain_b*(lp(e_w) - its value at the update before): lp a "
+            "low-pass (the position error is not used)")
+    coefficients = (f"gain_a = {f.gain_a!r}, gain_b = {f.gain_b!r}; the low-pass's "
+                    f"coefficient {f.lowpass_beta!r} per update"
+                    + (f", the high-pass's {f.highpass_alpha!r}" if encoder else ""))
+    header = f"""
+/*
+{_comment(f"The filtered feedback ({f.kind}): call {fn} every {macro}_UPDATE_PERIODS PWM "
+          "periods, the first time at the start of the run, and add what it returns (A) to "
+          f"the q-current command until the next call (besides {prefix}_iq_correction_a). "
+          f"i = {what}; {coefficients}. The current is bounded by +-{f.current_scale_a!r} A "
+          "and rounded to float, as the benchmark's action is.")}
+ *
+ * velocity_error_rad_s  e_w = w_cmd - w_est (shaft rad/s), with the drive's speed estimate.
+ * position_error_rad    e_theta = theta_cmd - theta_encoder (shaft rad){"" if encoder else
+                                                                         "; unused"}.
+ * state                 the filters, the caller's, one per drive: zero it before the
+ *                       first call (started = 0).
+ */
+#define {macro}_UPDATE_PERIODS {f.periods_per_update}
+struct {state} {{
+    double lowpass_rad;     /* the high-pass's low-pass of e_theta (rad) */
+    double speed_rad_s;     /* lp(e_w) (rad/s) */
+    double position_rad;    /* lp(hp(e_theta)) (rad) */
+    int started;
+}};
+double {fn}(double velocity_error_rad_s, double position_error_rad,
+        struct {state} *state);
+"""
+    if encoder:
+        law_lines = f"""    state->lowpass_rad += {_c(f.highpass_alpha)}
+        * (position_error_rad - state->lowpass_rad);
+    state->speed_rad_s += {_c(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
+    state->position_rad += {_c(f.lowpass_beta)}
+        * (position_error_rad - state->lowpass_rad - state->position_rad);
+    current_a = {_c(f.gain_a)} * state->speed_rad_s
+        + {_c(f.gain_b)} * state->position_rad;
+"""
+    else:
+        law_lines = f"""    previous = state->speed_rad_s;
+    state->speed_rad_s += {_c(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
+    current_a = {_c(f.gain_a)} * state->speed_rad_s
+        + {_c(f.gain_b)} * (state->speed_rad_s - previous);
+"""
+    declare = "    double current_a, action;\n" + (
+        "" if encoder else "    double previous;\n\n    (void)position_error_rad;\n")
+    start = "        state->lowpass_rad = position_error_rad;\n" if encoder else ""
+    source = f"""
+double {fn}(double velocity_error_rad_s, double position_error_rad,
+        struct {state} *state)
+{{
+{declare}
+    if (!state->started) {{
+{start}        state->speed_rad_s = velocity_error_rad_s;
+        state->position_rad = 0.0;
+        state->started = 1;
+    }}
+{law_lines}    action = current_a * {_c(1.0 / f.current_scale_a)};
+    if (action > 1.0) {{
+        action = 1.0;
+    }} else if (action < -1.0) {{
+        action = -1.0;
+    }}
+    return (double)(float)action * {_c(f.current_scale_a)};
+}}
+"""
+    return header, source
+
+
 def c_source(law: FirmwareLaw, prefix: str | None = None) -> tuple[str, str]:
     """(header text, source text) of a self-contained C99 implementation of the law.
 
@@ -78,6 +160,7 @@ def c_source(law: FirmwareLaw, prefix: str | None = None) -> tuple[str, str]:
     prefix = check_prefix(default_prefix(law.entry) if prefix is None else prefix)
     macro = prefix.upper()
     fn = f"{prefix}_iq_correction_a"
+    filtered_header, filtered_source = filtered_feedback_c(law, prefix)
     kp = law.stateful
     position_args = (",\n        double position_error_rad, double *position_lowpass_rad"
                      if kp else "")
@@ -160,7 +243,7 @@ double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
           f"x = 0. Add the feedback and the friction term as {fn} does.")}
  */
 extern const double {table}[{macro}_TABLE_SIZE];
-
+{filtered_header}
 #endif /* {macro}_H */
 """
     values = microstep_table(law)
@@ -212,7 +295,7 @@ double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
     feedback_a = {_c(law.velocity_gain_a_s_per_rad)} * velocity_error_rad_s;
 {position}{clamp}    return iq_a + feedback_a;
 }}
-"""
+{filtered_source}"""
     return header, source
 
 

@@ -14,13 +14,21 @@ from ..params import ParameterError
 from ..simulation import MODES
 from ..version import __version__
 
-__all__ = ["FirmwareLaw", "FORMAT_ID", "correction", "position_lowpass", "microstep_table",
-           "to_json", "from_json"]
+__all__ = ["FirmwareLaw", "FilteredFeedback", "FILTER_KINDS", "FORMAT_ID", "correction",
+           "position_lowpass", "filtered_feedback_currents", "microstep_table", "to_json",
+           "from_json"]
 
 #: The JSON file's ``format`` tag (its layout's name and version): /2 adds the
-#: high-passed position feedback; a law without it is written as /1, as before.
-FORMAT_ID = "stepdamp-firmware-law/2"
+#: high-passed position feedback, /3 the filtered feedback (:class:`FilteredFeedback`);
+#: a law without them is written as /1, as before.
+FORMAT_ID = "stepdamp-firmware-law/3"
+_FORMAT_V2 = "stepdamp-firmware-law/2"
 _FORMAT_V1 = "stepdamp-firmware-law/1"
+
+#: The filtered feedback's kinds: "encoder" (``velocity-feedback``: the speed error
+#: and the high-passed position error, both low-passed) and "back-emf"
+#: (``sensorless-damping``: the speed error low-passed and its difference).
+FILTER_KINDS = ("encoder", "back-emf")
 
 
 def _finite(name: str, value: Any) -> float:
@@ -34,6 +42,68 @@ def _count(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ParameterError(f"{name}={value!r} must be an integer >= 1")
     return int(value)
+
+
+@dataclass(frozen=True)
+class FilteredFeedback:
+    """A feedback current computed every ``periods_per_update`` PWM periods (the
+    agent rate) from filtered signals, and held in between: the law of
+    ``velocity-feedback`` ("encoder") and ``sensorless-damping`` ("back-emf").
+
+    At each update, from the speed error ``e_w`` (shaft rad/s, the drive's speed
+    estimate) and, for "encoder", the position error ``e_theta`` (shaft rad),
+    with states started at the first update (``e_lp = e_theta``, ``f_w = e_w``,
+    ``f_p = 0``; "back-emf": ``f_w = e_w``)::
+
+        encoder:  e_lp += highpass_alpha*(e_theta - e_lp)
+                  f_w  += lowpass_beta*(e_w - f_w)
+                  f_p  += lowpass_beta*(e_theta - e_lp - f_p)
+                  i = gain_a*f_w + gain_b*f_p
+        back-emf: f_prev = f_w;  f_w += lowpass_beta*(e_w - f_w)
+                  i = gain_a*f_w + gain_b*(f_w - f_prev)
+
+    then ``u = clip(i/current_scale_a, -1, 1)`` rounded to float32 (the
+    benchmark's action; a relative step of 6e-8) and the current ``u *
+    current_scale_a`` (A) is added to the q-current command until the next update.
+
+    Attributes:
+        kind: one of :data:`FILTER_KINDS`.
+        periods_per_update: PWM periods per update (pwm_hz / agent_hz).
+        gain_a: on the low-passed speed error (A*s/rad).
+        gain_b: "encoder": on the low-passed high-passed position error (A/rad);
+            "back-emf": on the difference of successive low-passed speed
+            errors (A*s/rad).
+        lowpass_beta: the low-passes' coefficient per update, in (0, 1].
+        highpass_alpha: the position high-pass's coefficient per update, in
+            [0, 1] ("encoder"; 0 for "back-emf").
+        current_scale_a: the current at action 1.0 (A): the feedback's bound.
+    """
+
+    kind: str
+    periods_per_update: int
+    gain_a: float
+    gain_b: float
+    lowpass_beta: float
+    highpass_alpha: float
+    current_scale_a: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in FILTER_KINDS:
+            raise ParameterError(f"kind={self.kind!r} is not one of {list(FILTER_KINDS)}")
+        object.__setattr__(self, "periods_per_update",
+                           _count("periods_per_update", self.periods_per_update))
+        for name in ("gain_a", "gain_b", "lowpass_beta", "highpass_alpha", "current_scale_a"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if not 0.0 < self.lowpass_beta <= 1.0:
+            raise ParameterError(f"lowpass_beta={self.lowpass_beta!r} is outside its allowed "
+                                 "range (0, 1]")
+        if not 0.0 <= self.highpass_alpha <= 1.0:
+            raise ParameterError(f"highpass_alpha={self.highpass_alpha!r} is outside its "
+                                 "allowed range [0, 1]")
+        if not self.current_scale_a > 0.0:
+            raise ParameterError(f"current_scale_a={self.current_scale_a!r} must be > 0")
+        if self.kind == "back-emf" and self.highpass_alpha != 0.0:
+            raise ParameterError("highpass_alpha must be 0 for kind 'back-emf' (no position)")
 
 
 @dataclass(frozen=True)
@@ -69,6 +139,9 @@ class FirmwareLaw:
             1 - exp(-2*pi*fc/pwm_hz), in [0, 1].
         velocity_estimator: how the drive measures the speed in ``e_w`` (text).
         notes: what the entry does, in a sentence or two.
+        filtered_feedback: the feedback held over agent steps
+            (:class:`FilteredFeedback`), or None; a law has it or the
+            per-period gains (Kv, Kp), not both.
     """
 
     entry: str
@@ -89,6 +162,7 @@ class FirmwareLaw:
     notes: str = ""
     position_gain_a_per_rad: float = 0.0
     position_highpass_alpha: float = 0.0
+    filtered_feedback: FilteredFeedback | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -124,6 +198,15 @@ class FirmwareLaw:
         for name in ("entry", "motor", "velocity_estimator", "notes"):
             if not isinstance(getattr(self, name), str):
                 raise ParameterError(f"{name}={getattr(self, name)!r} must be text")
+        f = self.filtered_feedback
+        if f is not None:
+            if not isinstance(f, FilteredFeedback):
+                raise ParameterError(f"filtered_feedback={f!r} must be a FilteredFeedback or "
+                                     "None")
+            if self.velocity_gain_a_s_per_rad != 0.0 or self.position_gain_a_per_rad != 0.0:
+                raise ParameterError("a law with filtered_feedback has no per-period gains "
+                                     "(velocity_gain_a_s_per_rad and position_gain_a_per_rad "
+                                     "must be 0)")
 
     @property
     def stateful(self) -> bool:
@@ -198,6 +281,37 @@ def position_lowpass(law: FirmwareLaw, position_error_rad: Any, start_rad: float
     return out
 
 
+def filtered_feedback_currents(law: FirmwareLaw, velocity_error_rad_s: Any,
+                               position_error_rad: Any = 0.0) -> np.ndarray:
+    """The current (A) the law's :class:`FilteredFeedback` holds after each update,
+    from the start: one speed error (rad/s) and position error (rad; "encoder"
+    only) per update, in order, as the C's update function and the simulation
+    compute it (float64, the action rounded to float32)."""
+    f = law.filtered_feedback
+    if f is None:
+        raise ParameterError(f"the law of {law.entry!r} has no filtered feedback")
+    e_w = np.asarray(velocity_error_rad_s, dtype=np.float64).reshape(-1)
+    e_theta = np.broadcast_to(np.asarray(position_error_rad, dtype=np.float64), e_w.shape)
+    out = np.empty_like(e_w)
+    to_action = 1.0 / f.current_scale_a
+    lp = fw = fp = 0.0
+    for k in range(len(e_w)):
+        if k == 0:
+            lp, fw, fp = float(e_theta[0]), float(e_w[0]), 0.0
+        if f.kind == "encoder":
+            lp = lp + f.highpass_alpha * (e_theta[k] - lp)
+            fw = fw + f.lowpass_beta * (e_w[k] - fw)
+            fp = fp + f.lowpass_beta * (e_theta[k] - lp - fp)
+            current = f.gain_a * fw + f.gain_b * fp
+        else:
+            previous = fw
+            fw = fw + f.lowpass_beta * (e_w[k] - fw)
+            current = f.gain_a * fw + f.gain_b * (fw - previous)
+        u = np.float32(min(max(current * to_action, -1.0), 1.0))
+        out[k] = float(u) * f.current_scale_a
+    return out
+
+
 def microstep_table(law: FirmwareLaw) -> np.ndarray:
     """The angle part of the correction at each microstep of one electrical period (A).
 
@@ -228,31 +342,47 @@ _CONVENTION_V2 = (_CONVENTION.replace(
     "position_gain_a_per_rad*hp, ") + "; hp = e_theta - e_lp after e_lp += "
     "position_highpass_alpha*(e_theta - e_lp), e_theta = theta_cmd - theta_encoder (shaft "
     "rad), e_lp a state kept from PWM period to PWM period, 0 at the start")
+_FILTER_FIELDS = ("kind", "periods_per_update", "gain_a", "gain_b", "lowpass_beta",
+                  "highpass_alpha", "current_scale_a")
+_CONVENTION_V3 = (_CONVENTION_V2 + "; plus, every filtered_feedback.periods_per_update PWM "
+                  "periods, a current held until the next update: filtered_feedback's "
+                  "filters (kind encoder: i = gain_a*lp(e_w) + gain_b*lp(hp(e_theta)); kind "
+                  "back-emf: i = gain_a*lp(e_w) + gain_b*(lp(e_w) - its previous value); "
+                  "lp: f += lowpass_beta*(x - f), hp: e_theta - e_lp after e_lp += "
+                  "highpass_alpha*(e_theta - e_lp), every state started at the first "
+                  "update's input, f_p at 0), held as float32(clip(i/current_scale_a, -1, "
+                  "1))*current_scale_a (A)")
 
 
 def to_json(law: FirmwareLaw) -> dict[str, Any]:
     """The law as a JSON object: its fields, the harmonic table as rows, the
     convention in words and the microstep table (A); :func:`from_json` reads it back."""
-    out: dict[str, Any] = {"format": FORMAT_ID if law.stateful else _FORMAT_V1,
-                           "generator": f"stepdamp {__version__}"}
-    for name in _JSON_FIELDS + (_POSITION_FIELDS if law.stateful else ()):
+    filtered = law.filtered_feedback is not None
+    out: dict[str, Any] = {"format": FORMAT_ID if filtered else _FORMAT_V2 if law.stateful
+                           else _FORMAT_V1, "generator": f"stepdamp {__version__}"}
+    for name in _JSON_FIELDS + (_POSITION_FIELDS if law.stateful or filtered else ()):
         out[name] = getattr(law, name)
+    if filtered:
+        out["filtered_feedback"] = {k: getattr(law.filtered_feedback, k) for k in _FILTER_FIELDS}
     if math.isinf(law.feedback_limit_a):
         out["feedback_limit_a"] = None          # JSON has no infinity
     out["harmonic_table"] = [
         {"harmonic": h, "amplitude_a": a, "phase_rad": p, "amplitude_nm": a * law.km_nm_per_a}
         for h, a, p in zip(law.harmonics, law.amplitude_a, law.phase_rad)]
-    out["convention"] = _CONVENTION_V2 if law.stateful else _CONVENTION
+    out["convention"] = (_CONVENTION_V3 if filtered else _CONVENTION_V2 if law.stateful
+                         else _CONVENTION)
     out["microstep_table_a"] = microstep_table(law).tolist()
     return out
 
 
 def from_json(data: Mapping[str, Any]) -> FirmwareLaw:
     """The law of a :func:`to_json` object (derived items are not read back)."""
-    if not isinstance(data, Mapping) or data.get("format") not in (FORMAT_ID, _FORMAT_V1):
-        raise ParameterError(f"firmware law JSON must be an object with format {FORMAT_ID!r} "
-                             f"or {_FORMAT_V1!r}")
-    fields = _JSON_FIELDS + (_POSITION_FIELDS if data["format"] == FORMAT_ID else ())
+    formats = (FORMAT_ID, _FORMAT_V2, _FORMAT_V1)
+    if not isinstance(data, Mapping) or data.get("format") not in formats:
+        raise ParameterError(f"firmware law JSON must be an object with format one of "
+                             f"{list(formats)}")
+    fields = _JSON_FIELDS + (_POSITION_FIELDS if data["format"] != _FORMAT_V1 else ()) \
+        + (("filtered_feedback",) if data["format"] == FORMAT_ID else ())
     missing = [k for k in (*fields, "harmonic_table") if k not in data]
     if missing:
         raise ParameterError(f"firmware law JSON lacks {missing}")
@@ -263,6 +393,12 @@ def from_json(data: Mapping[str, Any]) -> FirmwareLaw:
         raise ParameterError("harmonic_table must be a list of {harmonic, amplitude_a, "
                              "phase_rad} objects")
     values = {k: data[k] for k in fields}
+    if "filtered_feedback" in values:
+        block = values["filtered_feedback"]
+        if not isinstance(block, Mapping) or set(block) != set(_FILTER_FIELDS):
+            raise ParameterError(f"filtered_feedback must be an object with exactly "
+                                 f"{list(_FILTER_FIELDS)}")
+        values["filtered_feedback"] = FilteredFeedback(**{k: block[k] for k in _FILTER_FIELDS})
     if values["feedback_limit_a"] is None:
         values["feedback_limit_a"] = math.inf
     return FirmwareLaw(**values, harmonics=tuple(r["harmonic"] for r in rows),

@@ -34,7 +34,7 @@ import numpy as np
 from .. import fixedmath as fm
 from ..params import ParameterError
 from ..version import __version__
-from .firmware_c import check_prefix, default_prefix, write_law_files
+from .firmware_c import check_prefix, default_prefix, filtered_feedback_c, write_law_files
 from .firmware_law import FirmwareLaw, correction, from_json, to_json
 
 __all__ = ["FirmwareSchedule", "SCHEDULE_FORMAT_ID", "build_schedule", "schedule_correction",
@@ -48,7 +48,7 @@ _PER_TURN = 1.0 / (2.0 * math.pi)
 # The fields every grid speed's law must share (the terms that do not depend on speed).
 _SHARED = ("entry", "motor", "mode", "pwm_hz", "nr", "microsteps", "km_nm_per_a", "harmonics",
            "friction_a", "velocity_gain_a_s_per_rad", "feedback_limit_a",
-           "position_gain_a_per_rad", "position_highpass_alpha")
+           "position_gain_a_per_rad", "position_highpass_alpha", "filtered_feedback")
 
 
 @dataclass(frozen=True)
@@ -178,8 +178,16 @@ def multiply_adds_per_period(schedule: FirmwareSchedule) -> dict[str, int]:
     add = 2 + n_h * (4 + 2) + 2
     if law.stateful:
         mul, add = mul + 2, add + 4
-    return {"multiplications": mul, "additions": add, "sin_cos": 2 * n_h,
-            "table_doubles": 2 * n_h * len(schedule.laws)}
+    out = {"multiplications": mul, "additions": add, "sin_cos": 2 * n_h,
+           "table_doubles": 2 * n_h * len(schedule.laws)}
+    f = law.filtered_feedback
+    if f is not None:
+        # feedback_update_a, once per update: the filters, the gains, the bound's scaling.
+        encoder = f.kind == "encoder"
+        out.update(update_periods=f.periods_per_update,
+                   update_multiplications=7 if encoder else 5,
+                   update_additions=8 if encoder else 4)
+    return out
 
 
 def schedule_to_json(schedule: FirmwareSchedule) -> dict[str, Any]:
@@ -229,6 +237,7 @@ def schedule_c_source(schedule: FirmwareSchedule, prefix: str | None = None
             "double command_speed_rad_s" + (",\n        double position_error_rad, "
                                             "double *position_lowpass_rad" if kp else ""))
     limited = math.isfinite(law.feedback_limit_a)
+    filtered_header, filtered_source = filtered_feedback_c(law, prefix)
     header = f"""/*
  * {prefix}.h: the damping law "{law.entry}" for motor "{law.motor}" over the command speed
  * {v_lo!r}..{v_hi!r} rev/s ({n} speeds, step {dv!r} rev/s),
@@ -249,7 +258,7 @@ def schedule_c_source(schedule: FirmwareSchedule, prefix: str | None = None
 /* The q-axis current correction (A); arguments as in stepdamp's single-speed export
  * (docs/firmware.md){": the last one is the high-pass's state, the caller's, 0.0 at the start" if kp else ""}. */
 double {fn}({args});
-
+{filtered_header}
 #endif /* {macro}_H */
 """
     clamp = (f"""    if (feedback_a > {law.feedback_limit_a!r}) {{
@@ -306,7 +315,7 @@ double {fn}({args})
     feedback_a = {law.velocity_gain_a_s_per_rad!r} * velocity_error_rad_s;
 {position}{clamp}    return iq_a + feedback_a;
 }}
-"""
+{filtered_source}"""
     return header, source
 
 

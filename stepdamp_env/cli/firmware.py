@@ -20,7 +20,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
     p.add_argument("entry", metavar="ENTRY",
                    help="a leaderboard entry with a fixed law (patent-ff-identified, "
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
-                        "tuned-gain-pair)")
+                        "tuned-gain-pair; in open loop velocity-feedback, "
+                        "sensorless-damping)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
                         "identified on your motor, export with `stepdamp identify`'s "
@@ -84,7 +85,11 @@ def _export_schedule(args: argparse.Namespace) -> int:
     print(f"{args.entry} on {system.name}, {args.mode}, {len(speeds)} speeds "
           f"{speeds[0]:.4g}..{speeds[-1]:.4g} rev/s (step {schedule.step_rps:.4g}): table "
           f"of {cost['table_doubles']} doubles, per PWM period {cost['multiplications']} "
-          f"multiplications, {cost['additions']} additions, {cost['sin_cos']} sin/cos; "
+          f"multiplications, {cost['additions']} additions, {cost['sin_cos']} sin/cos"
+          + (f", and every {cost['update_periods']} periods the feedback's update "
+             f"({cost['update_multiplications']} multiplications, "
+             f"{cost['update_additions']} additions)" if "update_periods" in cost else "")
+          + "; "
           f"between the grid's speeds the interpolated table is off by at most "
           f"{error_a:.3g} A ({100 * share:.2g} % of the table; halve the step to shrink it); "
           f"wrote {', '.join(paths)}")
@@ -133,7 +138,7 @@ def _cmd_recommend(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from ..bench.firmware import entry_law, export_law, firmware_knowledge
+    from ..bench.firmware import default_prefix, entry_law, export_law, firmware_knowledge
 
     if args.speeds is not None:
         return _export_schedule(args)
@@ -143,10 +148,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
                     speed_rps=args.speed)
     check_writable(args.out, "--out", directory=True)
     paths = export_law(law, args.format, args.out, args.prefix)
+    f = law.filtered_feedback
+    prefix = default_prefix(args.entry) if args.prefix is None else args.prefix
+    feedback = (f"feedback from filters ({f.kind}) every {f.periods_per_update} PWM periods, "
+                f"held in between (the C's {prefix}_feedback_update_a; its state the "
+                "caller's)"
+                if f is not None else
+                f"velocity gain {law.velocity_gain_a_s_per_rad:.4g} A*s/rad"
+                + (f", position gain {law.position_gain_a_per_rad:.4g} A/rad (high-passed: "
+                   "the C function keeps one state, the caller's)" if law.stateful else ""))
     print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: "
-          f"{len(law.harmonics)} harmonics, velocity gain {law.velocity_gain_a_s_per_rad:.4g} "
-          f"A*s/rad"
-          + (f", position gain {law.position_gain_a_per_rad:.4g} A/rad (high-passed: the "
-             "C function keeps one state, the caller's)" if law.stateful else "")
-          + f"; wrote {', '.join(paths)}")
+          f"{len(law.harmonics)} harmonics, {feedback}; wrote {', '.join(paths)}")
     return 0
