@@ -105,15 +105,25 @@ class _FeedbackOnFF(DelayCompensatedFF):
         feedback current computed every agent step from the same filters, gains and
         float32 action, held in between (:class:`FilteredFeedback`, format /3);
         open loop only, as the entry runs."""
+        owner = next(c for c in type(self).__mro__ if "filter_kind" in vars(c))
+        if not self.filter_kind or any(getattr(type(self), m) is not getattr(owner, m)
+                                       for m in ("act", "act_batch", "configure")):
+            # A subclass that changes the law would be exported as its parent's.
+            raise ParameterError(f"entry {self.name!r} cannot be exported: its law is not "
+                                 f"the filtered feedback {owner.__name__} exports")
         if context.mode == "servo":
             raise ParameterError(f"entry {self.name!r} cannot be exported in servo: "
                                  f"{self.card.not_in_suites}")
+        pwm_hz = context.knowledge.nominal.drive.pwm_hz
+        periods = pwm_hz / context.agent_hz
+        if not (periods >= 1.0 and abs(periods - round(periods)) <= 1e-9 * periods):
+            raise ParameterError(f"agent_hz={context.agent_hz!r} must divide pwm_hz="
+                                 f"{pwm_hz!r} into a whole number (>= 1) of PWM periods")
         self.reset(context)
         table = DelayCompensatedFF(self.estimate).firmware_law(context)
         a, b = self.gains
-        pwm_hz = context.knowledge.nominal.drive.pwm_hz
         feedback = FilteredFeedback(
-            kind=self.filter_kind, periods_per_update=int(round(pwm_hz / context.agent_hz)),
+            kind=self.filter_kind, periods_per_update=int(round(periods)),
             gain_a=a, gain_b=b, lowpass_beta=self._beta,
             highpass_alpha=self._hp_alpha if self.filter_kind == "encoder" else 0.0,
             current_scale_a=context.current_scale_a)

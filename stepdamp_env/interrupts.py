@@ -35,10 +35,15 @@ def interrupts_kept() -> Iterator[None]:
         pressed.append(signum)
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGINT, record)
+    try:
+        signal.signal(signal.SIGINT, record)
+    except ValueError:                  # signals are not this interpreter's
+        yield
+        return
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if signal.getsignal(signal.SIGINT) is record:   # a handler set inside stays
+            signal.signal(signal.SIGINT, signal.default_int_handler)
     if pressed:                         # only reached when no KeyboardInterrupt got out
         raise KeyboardInterrupt

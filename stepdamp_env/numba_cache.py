@@ -301,7 +301,7 @@ def _guarded_caches(caching):
         package, not under the install path (numba's own locator hashes the absolute
         folder), so ``pip install .`` and ``pip install -e .`` of the same code, or
         two checkouts of it, share one compile. The folder is already this code's
-        (:func:`code_key`) and numba stamps each file by its content."""
+        (:func:`code_key`) and each file is stamped by its content."""
 
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)
@@ -313,6 +313,12 @@ def _guarded_caches(caching):
             if not package_subpath(py_file):
                 return None
             return super().from_function(py_func, py_file)
+
+        def get_source_stamp(self):
+            # The file's content, as numba 0.68 stamps it; older numba stamps its
+            # modified time and size, which differ between two installs.
+            with open(self._py_file, "rb") as fh:
+                return hashlib.sha256(fh.read()).digest()
 
     class PackageImpl(caching.CompileResultCacheImpl):
         _locator_classes = [PackageLocator]

@@ -20,7 +20,8 @@ from stepdamp_env.bench.firmware import (FilteredFeedback, FirmwareLaw, c_source
                                          entry_law, export_law, filtered_feedback_currents,
                                          firmware_knowledge, from_json, microstep_table,
                                          policy_law, position_lowpass, to_json)
-from stepdamp_env.bench.firmware_schedule import build_schedule, export_schedule
+from stepdamp_env.bench.firmware_schedule import (build_schedule, export_schedule,
+                                                  schedule_from_json, schedule_to_json)
 from stepdamp_env.bench.policy import PolicyCard
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.bench.rig import CalibrationRig
@@ -202,6 +203,10 @@ def test_the_c_filtered_feedback_computes_the_simulations_currents(tmp_path, kno
         else:
             schedule = build_schedule(lambda v: entry_law(entry, knowledge, speed_rps=v),
                                       0.5 * speed, 1.5 * speed, 3)
+            data = json.loads(json.dumps(schedule_to_json(schedule)))
+            assert data["format"].endswith("/2") and data["filtered_feedback"]["kind"] \
+                == law.filtered_feedback.kind
+            assert schedule_from_json(data) == schedule
             paths = export_schedule(schedule, "c", out_dir, "law_under_test")
         (out_dir / "main.c").write_text(_FILTERED_DRIVER.format(prefix="law_under_test"))
         exe = str(out_dir / "driver")
@@ -407,6 +412,14 @@ def test_policies_without_a_law_and_missing_knowledge_are_one_line_errors():
     with pytest.raises(ParameterError, match="'calibrated-table' cannot be exported: "
                                              "calibrated-table needs a calibration rig"):
         policy_law(make_baseline("calibrated-table"), no_rig)
+    # A subclass that changes the filtered feedback's law is not exported as its parent's.
+    louder_class = type("Louder", (type(make_baseline("velocity-feedback")),),
+                        {"act_batch": lambda self, obs, rows: 2.0 * super(
+                            louder_class, self).act_batch(obs, rows)})
+    with pytest.raises(ParameterError, match="'velocity-feedback' cannot be exported: its "
+                                             "law is not the filtered feedback "
+                                             "VelocityFeedback exports"):
+        policy_law(louder_class(), know)
     no_model = MotorKnowledge(nominal=system, identified=None, exact=know.exact)
     for entry in ("ff-delay-comp", "tuned-constant-gain"):
         with pytest.raises(ParameterError, match=f"'{entry}' cannot be exported: .*identified"):

@@ -65,6 +65,10 @@ class FilteredFeedback:
     then ``u = clip(i/current_scale_a, -1, 1)`` rounded to float32 (the
     benchmark's action; a relative step of 6e-8) and the current ``u *
     current_scale_a`` (A) is added to the q-current command until the next update.
+    The inputs are the errors as the benchmark's policy reads them: its
+    observations are float32 and bounded (at 10 times the command speed and 10
+    full steps), so the law is the simulated one bit for bit for those values;
+    a drive feeds its own errors.
 
     Attributes:
         kind: one of :data:`FILTER_KINDS`.
@@ -210,7 +214,9 @@ class FirmwareLaw:
 
     @property
     def stateful(self) -> bool:
-        """Whether the law has the position term (and so one state, ``e_lp``)."""
+        """Whether the law has the position term (and so one state, ``e_lp``, an
+        argument of :func:`correction`); a filtered feedback keeps its own states
+        (:class:`FilteredFeedback`)."""
         return self.position_gain_a_per_rad != 0.0
 
     @property
@@ -243,7 +249,9 @@ def correction(law: FirmwareLaw, electrical_angle_rad: Any, velocity_error_rad_s
         position_lowpass_rad: the high-pass's state e_lp before this period
             (:func:`position_lowpass`; 0 at the start).
 
-    Scalars give a float, arrays (broadcast together) an array. The sum is
+    A :class:`FilteredFeedback`'s held current is not in it: add
+    :func:`filtered_feedback_currents`. Scalars give a float, arrays (broadcast
+    together) an array. The sum is
     taken in the order of :func:`c_source`'s function; the sines are the
     kernel's fixed-order ones (:mod:`stepdamp_env.fixedmath`: the same bits on
     every CPU, within a few ulp of the C library's while |h*x| < 1e6 rad).

@@ -41,8 +41,10 @@ __all__ = ["FirmwareSchedule", "SCHEDULE_FORMAT_ID", "build_schedule", "schedule
            "interpolation_error", "schedule_to_json", "schedule_from_json",
            "schedule_c_source", "multiply_adds_per_period", "export_schedule"]
 
-#: The JSON file's ``format`` tag of a schedule.
-SCHEDULE_FORMAT_ID = "stepdamp-firmware-schedule/1"
+#: The JSON file's ``format`` tag of a schedule: /2 when its laws have a filtered
+#: feedback (a top-level ``filtered_feedback``, the laws' own), /1 otherwise.
+SCHEDULE_FORMAT_ID = "stepdamp-firmware-schedule/2"
+_SCHEDULE_V1 = "stepdamp-firmware-schedule/1"
 # rad/s -> rev/s, as the C multiplies.
 _PER_TURN = 1.0 / (2.0 * math.pi)
 # The fields every grid speed's law must share (the terms that do not depend on speed).
@@ -194,7 +196,11 @@ def schedule_to_json(schedule: FirmwareSchedule) -> dict[str, Any]:
     """The schedule as a JSON object: the grid, the table per speed as sin/cos
     coefficients (A), the cost, and each grid speed's law (:func:`.firmware.to_json`)."""
     coef = schedule.coefficients_a()
-    return {"format": SCHEDULE_FORMAT_ID, "generator": f"stepdamp {__version__}",
+    laws = [to_json(law) for law in schedule.laws]
+    filtered = {"filtered_feedback": laws[0]["filtered_feedback"]} \
+        if "filtered_feedback" in laws[0] else {}
+    return {"format": SCHEDULE_FORMAT_ID if filtered else _SCHEDULE_V1,
+            "generator": f"stepdamp {__version__}",
             "entry": schedule.laws[0].entry, "motor": schedule.laws[0].motor,
             "speeds_rps": schedule.speeds_rps.tolist(), "step_rps": schedule.step_rps,
             "harmonics": list(schedule.laws[0].harmonics),
@@ -203,15 +209,16 @@ def schedule_to_json(schedule: FirmwareSchedule) -> dict[str, Any]:
             "cost_per_pwm_period": multiply_adds_per_period(schedule),
             "convention": "; ".join(" ".join(line.split()) for line in
                                     __doc__.split("::")[1].strip().split("\n\n")[0].splitlines()),
-            "laws": [to_json(law) for law in schedule.laws]}
+            **filtered, "laws": laws}
 
 
 def schedule_from_json(data: Mapping[str, Any]) -> FirmwareSchedule:
     """The schedule of a :func:`schedule_to_json` object (from its laws)."""
-    if not isinstance(data, Mapping) or data.get("format") != SCHEDULE_FORMAT_ID \
+    if not isinstance(data, Mapping) \
+            or data.get("format") not in (SCHEDULE_FORMAT_ID, _SCHEDULE_V1) \
             or not isinstance(data.get("laws"), list):
         raise ParameterError(f"firmware schedule JSON must be an object with format "
-                             f"{SCHEDULE_FORMAT_ID!r} and its laws")
+                             f"{SCHEDULE_FORMAT_ID!r} or {_SCHEDULE_V1!r} and its laws")
     return FirmwareSchedule(tuple(from_json(law) for law in data["laws"]))
 
 

@@ -149,7 +149,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     check_writable(args.out, "--out", directory=True)
     paths = export_law(law, args.format, args.out, args.prefix)
     f = law.filtered_feedback
-    prefix = default_prefix(args.entry) if args.prefix is None else args.prefix
+    prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
     feedback = (f"feedback from filters ({f.kind}) every {f.periods_per_update} PWM periods, "
                 f"held in between (the C's {prefix}_feedback_update_a; its state the "
                 "caller's)"
