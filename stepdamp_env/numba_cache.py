@@ -305,6 +305,7 @@ def _guarded_caches(caching):
 
         def __init__(self, py_func, py_file):
             super().__init__(py_func, py_file)
+            # numba's path is CACHE_DIR/<folder>_<sha1 of the absolute folder>.
             self._cache_path = os.path.join(os.path.dirname(self._cache_path),
                                             package_subpath(py_file))
 
