@@ -26,7 +26,7 @@ from stepdamp_env.bench.firmware import FilteredFeedback, FirmwareLaw, harmonic_
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext,
                                        RowPolicy, estimate_model)
 from stepdamp_env.bench.suites import nearest_suite, suite_of, tuned_suite
-from stepdamp_env.env import EnvOptionsV1, TaskV1
+from stepdamp_env.env import EnvOptionsV1, TaskV1, periods_per_agent_step
 from stepdamp_env.env.layout import OBS, observation_names
 from stepdamp_env.env.registration import ENV_ID_V1
 from stepdamp_env.params import ParameterError, SystemParams
@@ -114,16 +114,13 @@ class _FeedbackOnFF(DelayCompensatedFF):
         if context.mode == "servo":
             raise ParameterError(f"entry {self.name!r} cannot be exported in servo: "
                                  f"{self.card.not_in_suites}")
-        pwm_hz = context.knowledge.nominal.drive.pwm_hz
-        periods = pwm_hz / context.agent_hz
-        if not (periods >= 1.0 and abs(periods - round(periods)) <= 1e-9 * periods):
-            raise ParameterError(f"agent_hz={context.agent_hz!r} must divide pwm_hz="
-                                 f"{pwm_hz!r} into a whole number (>= 1) of PWM periods")
+        periods = periods_per_agent_step(context.knowledge.nominal.drive.pwm_hz,
+                                         context.agent_hz)
         self.reset(context)
         table = DelayCompensatedFF(self.estimate).firmware_law(context)
         a, b = self.gains
         feedback = FilteredFeedback(
-            kind=self.filter_kind, periods_per_update=int(round(periods)),
+            kind=self.filter_kind, periods_per_update=periods,
             gain_a=a, gain_b=b, lowpass_beta=self._beta,
             highpass_alpha=self._hp_alpha if self.filter_kind == "encoder" else 0.0,
             current_scale_a=context.current_scale_a)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -302,10 +303,9 @@ def filtered_feedback_currents(law: FirmwareLaw, velocity_error_rad_s: Any,
     e_theta = np.broadcast_to(np.asarray(position_error_rad, dtype=np.float64), e_w.shape)
     out = np.empty_like(e_w)
     to_action = 1.0 / f.current_scale_a
-    lp = fw = fp = 0.0
+    # The states start at the first update's inputs.
+    lp, fw, fp = (float(e_theta[0]), float(e_w[0]), 0.0) if len(e_w) else (0.0, 0.0, 0.0)
     for k in range(len(e_w)):
-        if k == 0:
-            lp, fw, fp = float(e_theta[0]), float(e_w[0]), 0.0
         if f.kind == "encoder":
             lp = lp + f.highpass_alpha * (e_theta[k] - lp)
             fw = fw + f.lowpass_beta * (e_w[k] - fw)
@@ -350,8 +350,7 @@ _CONVENTION_V2 = (_CONVENTION.replace(
     "position_gain_a_per_rad*hp, ") + "; hp = e_theta - e_lp after e_lp += "
     "position_highpass_alpha*(e_theta - e_lp), e_theta = theta_cmd - theta_encoder (shaft "
     "rad), e_lp a state kept from PWM period to PWM period, 0 at the start")
-_FILTER_FIELDS = ("kind", "periods_per_update", "gain_a", "gain_b", "lowpass_beta",
-                  "highpass_alpha", "current_scale_a")
+_FILTER_FIELDS = tuple(f.name for f in dataclasses.fields(FilteredFeedback))
 _CONVENTION_V3 = (_CONVENTION_V2 + "; plus, every filtered_feedback.periods_per_update PWM "
                   "periods, a current held until the next update: filtered_feedback's "
                   "filters (kind encoder: i = gain_a*lp(e_w) + gain_b*lp(hp(e_theta)); kind "

@@ -24,7 +24,8 @@ batch of one, its vector env a batch of N, so the two agree step for step.
 
 from .layout import (ACTION_NAMES, HARMONIC_COS, HARMONIC_SIN, OBS, OBSERVATION_NAMES,
                      observation_names)
-from .options import DEFAULT_RANDOMIZATION, EnvOptions, default_action_scales
+from .options import (DEFAULT_RANDOMIZATION, EnvOptions, default_action_scales,
+                      periods_per_agent_step)
 from .registration import (DEFAULT_EPISODE_STEPS, ENV_ID, ENV_ID_V1, ENV_ID_V2, ENV_ID_V3,
                            V2_DEFAULTS, V3_DEFAULTS, register_envs)
 from .sampler import EpisodeSampler
@@ -40,7 +41,7 @@ from .wrappers import EpisodeGuard
 __all__ = ["ENV_ID", "DEFAULT_EPISODE_STEPS", "DEFAULT_RANDOMIZATION", "EnvOptions",
            "EpisodeSampler", "StepperDampEnv", "StepperDampVectorEnv", "register_envs",
            "OBS", "OBSERVATION_NAMES", "observation_names", "HARMONIC_SIN", "HARMONIC_COS",
-           "ACTION_NAMES", "default_action_scales", "EpisodeGuard",
+           "ACTION_NAMES", "default_action_scales", "periods_per_agent_step", "EpisodeGuard",
            "ENV_ID_V1", "EnvOptionsV1", "MotorUnits", "TaskV1", "DriveBatch", "EnvTask", "StepperDampBatch", "StepperDampV1Env",
            "StepperDampV1VectorEnv", "ENV_ID_V2", "V2_DEFAULTS", "StepperDampV2Env",
            "StepperDampV2VectorEnv", "ENV_ID_V3", "V3_DEFAULTS", "StepperDampV3Env",

@@ -17,6 +17,7 @@ from .registration import ENV_ID
 
 __all__ = ["DriveOptions", "EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
            "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
+           "periods_per_agent_step",
            "check_number", "check_choice", "check_pair", "OPTIONS_DOC"]
 
 TWO_PI = 2.0 * math.pi
@@ -45,6 +46,18 @@ BASE_CONTROLLERS = tuple(sorted(_CORE_BASE_CONTROLLERS, key=lambda d: d != "pate
 # Named models of the base controller ("exact": the episode's plant; "nominal": the
 # un-randomised motor); a FeedforwardModel is accepted too.
 ESTIMATES = ("exact", "nominal")
+
+
+def periods_per_agent_step(pwm_hz: float, agent_hz: float) -> int:
+    """PWM periods per agent step, pwm_hz / agent_hz, or a one-line error where it
+    is not a whole number >= 1."""
+    ratio = pwm_hz / agent_hz
+    n = int(round(ratio))
+    if abs(ratio - n) > 1e-9 * ratio or n < 1:
+        raise ParameterError(
+            f"agent_hz={agent_hz!r} must divide pwm_hz={pwm_hz!r} into a whole number "
+            "(>= 1) of PWM periods per agent step; allowed range: pwm_hz/k, k = 1, 2, ...")
+    return n
 
 
 def default_action_scales(nominal: SystemParams) -> tuple[float, float]:

@@ -19,13 +19,14 @@ import numpy as np
 from gymnasium import spaces
 
 from .. import kernel as K
-from ..params import RESONANCE_HARMONICS, FeedforwardModel, ParameterError, SystemParams, predicted_resonances
+from ..params import RESONANCE_HARMONICS, FeedforwardModel, SystemParams, predicted_resonances
 from ..motorfile import load_system
 from ..simulation import RunSettings, SpeedProfile, build_config, check_integrable, initial_state
 from . import compiled as C
 from .engine import DriveBatch, EnvTask
 from .layout import ACTION_NAMES, OBS
-from .options import PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_action_scales
+from .options import (PHASE_FIELDS, RANDOMIZABLE_FIELDS, EnvOptions, default_action_scales,
+                      periods_per_agent_step)
 
 __all__ = ["EpisodeSampler"]
 
@@ -78,12 +79,7 @@ class EpisodeSampler(EnvTask):
         check_integrable(self._nominal, o.substeps, top)
         self._ranges = o.randomization
         drive = self._nominal.drive
-        ratio = drive.pwm_hz / o.agent_hz
-        self._n_periods = int(round(ratio))
-        if abs(ratio - self._n_periods) > 1e-9 * ratio or self._n_periods < 1:
-            raise ParameterError(
-                f"agent_hz={o.agent_hz!r} must divide pwm_hz={drive.pwm_hz!r} into a whole "
-                "number (>= 1) of PWM periods per agent step; allowed range: pwm_hz/k, k = 1, 2, ...")
+        self._n_periods = periods_per_agent_step(drive.pwm_hz, o.agent_hz)
         default_harmonic, default_current = default_action_scales(self._nominal)
         harmonic_scale = default_harmonic if o.harmonic_scale_nm is None else o.harmonic_scale_nm
         current_scale = default_current if o.current_scale_a is None else o.current_scale_a
