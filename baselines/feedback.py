@@ -98,6 +98,8 @@ class _FeedbackOnFF(DelayCompensatedFF):
 
     #: The exported law's :class:`FilteredFeedback` kind ("encoder", "back-emf").
     filter_kind = ""
+    #: The modes ``stepdamp export`` writes it for (a servo closes its own loop).
+    firmware_modes: tuple[str, ...] = ("open-loop",)
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """The law this entry runs in ``context`` (see
@@ -354,6 +356,9 @@ class OracleFloor(_FeedbackOnFF):
         zeta = self._zeta(context)
         target = _law_target(plant, context.mode, context.agent_hz, zeta, wn)
         self.gains = design_gains(target, complex(1.0, 0.0), hp / complex(0.0, wn))
+
+    #: Never exported: an oracle.
+    firmware_modes: tuple[str, ...] = ()
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """Not exportable: an oracle (see :mod:`stepdamp_env.bench.firmware`)."""

@@ -144,6 +144,8 @@ class OnlineTable:
     steps) update their table (``_update_rows``); the action is the rows' table."""
 
     LIVE_FROM: str
+    #: The modes ``stepdamp export`` writes it for: none (the table changes while it runs).
+    firmware_modes: tuple[str, ...] = ()
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         self._rows_step += 1

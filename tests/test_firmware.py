@@ -464,3 +464,29 @@ def test_bad_arguments_name_the_parameter(tmp_path):
     with pytest.raises(ParameterError, match="has no filtered feedback"):
         filtered_feedback_currents(law, [0.0])
     assert os.listdir(tmp_path) == []
+
+
+def test_the_export_modes_an_entry_declares_are_those_export_writes():
+    """export_modes (what the board's firmware section says) against what
+    entry_export does, for every default entry in both modes."""
+    from stepdamp_env.bench.firmware import FirmwareNetwork, entry_export, export_kind, \
+        export_modes
+    from stepdamp_env.bench.registry import default_policy_names
+    from stepdamp_env.cli.options import register_policies
+
+    register_policies()
+    knowledge = firmware_knowledge(get_preset("patent"))
+    kinds = set()
+    for name in default_policy_names():
+        policy = resolve_policy(name).make()
+        for mode in ("open-loop", "servo"):
+            try:
+                written = entry_export(name, knowledge, mode=mode)
+            except ParameterError:
+                written = None
+            assert (written is not None) == (mode in export_modes(policy)), (name, mode)
+            if written is not None:
+                kind = "network" if isinstance(written, FirmwareNetwork) else "law"
+                assert kind == export_kind(policy), name
+                kinds.add(kind)
+    assert kinds == {"law", "network"}

@@ -63,6 +63,7 @@ from ..analysis import bridge_limit_rps
 from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
 from .firmware_c import FORMATS, c_source, default_prefix, write_law_files
+from .firmware_net import FirmwareNetwork, export_network
 from .firmware_law import (FORMAT_ID, FilteredFeedback, FirmwareLaw, correction,
                            filtered_feedback_currents, from_json, microstep_table,
                            position_lowpass, to_json)
@@ -74,7 +75,9 @@ from .rig import CalibrationRig
 __all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correction",
            "microstep_table", "to_json", "from_json", "c_source", "export_law",
            "position_lowpass", "filtered_feedback_currents", "default_prefix",
-           "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law"]
+           "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law",
+           "FirmwareNetwork", "export_network", "policy_export", "entry_export",
+           "export_modes", "export_kind"]
 
 
 def export_law(law: FirmwareLaw, fmt: str, out_dir: str | os.PathLike[str],
@@ -154,14 +157,30 @@ def _base_controller_law(policy: ZeroAction, context: PolicyContext) -> Firmware
                               "/ Km, sent without delay compensation.")
 
 
-def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop",
-               speed_rps: float | None = None) -> FirmwareLaw:
-    """The law ``policy`` applies on the drive of ``knowledge`` in ``mode`` at the
-    held command speed ``speed_rps`` (rev/s; default :func:`default_speed_rps` of
-    the nominal motor): its ``firmware_law(context)`` with the context the
-    benchmark's runner gives it, or a one-line ``ParameterError`` naming it and
-    saying why it cannot be exported."""
-    name = str(getattr(policy, "name", policy))
+def export_modes(policy: Any) -> tuple[str, ...]:
+    """The modes ``stepdamp export`` writes ``policy``'s law or network for: the
+    base controller's feedforward (``patent-ff-*``) in every mode, a policy with a
+    ``firmware_law`` or ``firmware_network`` in those its ``firmware_modes``
+    names (every mode where it names none), else none. Read from the policy,
+    not computed (a law may calibrate first); ``tests/test_firmware.py`` checks
+    it against :func:`entry_export` for every default entry."""
+    if isinstance(policy, ZeroAction):
+        return tuple(MODES) if policy.base_controller != "none" else ()
+    if callable(getattr(policy, "firmware_law", None)) or \
+            callable(getattr(policy, "firmware_network", None)):
+        declared = getattr(policy, "firmware_modes", tuple(MODES))
+        return tuple(m for m in MODES if m in declared)
+    return ()
+
+
+def export_kind(policy: Any) -> str:
+    """What ``stepdamp export`` writes for ``policy`` where :func:`export_modes`
+    is not empty: "network" (a learned entry's policy network) or "law"."""
+    return "network" if callable(getattr(policy, "firmware_network", None)) else "law"
+
+
+def _checked_speed(knowledge: MotorKnowledge, mode: str, speed_rps: float | None) -> float:
+    """The held command speed an export is computed at (rev/s), checked."""
     if mode not in MODES:
         raise ParameterError(f"mode={mode!r} is not one of {list(MODES)}")
     speed = default_speed_rps(knowledge.nominal) if speed_rps is None else speed_rps
@@ -174,28 +193,69 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
         raise ParameterError(f"speed_rps={speed:g} is above the top speed of "
                              f"{knowledge.nominal.name!r} on its bus ({top:.4g} rev/s, the "
                              f"bridge circle Vdc/sqrt(2)); allowed: (0, {top:.4g}] rev/s")
-    hook = getattr(policy, "firmware_law", None)
-    if not isinstance(policy, ZeroAction) and not callable(hook):
-        card = policy_card(policy)
-        why = ("it is a learned agent: its action comes from a network at run time, not "
-               "from a fixed table and gains" if card is not None and card.learned else
-               "it is an oracle: it reads what no drive has" if card is not None and card.oracle
-               else "it has no firmware_law: its law is not a fixed table and gains")
-        raise ParameterError(f"entry {name!r} cannot be exported: {why}")
+    return float(speed)
+
+
+def _call_hook(policy: Any, name: str, knowledge: MotorKnowledge, mode: str, speed: float,
+               build: Any) -> Any:
+    """``build(context)`` with the context the benchmark's runner gives ``policy``;
+    a failure for want of knowledge is a one-line ``ParameterError`` naming it."""
     try:
         options = policy_env_options(policy, knowledge)
-        context = policy_context(options, knowledge, mode, float(speed))
-        law = _base_controller_law(policy, context) if isinstance(policy, ZeroAction) \
-            else hook(context)
+        return build(policy_context(options, knowledge, mode, speed))
     except ParameterError:
         raise
     except ValueError as exc:       # e.g. a model or rig the knowledge lacks
         first = (str(exc).strip().splitlines() or [""])[0]
         raise ParameterError(f"entry {name!r} cannot be exported: {first}") from None
+
+
+def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop",
+               speed_rps: float | None = None) -> FirmwareLaw:
+    """The law ``policy`` applies on the drive of ``knowledge`` in ``mode`` at the
+    held command speed ``speed_rps`` (rev/s; default :func:`default_speed_rps` of
+    the nominal motor): its ``firmware_law(context)`` with the context the
+    benchmark's runner gives it, or a one-line ``ParameterError`` naming it and
+    saying why it cannot be exported (a learned entry's network is
+    :func:`policy_export`'s)."""
+    name = str(getattr(policy, "name", policy))
+    speed = _checked_speed(knowledge, mode, speed_rps)
+    hook = getattr(policy, "firmware_law", None)
+    if not isinstance(policy, ZeroAction) and not callable(hook):
+        card = policy_card(policy)
+        network = ("export writes its network instead" if callable(
+            getattr(policy, "firmware_network", None)) else
+            "and export writes the networks of StepperDamp-v1's per-step agents only")
+        why = ("it is a learned agent: its action comes from a network at run time, not "
+               f"from a fixed table and gains ({network})"
+               if card is not None and card.learned else
+               "it is an oracle: it reads what no drive has" if card is not None and card.oracle
+               else "it has no firmware_law: its law is not a fixed table and gains")
+        raise ParameterError(f"entry {name!r} cannot be exported: {why}")
+    law = _call_hook(policy, name, knowledge, mode, speed,
+                     lambda context: _base_controller_law(policy, context)
+                     if isinstance(policy, ZeroAction) else hook(context))
     if not isinstance(law, FirmwareLaw):
         raise ParameterError(f"entry {name!r}: firmware_law returned {type(law).__name__}, "
                              "not a FirmwareLaw")
     return law
+
+
+def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop",
+                  speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork:
+    """What ``export`` writes for ``policy``: a learned entry's network (its
+    ``firmware_network(context) -> FirmwareNetwork``, :mod:`.firmware_net`),
+    else :func:`policy_law`."""
+    hook = getattr(policy, "firmware_network", None)
+    if not callable(hook):
+        return policy_law(policy, knowledge, mode=mode, speed_rps=speed_rps)
+    name = str(getattr(policy, "name", policy))
+    net = _call_hook(policy, name, knowledge, mode, _checked_speed(knowledge, mode, speed_rps),
+                     hook)
+    if not isinstance(net, FirmwareNetwork):
+        raise ParameterError(f"entry {name!r}: firmware_network returned "
+                             f"{type(net).__name__}, not a FirmwareNetwork")
+    return net
 
 
 def entry_law(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",
@@ -203,3 +263,10 @@ def entry_law(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",
     """:func:`policy_law` of a fresh instance of the entry ``entry`` (a registered
     name or any policy spec, :func:`~.registry.resolve_policy`)."""
     return policy_law(resolve_policy(entry).make(), knowledge, mode=mode, speed_rps=speed_rps)
+
+
+def entry_export(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",
+                 speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork:
+    """:func:`policy_export` of a fresh instance of the entry ``entry``."""
+    return policy_export(resolve_policy(entry).make(), knowledge, mode=mode,
+                         speed_rps=speed_rps)

@@ -12,8 +12,8 @@ from ..params import ParameterError
 from ..version import __version__
 from .firmware_law import FirmwareLaw, microstep_table
 
-__all__ = ["c_source", "filtered_feedback_c", "default_prefix", "check_prefix",
-           "write_law_files", "FORMATS"]
+__all__ = ["c_source", "filtered_feedback_c", "default_prefix", "check_prefix", "c_double",
+           "c_comment", "write_law_files", "FORMATS"]
 
 #: What a law is written as: "json" (``<prefix>.json``) or "c" (``<prefix>.h``, ``<prefix>.c``).
 FORMATS = ("c", "json")
@@ -42,7 +42,7 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
-def _c(value: float) -> str:
+def c_double(value: float) -> str:
     """A double literal that parses back to ``value`` exactly (repr is round-trip)."""
     text = repr(float(value))
     if not math.isfinite(value):
@@ -50,7 +50,7 @@ def _c(value: float) -> str:
     return text
 
 
-def _comment(text: str) -> str:
+def c_comment(text: str) -> str:
     """``text`` made safe inside a C block comment, wrapped at 86 columns."""
     words = text.replace("*/", "* /").split()
     lines, line = [], ""
@@ -82,7 +82,7 @@ def filtered_feedback_c(law: FirmwareLaw, prefix: str) -> tuple[str, str]:
                     + (f", the high-pass's {f.highpass_alpha!r}" if encoder else ""))
     header = f"""
 /*
-{_comment(f"The filtered feedback ({f.kind}): call {fn} every {macro}_UPDATE_PERIODS PWM "
+{c_comment(f"The filtered feedback ({f.kind}): call {fn} every {macro}_UPDATE_PERIODS PWM "
           "periods, the first time at the start of the run, and add what it returns (A) to "
           f"the q-current command until the next call (besides {prefix}_iq_correction_a). "
           f"i = {what}; {coefficients}. The current is bounded by +-{f.current_scale_a!r} A "
@@ -105,19 +105,19 @@ double {fn}(double velocity_error_rad_s, double position_error_rad,
         struct {state} *state);
 """
     if encoder:
-        law_lines = f"""    state->lowpass_rad += {_c(f.highpass_alpha)}
+        law_lines = f"""    state->lowpass_rad += {c_double(f.highpass_alpha)}
         * (position_error_rad - state->lowpass_rad);
-    state->speed_rad_s += {_c(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
-    state->position_rad += {_c(f.lowpass_beta)}
+    state->speed_rad_s += {c_double(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
+    state->position_rad += {c_double(f.lowpass_beta)}
         * (position_error_rad - state->lowpass_rad - state->position_rad);
-    current_a = {_c(f.gain_a)} * state->speed_rad_s
-        + {_c(f.gain_b)} * state->position_rad;
+    current_a = {c_double(f.gain_a)} * state->speed_rad_s
+        + {c_double(f.gain_b)} * state->position_rad;
 """
     else:
         law_lines = f"""    previous = state->speed_rad_s;
-    state->speed_rad_s += {_c(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
-    current_a = {_c(f.gain_a)} * state->speed_rad_s
-        + {_c(f.gain_b)} * (state->speed_rad_s - previous);
+    state->speed_rad_s += {c_double(f.lowpass_beta)} * (velocity_error_rad_s - state->speed_rad_s);
+    current_a = {c_double(f.gain_a)} * state->speed_rad_s
+        + {c_double(f.gain_b)} * (state->speed_rad_s - previous);
 """
     declare = "    double current_a, action;\n" + (
         "" if encoder else "    double previous;\n\n    (void)position_error_rad;\n")
@@ -132,13 +132,13 @@ double {fn}(double velocity_error_rad_s, double position_error_rad,
         state->position_rad = 0.0;
         state->started = 1;
     }}
-{law_lines}    action = current_a * {_c(1.0 / f.current_scale_a)};
+{law_lines}    action = current_a * {c_double(1.0 / f.current_scale_a)};
     if (action > 1.0) {{
         action = 1.0;
     }} else if (action < -1.0) {{
         action = -1.0;
     }}
-    return (double)(float)action * {_c(f.current_scale_a)};
+    return (double)(float)action * {c_double(f.current_scale_a)};
 }}
 """
     return header, source
@@ -186,13 +186,13 @@ def c_source(law: FirmwareLaw, prefix: str | None = None) -> tuple[str, str]:
  *
  * Operating point: {law.mode}, held command speed {law.speed_rps!r} rev/s, evaluated every
  * PWM period at {law.pwm_hz!r} Hz from the samples of the period before.
-{_comment(law.notes)}
+{c_comment(law.notes)}
  *
  * Harmonic table (q-current amplitude A_h and electrical phase phi_h; torque = A_h*Km,
  * Km = {law.km_nm_per_a!r} N*m/A):
 {harmonic_rows}
  *
-{_comment(f"Friction feedforward F = {law.friction_a!r} A; velocity gain Kv = "
+{c_comment(f"Friction feedforward F = {law.friction_a!r} A; velocity gain Kv = "
           f"{law.velocity_gain_a_s_per_rad!r} A*s/rad; "
           + (f"position gain Kp = {law.position_gain_a_per_rad!r} A/rad on the position error "
              f"high-passed with alpha = {law.position_highpass_alpha!r} per period; " if kp
@@ -235,7 +235,7 @@ double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
         double command_speed_rad_s{position_args});
 
 /*
-{_comment(f"{table}[k]: the harmonic part of the correction (A) at x = "
+{c_comment(f"{table}[k]: the harmonic part of the correction (A) at x = "
           f"2*pi*k/{macro}_TABLE_SIZE, i.e. {fn} at x with zero errors and command speed, "
           "for table-driven drivers: k = "
           f"the microstep count modulo {macro}_TABLE_SIZE (the non-negative remainder), counted "
@@ -247,18 +247,18 @@ extern const double {table}[{macro}_TABLE_SIZE];
 #endif /* {macro}_H */
 """
     values = microstep_table(law)
-    rows = ",\n".join("    " + ", ".join(_c(v) for v in values[i:i + 4])
+    rows = ",\n".join("    " + ", ".join(c_double(v) for v in values[i:i + 4])
                       for i in range(0, len(values), 4))
     if limited:
-        clamp = f"""    if (feedback_a > {_c(law.feedback_limit_a)}) {{
-        feedback_a = {_c(law.feedback_limit_a)};
-    }} else if (feedback_a < {_c(-law.feedback_limit_a)}) {{
-        feedback_a = {_c(-law.feedback_limit_a)};
+        clamp = f"""    if (feedback_a > {c_double(law.feedback_limit_a)}) {{
+        feedback_a = {c_double(law.feedback_limit_a)};
+    }} else if (feedback_a < {c_double(-law.feedback_limit_a)}) {{
+        feedback_a = {c_double(-law.feedback_limit_a)};
     }}
 """
     else:
         clamp = "    /* no limit on the feedback current */\n"
-    alpha, gain = _c(law.position_highpass_alpha), _c(law.position_gain_a_per_rad)
+    alpha, gain = c_double(law.position_highpass_alpha), c_double(law.position_gain_a_per_rad)
     position = (
         "    /* The high-passed position error (the kernel's first-order high-pass). */\n"
         f"    *position_lowpass_rad += {alpha} * (position_error_rad - *position_lowpass_rad);\n"
@@ -276,9 +276,9 @@ const double {table}[{macro}_TABLE_SIZE] = {{
 double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
         double command_speed_rad_s{position_args})
 {{
-    static const double harmonic[{n}] = {{{", ".join(_c(h) for h in law.harmonics)}}};
-    static const double amplitude_a[{n}] = {{{", ".join(_c(a) for a in law.amplitude_a)}}};
-    static const double phase_rad[{n}] = {{{", ".join(_c(p) for p in law.phase_rad)}}};
+    static const double harmonic[{n}] = {{{", ".join(c_double(h) for h in law.harmonics)}}};
+    static const double amplitude_a[{n}] = {{{", ".join(c_double(a) for a in law.amplitude_a)}}};
+    static const double phase_rad[{n}] = {{{", ".join(c_double(p) for p in law.phase_rad)}}};
     double iq_a = 0.0;
     double feedback_a;
     int k;
@@ -288,11 +288,11 @@ double {fn}(double electrical_angle_rad, double velocity_error_rad_s,
     }}
     /* The servo's friction feedforward, with the command's sign (0 at rest). */
     if (command_speed_rad_s > 0.0) {{
-        iq_a += {_c(law.friction_a)};
+        iq_a += {c_double(law.friction_a)};
     }} else if (command_speed_rad_s < 0.0) {{
-        iq_a -= {_c(law.friction_a)};
+        iq_a -= {c_double(law.friction_a)};
     }}
-    feedback_a = {_c(law.velocity_gain_a_s_per_rad)} * velocity_error_rad_s;
+    feedback_a = {c_double(law.velocity_gain_a_s_per_rad)} * velocity_error_rad_s;
 {position}{clamp}    return iq_a + feedback_a;
 }}
 {filtered_source}"""

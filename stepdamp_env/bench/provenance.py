@@ -30,7 +30,9 @@ DISPATCH_VARIABLES = ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THRE
                       "ATEN_CPU_CAPABILITY", "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES",
                       "NUMBA_NUM_THREADS", "GLIBC_TUNABLES")
 # Board keys that describe the run, not its numbers.
-_NOT_NUMBERS = ("wall_seconds", "versions", "environment", "fingerprint", "runs_file")
+# "firmware": what export can write per entry, a property of the code, not a result.
+_NOT_NUMBERS = ("wall_seconds", "versions", "environment", "fingerprint", "runs_file",
+                "firmware")
 
 
 def _plain(obj: Any) -> Any:

@@ -21,7 +21,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                    help="a leaderboard entry with a fixed law (patent-ff-identified, "
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
                         "tuned-gain-pair; in open loop velocity-feedback, "
-                        "sensorless-damping)")
+                        "sensorless-damping), or a learned entry (its policy network: "
+                        "ppo-open-loop, ars-open-loop, ...)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
                         "identified on your motor, export with `stepdamp identify`'s "
@@ -60,6 +61,7 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
 def _export_schedule(args: argparse.Namespace) -> int:
     """``export --speeds``: one law over a speed range."""
     from ..bench.firmware import entry_law, firmware_knowledge
+    from ..bench.registry import resolve_policy
     from ..bench.firmware_schedule import (build_schedule, export_schedule,
                                            interpolation_error, multiply_adds_per_period)
     from ..sweep import parse_speed_range
@@ -72,6 +74,10 @@ def _export_schedule(args: argparse.Namespace) -> int:
                              "needs at least 2")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     register_policies()
+    if callable(getattr(resolve_policy(args.entry).make(), "firmware_network", None)):
+        raise ParameterError(f"--speeds: {args.entry!r} is a learned entry: its network's "
+                             "command speed is one of its inputs, so one export covers every "
+                             "speed (leave out --speeds)")
     knowledge = firmware_knowledge(system)
 
     def law_at(speed: float) -> Any:
@@ -138,15 +144,26 @@ def _cmd_recommend(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from ..bench.firmware import default_prefix, entry_law, export_law, firmware_knowledge
+    from ..bench.firmware import (FirmwareNetwork, default_prefix, entry_export, export_law,
+                                  export_network, firmware_knowledge)
 
     if args.speeds is not None:
         return _export_schedule(args)
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     register_policies()
-    law = entry_law(args.entry, firmware_knowledge(system), mode=args.mode,
-                    speed_rps=args.speed)
+    law = entry_export(args.entry, firmware_knowledge(system), mode=args.mode,
+                       speed_rps=args.speed)
     check_writable(args.out, "--out", directory=True)
+    if isinstance(law, FirmwareNetwork):
+        paths = export_network(law, args.format, args.out, args.prefix)
+        prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
+        print(f"{args.entry} on {system.name}, {args.mode}: network "
+              f"{'-'.join(map(str, law.sizes))} ({law.multiply_adds} multiply-adds per "
+              f"decision at {law.decision_hz:g} Hz"
+              + (f"; the C's {prefix}_policy_action" if args.format == "c" else "") + "), its "
+              "inputs StepperDamp-v1's observation and its outputs the damping law's gains, "
+              f"in {system.name}'s units; wrote {', '.join(paths)}")
+        return 0
     paths = export_law(law, args.format, args.out, args.prefix)
     f = law.filtered_feedback
     prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
