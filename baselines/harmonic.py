@@ -16,7 +16,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from stepdamp_env.bench.firmware import FirmwareLaw, harmonic_law
+from stepdamp_env.bench.firmware import FirmwareLaw, KalmanTable, harmonic_law
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyContext, RowPolicy,
                                        estimate_model, resolve_estimate)
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
@@ -213,11 +213,44 @@ class AdaptiveFF(OnlineTable, _HarmonicResidual):
         self.guard_ratio = guard_ratio
         self._action = np.zeros(6, dtype=np.float32)
 
+    #: The modes ``stepdamp export`` writes its adapting table for.
+    firmware_modes: tuple[str, ...] = ("open-loop", "servo")
+
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
-        """Not exportable: the table adapts on line (see :mod:`stepdamp_env.bench.firmware`)."""
-        raise ParameterError(f"entry {self.name!r} cannot be exported: it adapts its harmonic "
-                             "table on line (Kalman filter on the velocity error); export "
-                             "ff-delay-comp, the table it starts from")
+        """Not a fixed law: the table adapts on line (:meth:`firmware_online`)."""
+        raise ParameterError(f"entry {self.name!r} cannot be exported as a fixed law: it "
+                             "adapts its harmonic table on line (Kalman filter on the "
+                             "velocity error); export writes the adapting table")
+
+    def firmware_online(self, context: PolicyContext) -> KalmanTable:
+        """The law this entry runs in ``context`` for a drive's firmware
+        (:mod:`stepdamp_env.bench.firmware_online`): its first table, the filter's
+        and the integrator's constants, the guard's."""
+        if type(self) is not AdaptiveFF:        # a subclass may move its table otherwise
+            raise ParameterError(f"entry {self.name!r} cannot be exported: its law is not "
+                                 "the adapting table AdaptiveFF exports")
+        self.configure(context)
+        model = estimate_model(self.estimate, context.knowledge)
+
+        def pairs(z: np.ndarray) -> tuple[float, ...]:
+            return tuple(float(v) for c in z for v in (c.real, c.imag))
+
+        return KalmanTable(
+            entry=self.name, motor=context.knowledge.nominal.name, mode=context.mode,
+            speed_rps=float(context.speed_rps), decision_hz=float(context.agent_hz),
+            km_nm_per_a=model.Km,
+            friction_a=model.Fs / model.Km if context.mode == "servo" else 0.0,
+            base_nm=pairs(self._base), action_scale_nm=float(self._scale),
+            initial_action=tuple(float(v) for v in self._action),
+            inverse_path=pairs(self._inverse_path), speed_ref_rad_s=float(self._w_ref),
+            start_step=int(self._start_step), adapt_step=int(self._adapt_step),
+            drift_variance=self._q, noise_variance=self._r,
+            initial_variance=float(self._p[0, 0]), step_gain=float(self.step_gain),
+            guard_ratio=float(self.guard_ratio),
+            notes=(f"{self.name}: ff-delay-comp's table on the {self.estimate} detent model "
+                   "to start; the ripple estimated by a Kalman filter on the speed error, "
+                   "the table moved against it through the inverse of the current path and "
+                   "the rotor's response at the held speed (nominal model)."))
 
     def configure(self, context: PolicyContext) -> None:
         system = context.knowledge.nominal

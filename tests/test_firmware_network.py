@@ -166,6 +166,7 @@ def test_json_round_trip_and_the_header(tmp_path):
     assert data["format"] == "stepdamp-firmware-network/1"
     assert data["multiply_adds_per_decision"] == 36 * 64 + 64 * 64 + 64 * 8
     assert network_from_json(data) == net
+    assert network_from_json(json.loads(json.dumps(network_to_json(net)))) == net
     header, _ = network_c_source(net, "pol")
     assert "void pol_policy_action(const float observation[POL_N_OBSERVATION]" in header
     assert "position_error_1" in header and "kv  (x " in header

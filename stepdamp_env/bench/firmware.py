@@ -64,6 +64,7 @@ from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemP
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
 from .firmware_c import FORMATS, c_source, default_prefix, write_law_files
 from .firmware_net import FirmwareNetwork, export_network
+from .firmware_online import KalmanTable, export_online
 from .firmware_law import (FORMAT_ID, FilteredFeedback, FirmwareLaw, correction,
                            filtered_feedback_currents, from_json, microstep_table,
                            position_lowpass, to_json)
@@ -77,7 +78,13 @@ __all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correctio
            "position_lowpass", "filtered_feedback_currents", "default_prefix",
            "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law",
            "FirmwareNetwork", "export_network", "policy_export", "entry_export",
-           "export_modes", "export_kind"]
+           "export_modes", "export_kind", "KalmanTable", "export_online", "export_any",
+           "HOOKS"]
+
+#: What an entry's export hook returns, by hook: a learned entry's network, an
+#: adapting table, a fixed law (tried in this order).
+HOOKS = (("firmware_network", FirmwareNetwork), ("firmware_online", KalmanTable),
+         ("firmware_law", FirmwareLaw))
 
 
 def export_law(law: FirmwareLaw, fmt: str, out_dir: str | os.PathLike[str],
@@ -166,8 +173,7 @@ def export_modes(policy: Any) -> tuple[str, ...]:
     it against :func:`entry_export` for every default entry."""
     if isinstance(policy, ZeroAction):
         return tuple(MODES) if policy.base_controller != "none" else ()
-    if callable(getattr(policy, "firmware_law", None)) or \
-            callable(getattr(policy, "firmware_network", None)):
+    if any(callable(getattr(policy, hook, None)) for hook, _ in HOOKS):
         declared = getattr(policy, "firmware_modes", tuple(MODES))
         return tuple(m for m in MODES if m in declared)
     return ()
@@ -175,8 +181,12 @@ def export_modes(policy: Any) -> tuple[str, ...]:
 
 def export_kind(policy: Any) -> str:
     """What ``stepdamp export`` writes for ``policy`` where :func:`export_modes`
-    is not empty: "network" (a learned entry's policy network) or "law"."""
-    return "network" if callable(getattr(policy, "firmware_network", None)) else "law"
+    is not empty: "network" (a learned entry's policy network), "online table"
+    (a harmonic table that adapts while it runs) or "law" (fixed)."""
+    for hook, kind in zip((h for h, _ in HOOKS), ("network", "online table", "law")):
+        if callable(getattr(policy, hook, None)):
+            return kind
+    return "law"
 
 
 def _checked_speed(knowledge: MotorKnowledge, mode: str, speed_rps: float | None) -> float:
@@ -242,20 +252,36 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
 
 
 def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop",
-                  speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork:
+                  speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork | KalmanTable:
     """What ``export`` writes for ``policy``: a learned entry's network (its
-    ``firmware_network(context) -> FirmwareNetwork``, :mod:`.firmware_net`),
-    else :func:`policy_law`."""
-    hook = getattr(policy, "firmware_network", None)
-    if not callable(hook):
-        return policy_law(policy, knowledge, mode=mode, speed_rps=speed_rps)
-    name = str(getattr(policy, "name", policy))
-    net = _call_hook(policy, name, knowledge, mode, _checked_speed(knowledge, mode, speed_rps),
-                     hook)
-    if not isinstance(net, FirmwareNetwork):
-        raise ParameterError(f"entry {name!r}: firmware_network returned "
-                             f"{type(net).__name__}, not a FirmwareNetwork")
-    return net
+    ``firmware_network(context)``, :mod:`.firmware_net`), an adapting table (its
+    ``firmware_online(context)``, :mod:`.firmware_online`), else
+    :func:`policy_law`."""
+    for hook_name, kind in HOOKS[:-1]:
+        hook = getattr(policy, hook_name, None)
+        if not callable(hook):
+            continue
+        name = str(getattr(policy, "name", policy))
+        if mode in MODES and mode not in export_modes(policy):
+            raise ParameterError(f"entry {name!r} cannot be exported in {mode}")
+        out = _call_hook(policy, name, knowledge, mode,
+                         _checked_speed(knowledge, mode, speed_rps), hook)
+        if not isinstance(out, kind):
+            raise ParameterError(f"entry {name!r}: {hook_name} returned {type(out).__name__}, "
+                                 f"not a {kind.__name__}")
+        return out
+    return policy_law(policy, knowledge, mode=mode, speed_rps=speed_rps)
+
+
+def export_any(law: FirmwareLaw | FirmwareNetwork | KalmanTable, fmt: str,
+               out_dir: str | os.PathLike[str], prefix: str | None = None) -> list[str]:
+    """Write what :func:`policy_export` returned (:func:`export_law`,
+    :func:`export_network` or :func:`export_online`); the paths written."""
+    if isinstance(law, FirmwareNetwork):
+        return export_network(law, fmt, os.fspath(out_dir), prefix)
+    if isinstance(law, KalmanTable):
+        return export_online(law, fmt, os.fspath(out_dir), prefix)
+    return export_law(law, fmt, out_dir, prefix)
 
 
 def entry_law(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",

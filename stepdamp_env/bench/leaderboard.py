@@ -18,7 +18,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 from ..env.options import EnvOptions
 from ..lanes import LANES
@@ -27,6 +27,7 @@ from ..io import write_checked_json
 from ..parallel import default_workers, pool_map
 from ..params import FeedforwardModel, ParameterError, SystemParams
 from ..presets import get_preset
+from .firmware_board import firmware_field
 from .kept import KeptResults
 from .motors import ProtocolMotor, protocol_motors
 from .policy import MotorKnowledge, policy_card, policy_env_options
@@ -338,24 +339,12 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     board["wall_seconds"] = time.perf_counter() - wall_start
     _move_last(board, ("simulated_seconds", "simulated_seconds_detail"))
     board["environment"] = environment()
-    board["firmware"] = _firmware(sources)
+    board["firmware"] = firmware_field(sources)
     if fingerprint:
         board["fingerprint"] = board_fingerprint(board)
     return board
 
 
-def _firmware(sources: Mapping[str, PolicySource]) -> dict[str, dict[str, Any]]:
-    """Per entry, what ``stepdamp export`` writes ("law" or "network") and for
-    which modes (:func:`.firmware.export_modes`); entries it cannot export have
-    no modes."""
-    from .firmware import export_kind, export_modes
-
-    out = {}
-    for src in sources.values():
-        policy = src.make()
-        modes = export_modes(policy)
-        out[src.name] = {"kind": export_kind(policy) if modes else "", "modes": list(modes)}
-    return out
 
 
 def canonical_order(specs: Sequence[str]) -> list[str]:

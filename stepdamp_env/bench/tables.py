@@ -17,7 +17,6 @@ PATENT_ENTRY = "patent-ff-identified"
 __all__ = ["PATENT_ENTRY", "best_eligible", "entry_knowledge", "entry_line", "entry_rows",
            "format_db", "format_summary", "has_splits", "render_ladder", "render_markdown",
            "render_per_motor", "render_results", "render_suite_page", "render_table_facts",
-           "render_firmware",
            "rank_rule", "row_notes", "row_rank", "table_facts_line",
            "score_label", "scored_in_db", "splits", "suite_page"]
 
@@ -190,33 +189,14 @@ def render_markdown(board: Mapping[str, Any]) -> str:
     """``LEADERBOARD.md``: one ranked table per suite (v1: per split and suite,
     with the probability of improvement of every pair), then what ``stepdamp
     export`` writes per entry (:func:`render_firmware`, where the board says)."""
+    from .firmware_board import render_firmware
+
     text = _render_tables(board)
     extra = render_firmware(board)
     if not extra:
         return text
     head, sep, versions = text.rpartition("Versions: ")
     return head + "\n".join(extra) + "\n\n" + sep + versions
-
-
-def render_firmware(board: Mapping[str, Any]) -> list[str]:
-    """LEADERBOARD.md's section on what ``stepdamp export`` writes for each entry
-    (the board's ``firmware``: kind and modes per entry); none for a board
-    without it."""
-    groups: dict[tuple[str, tuple[str, ...]], list[str]] = {}
-    for name, f in (board.get("firmware") or {}).items():
-        groups.setdefault((f["kind"], tuple(f["modes"])), []).append(name)
-    if not groups:
-        return []
-    label = {"law": "a law (tables and gains)", "network": "the policy network"}
-    lines = ["## Firmware export", "",
-             "What `stepdamp export ENTRY --motor M` writes for each entry, as C99 and "
-             "JSON (docs/firmware.md):", ""]
-    for (kind, modes), names in sorted(groups.items(), key=lambda g: (not g[0][1], g[0])):
-        what = (f"{label.get(kind, kind)}, " + ("in open loop and servo" if len(modes) > 1
-                                                 else f"in {modes[0].replace('-', ' ')} only")
-                if modes else "nothing (docs/firmware.md says why for each)")
-        lines.append(f"- {what}: " + ", ".join(f"`{n}`" for n in sorted(names)))
-    return lines
 
 
 def _render_tables(board: Mapping[str, Any]) -> str:

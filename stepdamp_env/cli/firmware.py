@@ -21,8 +21,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                    help="a leaderboard entry with a fixed law (patent-ff-identified, "
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
                         "tuned-gain-pair; in open loop velocity-feedback, "
-                        "sensorless-damping), or a learned entry (its policy network: "
-                        "ppo-open-loop, ars-open-loop, ...)")
+                        "sensorless-damping), adaptive-ff (its adapting table), or a "
+                        "learned entry (its policy network: ppo-open-loop, ...)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
                         "identified on your motor, export with `stepdamp identify`'s "
@@ -74,10 +74,14 @@ def _export_schedule(args: argparse.Namespace) -> int:
                              "needs at least 2")
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     register_policies()
-    if callable(getattr(resolve_policy(args.entry).make(), "firmware_network", None)):
+    policy = resolve_policy(args.entry).make()
+    if callable(getattr(policy, "firmware_network", None)):
         raise ParameterError(f"--speeds: {args.entry!r} is a learned entry: its network's "
                              "command speed is one of its inputs, so one export covers every "
                              "speed (leave out --speeds)")
+    if callable(getattr(policy, "firmware_online", None)):
+        raise ParameterError(f"--speeds: {args.entry!r} adapts its table while it runs; "
+                             "export it at one held speed (--speed)")
     knowledge = firmware_knowledge(system)
 
     def law_at(speed: float) -> Any:
@@ -144,8 +148,8 @@ def _cmd_recommend(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from ..bench.firmware import (FirmwareNetwork, default_prefix, entry_export, export_law,
-                                  export_network, firmware_knowledge)
+    from ..bench.firmware import (FirmwareNetwork, KalmanTable, default_prefix, entry_export,
+                                  export_any, firmware_knowledge)
 
     if args.speeds is not None:
         return _export_schedule(args)
@@ -154,9 +158,16 @@ def _cmd_export(args: argparse.Namespace) -> int:
     law = entry_export(args.entry, firmware_knowledge(system), mode=args.mode,
                        speed_rps=args.speed)
     check_writable(args.out, "--out", directory=True)
+    paths = export_any(law, args.format, args.out, args.prefix)
+    prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
+    if isinstance(law, KalmanTable):
+        print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: a "
+              "harmonic table that adapts while it runs (a Kalman filter of the speed "
+              f"ripple, updated {law.decision_hz:g} times a second"
+              + (f"; the C's {prefix}_update, its state the caller's" if args.format == "c"
+                 else "") + f"); wrote {', '.join(paths)}")
+        return 0
     if isinstance(law, FirmwareNetwork):
-        paths = export_network(law, args.format, args.out, args.prefix)
-        prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
         print(f"{args.entry} on {system.name}, {args.mode}: network "
               f"{'-'.join(map(str, law.sizes))} ({law.multiply_adds} multiply-adds per "
               f"decision at {law.decision_hz:g} Hz"
@@ -164,9 +175,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
               "inputs StepperDamp-v1's observation and its outputs the damping law's gains, "
               f"in {system.name}'s units; wrote {', '.join(paths)}")
         return 0
-    paths = export_law(law, args.format, args.out, args.prefix)
     f = law.filtered_feedback
-    prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
     feedback = (f"feedback from filters ({f.kind}) every {f.periods_per_update} PWM periods, "
                 f"held in between (the C's {prefix}_feedback_update_a; its state the "
                 "caller's)"

@@ -1,0 +1,47 @@
+"""What ``stepdamp export`` writes for each entry of a board: the board's
+``firmware`` field (:func:`firmware_field`; left out of the fingerprint, a
+property of the code, not a result) and LEADERBOARD.md's section on it
+(:func:`render_firmware`)."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from .firmware import export_kind, export_modes
+from .registry import PolicySource
+
+__all__ = ["firmware_field", "render_firmware"]
+
+
+def firmware_field(sources: Mapping[str, PolicySource]) -> dict[str, dict[str, Any]]:
+    """Per entry, what ``stepdamp export`` writes (:func:`.firmware.export_kind`:
+    "law", "online table" or "network") and for which modes
+    (:func:`.firmware.export_modes`); an entry it cannot export has no modes."""
+    out = {}
+    for src in sources.values():
+        policy = src.make()
+        modes = export_modes(policy)
+        out[src.name] = {"kind": export_kind(policy) if modes else "", "modes": list(modes)}
+    return out
+
+
+def render_firmware(board: Mapping[str, Any]) -> list[str]:
+    """LEADERBOARD.md's section on what ``stepdamp export`` writes for each entry
+    (the board's ``firmware``: kind and modes per entry); none for a board
+    without it."""
+    groups: dict[tuple[str, tuple[str, ...]], list[str]] = {}
+    for name, f in (board.get("firmware") or {}).items():
+        groups.setdefault((f["kind"], tuple(f["modes"])), []).append(name)
+    if not groups:
+        return []
+    label = {"law": "a fixed law", "network": "the policy network",
+             "online table": "a table that adapts while it runs (its update and state)"}
+    lines = ["## Firmware export", "",
+             "What `stepdamp export ENTRY --motor M` writes for each entry, as C99 and "
+             "JSON (docs/firmware.md):", ""]
+    for (kind, modes), names in sorted(groups.items(), key=lambda g: (not g[0][1], g[0])):
+        what = (f"{label.get(kind, kind)}, " + ("in open loop and servo" if len(modes) > 1
+                                                 else f"in {modes[0].replace('-', ' ')} only")
+                if modes else "nothing (docs/firmware.md says why for each)")
+        lines.append(f"- {what}: " + ", ".join(f"`{n}`" for n in sorted(names)))
+    return lines
