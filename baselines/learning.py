@@ -14,10 +14,11 @@ from typing import Sequence
 import numpy as np
 
 from stepdamp_env import fixedmath as fm
+from stepdamp_env.bench.firmware import RepetitiveTable
 from stepdamp_env.bench.kept import KeptResults
 from stepdamp_env.bench.policy import MotorKnowledge, PolicyCard, PolicyContext, estimate_model
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
-from stepdamp_env.params import DETENT_HARMONICS
+from stepdamp_env.params import DETENT_HARMONICS, ParameterError
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 from .harmonic import (DelayCompensatedFF, OnlineTable, gather_rows, harmonic_action_rows,
@@ -220,6 +221,38 @@ class RepetitiveControl(OnlineTable, DelayCompensatedFF):
         self.learning_gain = float(learning_gain)
         self.leak = float(leak)
         self.min_samples = float(min_samples)
+
+    #: The modes ``stepdamp export`` writes its adapting table for.
+    firmware_modes: tuple[str, ...] = ("open-loop", "servo")
+
+    def firmware_online(self, context: PolicyContext) -> RepetitiveTable:
+        """The law this entry runs in ``context`` for a drive's firmware
+        (:mod:`stepdamp_env.bench.firmware_online`): its start table, its
+        learning gains, leak and guard."""
+        if type(self) is not RepetitiveControl:   # a subclass may learn otherwise
+            raise ParameterError(f"entry {self.name!r} cannot be exported: its law is not "
+                                 "the adapting table RepetitiveControl exports")
+        self.configure(context)
+        model = estimate_model(self.estimate, context.knowledge)
+
+        def pairs(z: np.ndarray) -> tuple[float, ...]:
+            return tuple(float(v) for c in z for v in (c.real, c.imag))
+
+        return RepetitiveTable(
+            entry=self.name, motor=context.knowledge.nominal.name, mode=context.mode,
+            speed_rps=float(context.speed_rps), decision_hz=float(context.agent_hz),
+            km_nm_per_a=model.Km,
+            friction_a=model.Fs / model.Km if context.mode == "servo" else 0.0,
+            base_nm=pairs(self._base), action_scale_nm=float(self._scale),
+            initial_action=tuple(float(v) for v in self._action),
+            speed_ref_rad_s=float(self._w_ref), start_nm=pairs(self._start),
+            learn=pairs(self._learn), wait_step=int(self._wait), leak=self.leak,
+            guard_ratio=self.guard_ratio,
+            notes=(f"{self.name}: ff-delay-comp's table on the {self.estimate} detent model "
+                   "to start; once per electrical period the speed error's harmonics move "
+                   "it through the conjugate of the plant's response at the held speed "
+                   "(nominal model), bounded for the spread of resonances a motor of this "
+                   "type may have."))
 
     def configure(self, context: PolicyContext) -> None:
         nominal = context.knowledge.nominal

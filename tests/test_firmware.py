@@ -469,7 +469,7 @@ def test_bad_arguments_name_the_parameter(tmp_path):
 def test_the_export_modes_an_entry_declares_are_those_export_writes():
     """export_modes (what the board's firmware section says) against what
     entry_export does, for every default entry in both modes."""
-    from stepdamp_env.bench.firmware import FirmwareNetwork, KalmanTable, entry_export, \
+    from stepdamp_env.bench.firmware import FirmwareNetwork, OnlineTableLaw, entry_export, \
         export_kind, export_modes
     from stepdamp_env.bench.registry import default_policy_names
     from stepdamp_env.cli.options import register_policies
@@ -487,7 +487,7 @@ def test_the_export_modes_an_entry_declares_are_those_export_writes():
             assert (written is not None) == (mode in export_modes(policy)), (name, mode)
             if written is not None:
                 kind = ("network" if isinstance(written, FirmwareNetwork) else
-                        "online table" if isinstance(written, KalmanTable) else "law")
+                        "online table" if isinstance(written, OnlineTableLaw) else "law")
                 assert kind == export_kind(policy), name
                 kinds.add(kind)
     assert kinds == {"law", "network", "online table"}

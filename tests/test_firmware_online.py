@@ -14,7 +14,7 @@ import pytest
 
 from stepdamp_env import kernel as K
 from stepdamp_env.bench import MotorKnowledge, run_episode
-from stepdamp_env.bench.firmware import KalmanTable, entry_export, export_any
+from stepdamp_env.bench.firmware import KalmanTable, RepetitiveTable, entry_export, export_any
 from stepdamp_env.bench.firmware_online import online_from_json, online_to_json
 from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.bench.rig import CalibrationRig
@@ -42,10 +42,10 @@ def _knowledge(mode: str, nominal_j: float = 1.0) -> MotorKnowledge:
                           rig=CalibrationRig(plant, noise_seed=0, accel_rps2=50.0))
 
 
-def _run(knowledge, mode, until_s=0.4):
-    """A run of adaptive-ff at the h=4 resonance: each step's observation and
+def _run(entry, knowledge, mode, until_s=0.4):
+    """A run of the entry at the h=4 resonance: each step's observation and
     action (float32), and every PWM period (kernel.TRACE columns), per step."""
-    policy = resolve_policy("adaptive-ff").make()
+    policy = resolve_policy(entry).make()
     seen, acted = [], []
     act_batch = policy.act_batch
 
@@ -102,9 +102,10 @@ int main(void)
 """
 
 
+@pytest.mark.parametrize("entry", ["adaptive-ff", "repetitive-control"])
 @pytest.mark.parametrize("mode, nominal_j", [("open-loop", 1.0), ("servo", 1.0),
                                              ("open-loop", 0.5)])
-def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, mode, nominal_j):
+def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, entry, mode, nominal_j):
     """The C update, compiled with the strict flags and fed the observations the
     policy read, step by step, gives its actions bit for bit while the table
     moves; the C's correction at each PWM period's angle is the kernel's
@@ -112,18 +113,22 @@ def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, mode, nominal_j):
     a harmonic's guard trips (its table goes back to the start)."""
     cc = _compiler()
     knowledge = _knowledge(mode, nominal_j)
-    obs, actions, speed, trace = _run(knowledge, mode)
-    law = entry_export("adaptive-ff", knowledge, mode=mode, speed_rps=speed)
-    assert isinstance(law, KalmanTable) and len(obs) > law.adapt_step + 50
+    obs, actions, speed, trace = _run(entry, knowledge, mode)
+    law = entry_export(entry, knowledge, mode=mode, speed_rps=speed)
+    kalman = entry == "adaptive-ff"
+    assert isinstance(law, KalmanTable if kalman else RepetitiveTable)
+    first = law.adapt_step if kalman else law.wait_step    # no move up to this step
+    assert len(obs) > first + 100
     assert online_from_json(json.loads(json.dumps(online_to_json(law)))) == law
     moved = np.any(actions != actions[0], axis=1)
     # Step k (from 1) is row k - 1: it adapts from step adapt_step + 1 on, after the probe.
-    assert moved.any() and not moved[:law.adapt_step].any()
+    assert moved.any() and not moved[:first].any()
     pairs = actions.reshape(len(actions), 3, 2)
     back = np.all(pairs == pairs[0], axis=2)               # a harmonic at its first table
     tripped = [h for h in range(3) if (~back[:, h]).any()
                and back[np.argmax(~back[:, h]):, h].any()]
-    assert bool(tripped) == (nominal_j != 1.0)
+    if kalman:
+        assert bool(tripped) == (nominal_j != 1.0)
     paths = export_any(law, "c", tmp_path, "table_under_test")
     (tmp_path / "main.c").write_text(_DRIVER.format(p="table_under_test"))
     exe = str(tmp_path / "driver")

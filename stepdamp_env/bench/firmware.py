@@ -64,7 +64,8 @@ from ..params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemP
 from ..simulation import DEFAULT_ACCEL_RPS2, MODES
 from .firmware_c import FORMATS, c_source, default_prefix, write_law_files
 from .firmware_net import FirmwareNetwork, export_network
-from .firmware_online import KalmanTable, export_online
+from .firmware_online import KalmanTable, OnlineTableLaw, RepetitiveTable
+from .firmware_online_c import export_online
 from .firmware_law import (FORMAT_ID, FilteredFeedback, FirmwareLaw, correction,
                            filtered_feedback_currents, from_json, microstep_table,
                            position_lowpass, to_json)
@@ -78,12 +79,13 @@ __all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correctio
            "position_lowpass", "filtered_feedback_currents", "default_prefix",
            "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law",
            "FirmwareNetwork", "export_network", "policy_export", "entry_export",
-           "export_modes", "export_kind", "KalmanTable", "export_online", "export_any",
+           "export_modes", "export_kind", "KalmanTable", "RepetitiveTable", "OnlineTableLaw",
+           "export_online", "export_any",
            "HOOKS"]
 
 #: What an entry's export hook returns, by hook: a learned entry's network, an
 #: adapting table, a fixed law (tried in this order).
-HOOKS = (("firmware_network", FirmwareNetwork), ("firmware_online", KalmanTable),
+HOOKS = (("firmware_network", FirmwareNetwork), ("firmware_online", OnlineTableLaw),
          ("firmware_law", FirmwareLaw))
 
 
@@ -252,7 +254,8 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
 
 
 def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop",
-                  speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork | KalmanTable:
+                  speed_rps: float | None = None
+                  ) -> FirmwareLaw | FirmwareNetwork | OnlineTableLaw:
     """What ``export`` writes for ``policy``: a learned entry's network (its
     ``firmware_network(context)``, :mod:`.firmware_net`), an adapting table (its
     ``firmware_online(context)``, :mod:`.firmware_online`), else
@@ -273,13 +276,13 @@ def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-l
     return policy_law(policy, knowledge, mode=mode, speed_rps=speed_rps)
 
 
-def export_any(law: FirmwareLaw | FirmwareNetwork | KalmanTable, fmt: str,
+def export_any(law: FirmwareLaw | FirmwareNetwork | OnlineTableLaw, fmt: str,
                out_dir: str | os.PathLike[str], prefix: str | None = None) -> list[str]:
     """Write what :func:`policy_export` returned (:func:`export_law`,
     :func:`export_network` or :func:`export_online`); the paths written."""
     if isinstance(law, FirmwareNetwork):
         return export_network(law, fmt, os.fspath(out_dir), prefix)
-    if isinstance(law, KalmanTable):
+    if isinstance(law, OnlineTableLaw):
         return export_online(law, fmt, os.fspath(out_dir), prefix)
     return export_law(law, fmt, out_dir, prefix)
 
@@ -292,7 +295,8 @@ def entry_law(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",
 
 
 def entry_export(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",
-                 speed_rps: float | None = None) -> FirmwareLaw | FirmwareNetwork:
+                 speed_rps: float | None = None
+                 ) -> FirmwareLaw | FirmwareNetwork | OnlineTableLaw:
     """:func:`policy_export` of a fresh instance of the entry ``entry``."""
     return policy_export(resolve_policy(entry).make(), knowledge, mode=mode,
                          speed_rps=speed_rps)

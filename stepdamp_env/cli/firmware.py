@@ -21,7 +21,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                    help="a leaderboard entry with a fixed law (patent-ff-identified, "
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
                         "tuned-gain-pair; in open loop velocity-feedback, "
-                        "sensorless-damping), adaptive-ff (its adapting table), or a "
+                        "sensorless-damping), adaptive-ff and repetitive-control (their "
+                        "adapting table), or a "
                         "learned entry (its policy network: ppo-open-loop, ...)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
@@ -148,8 +149,8 @@ def _cmd_recommend(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from ..bench.firmware import (FirmwareNetwork, KalmanTable, default_prefix, entry_export,
-                                  export_any, firmware_knowledge)
+    from ..bench.firmware import (FirmwareNetwork, KalmanTable, OnlineTableLaw, default_prefix,
+                                  entry_export, export_any, firmware_knowledge)
 
     if args.speeds is not None:
         return _export_schedule(args)
@@ -160,10 +161,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
     check_writable(args.out, "--out", directory=True)
     paths = export_any(law, args.format, args.out, args.prefix)
     prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
-    if isinstance(law, KalmanTable):
+    if isinstance(law, OnlineTableLaw):
+        how = ("a Kalman filter of the speed ripple" if isinstance(law, KalmanTable)
+               else "learned once per electrical period")
         print(f"{args.entry} on {system.name}, {args.mode} at {law.speed_rps:.4g} rev/s: a "
-              "harmonic table that adapts while it runs (a Kalman filter of the speed "
-              f"ripple, updated {law.decision_hz:g} times a second"
+              f"harmonic table that adapts while it runs ({how}, updated "
+              f"{law.decision_hz:g} times a second"
               + (f"; the C's {prefix}_update, its state the caller's" if args.format == "c"
                  else "") + f"); wrote {', '.join(paths)}")
         return 0
