@@ -198,3 +198,57 @@ def test_the_cli_exports_a_learned_entry_and_refuses_a_schedule(tmp_path):
                           timeout=300)
     assert done.returncode == 2 and "speed is one of its inputs" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_the_gain_selectors_network_is_the_one_it_runs(monkeypatch, tmp_path):
+    """v0's ppo-gain-selector: the exported network, fed the inputs the policy gave
+    its network in a simulated run (observation, velocity feature, the context
+    constants, the RMS), gives its gains bit for bit, and so does the compiled C;
+    the constants the export states are the ones the policy used."""
+    import stepdamp_agents.policy as agent_policy
+
+    from stepdamp_env.bench.network import predict_rows
+
+    inputs, gains = [], []
+
+    def recording(model, x):
+        out = predict_rows(model, x)
+        inputs.append(np.array(x, dtype=np.float32))
+        gains.append(np.array(out, dtype=np.float32))
+        return out
+
+    monkeypatch.setattr(agent_policy, "predict_rows", recording)
+    plant = get_preset("patent")
+    from stepdamp_env.bench import MotorKnowledge
+    from stepdamp_env.params import FeedforwardModel
+
+    model = FeedforwardModel.from_motor(plant.motor)
+    knowledge = MotorKnowledge(nominal=plant, identified=model, exact=model, plant=plant)
+    speed = plant.predicted_resonances_rps()[4]
+    policy = resolve_policy("ppo-gain-selector").make()
+    result = run_episode(policy, knowledge, plant, mode="open-loop", speed_rps=speed, seed=3,
+                         measure_from_s=0.0, window_s=0.6, until_s=0.6)
+    assert not result.terminated and len(inputs) >= 5
+    x, g = np.concatenate(inputs), np.concatenate(gains)
+    net = entry_export("ppo-gain-selector", knowledge, speed_rps=speed)
+    assert net.decision_hz == 10.0 and net.action_names == ("gain",)
+    np.testing.assert_array_equal(network_actions(net, x), g)
+    assert np.ptp(g) > 0.0
+    for name, value in net.constant_inputs.items():           # the policy's own constants
+        np.testing.assert_array_equal(x[:, net.observation_names.index(name)],
+                                      np.float32(value))
+    cc = _compiler()
+    paths = export_network(net, "c", str(tmp_path), "net_under_test")
+    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="net_under_test",
+                                                    macro="NET_UNDER_TEST"))
+    exe = str(tmp_path / "driver")
+    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
+                            "-lm"], capture_output=True, text=True, timeout=120)
+    assert build.returncode == 0, build.stderr
+    rows = np.concatenate([x, _far_observations(net)])
+    run = subprocess.run([exe], input=rows.astype("<f4").tobytes(), capture_output=True,
+                         timeout=60)
+    record = np.dtype([("action", "<f4", 1), ("output", "<f8", 1)])
+    got = np.frombuffer(run.stdout, dtype=record)
+    np.testing.assert_array_equal(got["action"], network_actions(net, rows))
+    np.testing.assert_array_equal(got["output"], network_outputs(net, rows))

@@ -237,7 +237,7 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
         card = policy_card(policy)
         network = ("export writes its network instead" if callable(
             getattr(policy, "firmware_network", None)) else
-            "and export writes the networks of StepperDamp-v1's per-step agents only")
+            "and it has no firmware_network that export could write")
         why = ("it is a learned agent: its action comes from a network at run time, not "
                f"from a fixed table and gains ({network})"
                if card is not None and card.learned else

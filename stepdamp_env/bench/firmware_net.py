@@ -78,6 +78,9 @@ class FirmwareNetwork:
             [action_low, action_high] (float32) instead of clipped to it.
         action_low, action_high: the model's action space (float32 values).
         notes: what the actions do on the drive.
+        constant_inputs: inputs that stay constant over a run, by name, with
+            their values at the exported motor and speed (what the drive knows
+            of its own model); the firmware feeds them as they are.
     """
 
     entry: str
@@ -97,6 +100,7 @@ class FirmwareNetwork:
     action_low: tuple[float, ...]
     action_high: tuple[float, ...]
     notes: str = ""
+    constant_inputs: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         sizes = tuple(int(s) for s in self.sizes)
@@ -132,6 +136,12 @@ class FirmwareNetwork:
         if not (math.isfinite(self.decision_hz) and self.decision_hz > 0.0):
             raise ParameterError(f"decision_hz={self.decision_hz!r} must be > 0")
         object.__setattr__(self, "squash", bool(self.squash))
+        unknown = set(self.constant_inputs) - set(self.observation_names)
+        if unknown:
+            raise ParameterError(f"constant_inputs name no input: {sorted(unknown)}")
+        object.__setattr__(self, "constant_inputs", dict(
+            zip(self.constant_inputs, _floats("constant_inputs",
+                                              self.constant_inputs.values()))))
 
     @property
     def multiply_adds(self) -> int:
@@ -172,7 +182,8 @@ def network_to_json(net: FirmwareNetwork) -> dict[str, Any]:
             "sizes": list(net.sizes), "activations": list(net.activations),
             "squash": net.squash, "action_low": list(net.action_low),
             "action_high": list(net.action_high), "multiply_adds_per_decision": net.multiply_adds,
-            "notes": net.notes, "weights": list(net.weights), "biases": list(net.biases)}
+            "notes": net.notes, "constant_inputs": dict(net.constant_inputs),
+            "weights": list(net.weights), "biases": list(net.biases)}
 
 
 def network_from_json(data: Mapping[str, Any]) -> FirmwareNetwork:
@@ -185,7 +196,8 @@ def network_from_json(data: Mapping[str, Any]) -> FirmwareNetwork:
     missing = [f for f in fields if f not in data]
     if missing:
         raise ParameterError(f"network JSON lacks {missing}")
-    return FirmwareNetwork(**{f: data[f] for f in fields})
+    return FirmwareNetwork(**{f: data[f] for f in fields},
+                           constant_inputs=data.get("constant_inputs", {}))
 
 
 def export_network(net: FirmwareNetwork, fmt: str, out_dir: str, prefix: str | None = None
@@ -285,7 +297,9 @@ def network_c_source(net: FirmwareNetwork, prefix: str | None = None) -> tuple[s
     n_in, n_out, layers = net.sizes[0], net.sizes[-1], len(net.sizes) - 1
     width = max(net.sizes)
     fn = f"{p}_policy_action"
-    inputs = "\n".join(f" *   {i:3d}  {name}" for i, name in enumerate(net.observation_names))
+    inputs = "\n".join(f" *   {i:3d}  {name}" + (f" = {net.constant_inputs[name]!r} (constant)"
+                                                  if name in net.constant_inputs else "")
+                       for i, name in enumerate(net.observation_names))
     units = ", ".join(f"{k} = {v!r}" for k, v in net.observation_units.items())
     outputs = "\n".join(f" *   {j}  {name}  (x {s!r})"
                         for j, (name, s) in enumerate(zip(net.action_names, net.action_scales)))
