@@ -126,6 +126,7 @@ def test_the_plan_and_its_command(capsys, tmp_path, monkeypatch):
     out = capsys.readouterr().out
     assert f"h=4 resonance is at {f4:.4g} rev/s" in out
     assert all(f"{v:.4g} rev/s" in out for v in plan.speeds_rps)
+    assert "in open loop" in out and "stick-slip" not in out
     assert "--log log1.csv --log log2.csv --log log3.csv" in out
     assert main(["identify", "--motor", CATALOGUE, "--plan"]) == 0
     assert capsys.readouterr().out == out
@@ -152,3 +153,27 @@ def test_the_effort_methods_bias_on_a_light_axis_is_warned():
     assert any(w.startswith("uncertain: Kd2") and "Kd4" in w for w in result.warnings)
     for name in AMPLITUDES:
         assert abs(errors[name]) < 3.0 * result.relative_uncertainty(name), name
+
+
+def test_the_plan_asks_for_open_loop_and_says_where_a_servo_stick_slips(capsys):
+    """On a catalogue motor whose servo stalls and reverses at the plan's speeds
+    (qsh4218-35-10-027 with the v4 sensors), the plan says so, its open-loop logs
+    identify within 5 % and the servo's come out over 10 % off, warned
+    (benchmarks/identify_plan_catalogue.py measures all 27 motors)."""
+    from stepdamp_env.bench.protocols.v4 import catalogue_systems, full_protocol_v4
+    from stepdamp_env.logplan import servo_reversals
+
+    truth = catalogue_systems(full_protocol_v4(), ["qsh4218-35-10-027"])[0]
+    plan = log_plan(truth)
+    assert plan.servo_stick_slip == (True, True, True)
+    assert not any(log_plan(get_preset("patent")).servo_stick_slip)
+    assert servo_reversals(get_preset("patent"), plan.speeds_rps[0], 1.0) == 0
+    found = {}
+    for mode in ("open-loop", "servo"):
+        tables = [_log(truth, v, mode, k, d)
+                  for k, (v, d) in enumerate(zip(plan.speeds_rps, plan.durations_s))]
+        result = identify_from_tables(truth, tables)
+        found[mode] = (max(abs(e) for e in _errors(result, truth).values()), result.warnings)
+    assert found["open-loop"][0] < 0.05
+    assert found["servo"][0] > 0.10 and any("backwards" in w for w in found["servo"][1])
+    assert plan.to_dict()["servo_stick_slip"] == [True, True, True]
