@@ -39,10 +39,11 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import (VecEnv, VecEnvStepReturn,
                                                            VecEnvWrapper)
 
-from stepdamp_env.bench.firmware_net import FirmwareNetwork
+from stepdamp_env.bench.firmware_net import FirmwareNetwork, network_export
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
                                        resolve_estimate)
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
+from stepdamp_env.bench.suites import get_suite, suite_of
 from stepdamp_env.params import ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
 
@@ -191,14 +192,24 @@ class StepAgent(RowPolicy):
         return {"base_controller": "ff-delay-comp", **self.options,
                 "estimate": resolve_estimate(self.estimate, knowledge)}
 
+    @property
+    def firmware_modes(self) -> tuple[str, ...]:
+        """The modes ``stepdamp export`` writes its network for: those of the suites
+        it was trained for (every mode for a model trained before ``--suite``)."""
+        suites = self.card.suites
+        if suites is None:
+            return ("open-loop", "servo")
+        return tuple(m for m in ("open-loop", "servo")
+                     if any(get_suite(s).mode == m for s in suites))
+
     def firmware_network(self, context: PolicyContext) -> FirmwareNetwork:
         """The model's network for a drive's firmware (``stepdamp export``), with
-        the units of its observation and action at ``context``'s motor and speed;
-        a one-line ``ParameterError`` for a recurrent model or one that is not a
-        plain network."""
-        from stepdamp_env.bench.firmware_net import FirmwareNetwork
+        the units of its observation and action and its constant context inputs
+        at ``context``'s motor and speed; a one-line ``ParameterError`` for a
+        recurrent model, one that is not a plain network, or a drive it was not
+        trained for."""
         from stepdamp_env.bench.network import policy_network
-        from stepdamp_env.env import ACTION_NAMES_V1, EnvOptionsV1, TaskV1
+        from stepdamp_env.env import ACTION_NAMES_V1, CONTEXT_NAMES, EnvOptionsV1, TaskV1
         from stepdamp_env.env.v1_options import observation_names_v1
 
         if self.network is not None:
@@ -210,37 +221,49 @@ class StepAgent(RowPolicy):
             raise ParameterError(f"entry {self.name!r} cannot be exported: its policy is not "
                                  "a plain network of linear layers")
         nominal = context.knowledge.nominal
+        drive = nominal.drive.drive_mode
+        suite = suite_of(context.mode, drive)
+        if self.card.suites is not None and suite not in self.card.suites:
+            raise ParameterError(f"entry {self.name!r} cannot be exported for {context.mode} "
+                                 f"on a {drive}-mode drive: it was trained for "
+                                 f"{', '.join(self.card.suites)} only (suite "
+                                 f"{self.card.suites[0]!r}: mode "
+                                 f"{get_suite(self.card.suites[0]).mode}, drive_mode "
+                                 f"{get_suite(self.card.suites[0]).drive_mode})")
+        options = self.env_options(context.knowledge)
         task = TaskV1(EnvOptionsV1.from_kwargs({
-            **self.env_options(context.knowledge), "motor": nominal, "nominal": nominal,
-            "mode": context.mode, "speed_rps": context.speed_rps}))
+            **options, "motor": nominal, "nominal": nominal, "mode": context.mode,
+            "speed_rps": context.speed_rps}))
         o = task.options
         names = observation_names_v1(o.action_mode, o.history, o.context, o.privileged)
         if len(names) != int(net.sizes[0]) or task.obs_dim != len(names):
             raise ParameterError(f"entry {self.name!r} cannot be exported: its network reads "
                                  f"{int(net.sizes[0])} inputs, its env gives {len(names)}")
-        space = self.model.action_space
+        constants = ({} if o.context != "visible" else dict(zip(
+            CONTEXT_NAMES, (float(v) for v in task.context(options["estimate"],
+                                                           context.speed_rps)))))
         u = task.units
-        return FirmwareNetwork(
-            entry=self.name, motor=nominal.name, mode=context.mode,
-            speed_rps=float(context.speed_rps), decision_hz=float(o.agent_hz),
-            observation_names=names,
+        scales = ("damping-gains: Kv in A*s/rad, Kp in A/rad, the resonant rates Kr in A/rad"
+                  if o.action_mode == "damping-gains" else
+                  "gain-phase: the gain over Kv and the phase over pi/4"
+                  if o.action_mode == "gain-phase" else
+                  "harmonic corrections in N*m, a q current in A")
+        return network_export(
+            self, net, context, observation_names=names, decision_hz=float(o.agent_hz),
             observation_units={"position_unit_rad": u.position_unit_rad,
                                "velocity_unit_rad_s": u.velocity_unit_rad_s,
                                "current_unit_a": u.current_unit_a,
                                "speed_unit_rad_s": u.speed_unit_rad_s},
             action_names=ACTION_NAMES_V1[o.action_mode], action_scales=task.action_scales,
-            sizes=tuple(int(s) for s in net.sizes),
-            activations=tuple(("identity", "relu", "tanh")[int(a)] for a in net.activations),
-            weights=net.weights, biases=net.biases, squash=bool(self.model.policy.squash_output),
-            action_low=space.low, action_high=space.high,
+            constant_inputs=constants,
             notes=(f"The inputs are StepperDamp-v1's observation with action_mode "
                    f"{o.action_mode!r}, history {o.history}, context {o.context!r} (the env's "
                    "docstring: the errors over the units below, the last action, the earlier "
-                   "errors newest first, the episode's context). The action is held for one "
-                   f"decision by StepperDamp-v1's drive: ff-delay-comp's table on the "
-                   f"{self.estimate} detent model plus its {o.action_mode!r} law, each entry "
-                   "times its scale (damping-gains: Kv in A*s/rad, Kp in A/rad, the resonant "
-                   "rates Kr in A/rad)."))
+                   "errors newest first, the episode's context), its speed estimate "
+                   f"{o.velocity_estimator!r}. The action is held for one decision by "
+                   f"StepperDamp-v1's drive: ff-delay-comp's table on the {self.estimate} "
+                   f"detent model plus its {o.action_mode!r} law, each entry times its "
+                   f"scale ({scales})."))
 
     # The policy on rows (RowPolicy: a scalar run is row 0; a recurrent model's
     # memory starts at reset_batch).

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from stepdamp_env.bench.firmware_net import FirmwareNetwork
+from stepdamp_env.bench.firmware_net import FirmwareNetwork, network_export
 from stepdamp_env.bench.network import predict_rows
 from stepdamp_env.io import read_json
 from stepdamp_env.params import ParameterError
@@ -167,9 +167,9 @@ class ResidualAgent(RowPolicy):
         velocity feature's RMS over the last hold; its output the damping gain,
         held for ``hold_steps`` env steps. Only the "feedback" residual (the
         committed ``ppo-gain-selector``'s) is exported."""
-        from stepdamp_env.bench.firmware_net import FirmwareNetwork
         from stepdamp_env.bench.network import policy_network
         from stepdamp_env.env.layout import observation_names
+        from stepdamp_env.env.options import EnvOptions
 
         from .residual import context_features, velocity_feature_gain
 
@@ -181,35 +181,35 @@ class ResidualAgent(RowPolicy):
         nominal = context.knowledge.nominal
         features, _ = context_features(nominal, est, context.mode, context.speed_rps,
                                        context.action_scale)
-        constants = tuple(f"model_{k}{h}" for h in (1, 2, 4) for k in ("s", "c")) + \
-            tuple(f"base_action_d{k}{h}" for h in (1, 2, 4) for k in ("s", "c"))
+        constants = tuple(f"ff_model_{k}{h}" for h in (1, 2, 4) for k in ("s", "c")) + \
+            tuple(f"ff_delay_comp_d{k}{h}" for h in (1, 2, 4) for k in ("s", "c"))
         names = (observation_names(self.action_mode) + ("velocity_feature",) + constants
                  + ("velocity_feature_rms",))
         if len(names) != int(net.sizes[0]):
             raise ParameterError(f"entry {self.name!r} cannot be exported: its network reads "
                                  f"{int(net.sizes[0])} inputs, not {len(names)}")
-        space = self.model.action_space
-        gain = velocity_feature_gain(nominal, context.speed_rps)
-        return FirmwareNetwork(
-            entry=self.name, motor=nominal.name, mode=context.mode,
-            speed_rps=float(context.speed_rps),
-            decision_hz=float(context.agent_hz) / self.hold_steps, observation_names=names,
+        top = max(EnvOptions.speed_range_rps[1], abs(context.speed_rps))
+        return network_export(
+            self, net, context, observation_names=names,
+            decision_hz=float(context.agent_hz) / self.hold_steps,
             observation_units={"full_step_rad": nominal.motor.full_step_rad,
                                "command_speed_rad_s": 2.0 * math.pi * abs(context.speed_rps),
+                               "speed_command_unit_rad_s": 2.0 * math.pi * top,
                                "holding_current_a": nominal.drive.holding_current,
-                               "velocity_feature_per_velocity_error": gain},
+                               "velocity_feature_per_velocity_error": velocity_feature_gain(
+                                   nominal, context.speed_rps),
+                               "ff_model_unit_nm": context.action_scale},
             action_names=("gain",), action_scales=(self.feedback_gain,),
-            sizes=tuple(int(s) for s in net.sizes),
-            activations=tuple(("identity", "relu", "tanh")[int(a)] for a in net.activations),
-            weights=net.weights, biases=net.biases, squash=bool(self.model.policy.squash_output),
-            action_low=space.low, action_high=space.high,
             constant_inputs=dict(zip(constants, (float(v) for v in features))),
             notes=(f"v0's gain selector: every {self.hold_steps} env steps at "
                    f"{float(context.agent_hz):g} Hz it picks a gain g from the env's observation "
-                   "with action_mode 'harmonic+current', the velocity feature v = clip("
+                   "with action_mode 'harmonic+current' (the errors over full_step_rad and "
+                   "command_speed_rad_s, the speed command over speed_command_unit_rad_s, "
+                   "the currents over holding_current_a), the velocity feature v = clip("
                    "velocity_error * velocity_feature_per_velocity_error, -10, 10) (float), "
-                   "the drive's model (constant) and the RMS of v over the hold before (0 at "
-                   f"the first); each step in between the drive adds the q current "
+                   "the drive's model (constant: the detent model over ff_model_unit_nm and "
+                   "ff-delay-comp's action) and the RMS of v over the hold before (0 at the "
+                   f"first); each step in between the drive adds the q current "
                    f"{self.residual_scale!r} * {context.current_scale_a!r} A * clip("
                    f"{self.feedback_gain!r} * g * v, -1, 1) to ff-delay-comp's table."))
 

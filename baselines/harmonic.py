@@ -25,7 +25,8 @@ from stepdamp_env.params import DETENT_HARMONICS, ParameterError
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 __all__ = ["DelayCompensatedFF", "AdaptiveFF", "OnlineTable", "HARMONICS", "phasors", "torque_paths",
-           "harmonic_actions", "harmonic_action_rows", "gather_rows"]
+           "harmonic_actions", "harmonic_action_rows", "gather_rows", "phasor_pairs",
+           "online_table_fields"]
 
 HARMONICS = DETENT_HARMONICS
 
@@ -70,6 +71,33 @@ def harmonic_actions(applied: np.ndarray, base: np.ndarray, scale: float) -> np.
 def _applied(action: np.ndarray, base: np.ndarray, scale: float) -> np.ndarray:
     """The feedforward phasors an action really applies."""
     return base + scale * (action[0::2].astype(float) + 1j * action[1::2].astype(float))
+
+
+def phasor_pairs(z: np.ndarray) -> tuple[float, ...]:
+    """Complex numbers as (re, im) pairs, one after the other."""
+    return tuple(float(v) for c in z for v in (c.real, c.imag))
+
+
+def online_table_fields(context: PolicyContext, *, entry: str, estimate: str,
+                        base: np.ndarray, action: np.ndarray, scale: float,
+                        speed_ref_rad_s: float) -> dict[str, Any]:
+    """The :class:`~stepdamp_env.bench.firmware_online.OnlineTableLaw` fields of the
+    harmonic policy ``entry`` that learns its table on line in ``context``: its
+    detent model (``estimate``), the patent feedforward's phasors ``base`` (N*m),
+    its first action and the action's scale, the observation's velocity unit."""
+    model = estimate_model(estimate, context.knowledge)
+    nominal = context.knowledge.nominal
+    return dict(
+        entry=entry, motor=nominal.name, mode=context.mode,
+        speed_rps=float(context.speed_rps), decision_hz=float(context.agent_hz),
+        km_nm_per_a=model.Km,
+        # As harmonic_law: the servo's friction feedforward, Fs times 1/Km.
+        friction_a=model.Fs * (1.0 / model.Km) if context.mode == "servo" else 0.0,
+        base_nm=phasor_pairs(base), action_scale_nm=float(scale),
+        initial_action=tuple(float(v) for v in action),
+        speed_ref_rad_s=float(speed_ref_rad_s), accel_rps2=float(context.accel_rps2),
+        velocity_estimator=("the drive's encoder difference through a first-order low-pass "
+                            f"at {nominal.servo.velocity_cutoff_hz!r} Hz, every PWM period"))
 
 
 class _HarmonicResidual(RowPolicy):
@@ -144,8 +172,6 @@ class OnlineTable:
     steps) update their table (``_update_rows``); the action is the rows' table."""
 
     LIVE_FROM: str
-    #: The modes ``stepdamp export`` writes it for: none (the table changes while it runs).
-    firmware_modes: tuple[str, ...] = ()
 
     def act_batch(self, observations: np.ndarray, rows: np.ndarray) -> np.ndarray:
         self._rows_step += 1
@@ -213,14 +239,14 @@ class AdaptiveFF(OnlineTable, _HarmonicResidual):
         self.guard_ratio = guard_ratio
         self._action = np.zeros(6, dtype=np.float32)
 
-    #: The modes ``stepdamp export`` writes its adapting table for.
+    #: The modes ``stepdamp export`` writes its online table for.
     firmware_modes: tuple[str, ...] = ("open-loop", "servo")
 
     def firmware_law(self, context: PolicyContext) -> FirmwareLaw:
         """Not a fixed law: the table adapts on line (:meth:`firmware_online`)."""
         raise ParameterError(f"entry {self.name!r} cannot be exported as a fixed law: it "
                              "adapts its harmonic table on line (Kalman filter on the "
-                             "velocity error); export writes the adapting table")
+                             "velocity error); export writes its online table")
 
     def firmware_online(self, context: PolicyContext) -> KalmanTable:
         """The law this entry runs in ``context`` for a drive's firmware
@@ -228,22 +254,14 @@ class AdaptiveFF(OnlineTable, _HarmonicResidual):
         and the integrator's constants, the guard's."""
         if type(self) is not AdaptiveFF:        # a subclass may move its table otherwise
             raise ParameterError(f"entry {self.name!r} cannot be exported: its law is not "
-                                 "the adapting table AdaptiveFF exports")
+                                 "the online table AdaptiveFF exports")
         self.configure(context)
-        model = estimate_model(self.estimate, context.knowledge)
-
-        def pairs(z: np.ndarray) -> tuple[float, ...]:
-            return tuple(float(v) for c in z for v in (c.real, c.imag))
-
         return KalmanTable(
-            entry=self.name, motor=context.knowledge.nominal.name, mode=context.mode,
-            speed_rps=float(context.speed_rps), decision_hz=float(context.agent_hz),
-            km_nm_per_a=model.Km,
-            friction_a=model.Fs / model.Km if context.mode == "servo" else 0.0,
-            base_nm=pairs(self._base), action_scale_nm=float(self._scale),
-            initial_action=tuple(float(v) for v in self._action),
-            inverse_path=pairs(self._inverse_path), speed_ref_rad_s=float(self._w_ref),
-            start_step=int(self._start_step), adapt_step=int(self._adapt_step),
+            **online_table_fields(context, entry=self.name, estimate=self.estimate,
+                                  base=self._base, action=self._action, scale=self._scale,
+                                  speed_ref_rad_s=self._w_ref),
+            inverse_path=phasor_pairs(self._inverse_path), start_step=int(self._start_step),
+            adapt_step=int(self._adapt_step),
             drift_variance=self._q, noise_variance=self._r,
             initial_variance=float(self._p[0, 0]), step_gain=float(self.step_gain),
             guard_ratio=float(self.guard_ratio),

@@ -22,7 +22,7 @@ from stepdamp_env.params import DETENT_HARMONICS, ParameterError
 from stepdamp_env.response import phasors, torque_paths, torque_to_velocity, velocity_filter
 
 from .harmonic import (DelayCompensatedFF, OnlineTable, gather_rows, harmonic_action_rows,
-                       harmonic_actions)
+                       harmonic_actions, online_table_fields, phasor_pairs)
 
 __all__ = ["CalibratedTable", "RepetitiveControl", "golden_section"]
 
@@ -222,7 +222,7 @@ class RepetitiveControl(OnlineTable, DelayCompensatedFF):
         self.leak = float(leak)
         self.min_samples = float(min_samples)
 
-    #: The modes ``stepdamp export`` writes its adapting table for.
+    #: The modes ``stepdamp export`` writes its online table for.
     firmware_modes: tuple[str, ...] = ("open-loop", "servo")
 
     def firmware_online(self, context: PolicyContext) -> RepetitiveTable:
@@ -231,23 +231,14 @@ class RepetitiveControl(OnlineTable, DelayCompensatedFF):
         learning gains, leak and guard."""
         if type(self) is not RepetitiveControl:   # a subclass may learn otherwise
             raise ParameterError(f"entry {self.name!r} cannot be exported: its law is not "
-                                 "the adapting table RepetitiveControl exports")
+                                 "the online table RepetitiveControl exports")
         self.configure(context)
-        model = estimate_model(self.estimate, context.knowledge)
-
-        def pairs(z: np.ndarray) -> tuple[float, ...]:
-            return tuple(float(v) for c in z for v in (c.real, c.imag))
-
         return RepetitiveTable(
-            entry=self.name, motor=context.knowledge.nominal.name, mode=context.mode,
-            speed_rps=float(context.speed_rps), decision_hz=float(context.agent_hz),
-            km_nm_per_a=model.Km,
-            friction_a=model.Fs / model.Km if context.mode == "servo" else 0.0,
-            base_nm=pairs(self._base), action_scale_nm=float(self._scale),
-            initial_action=tuple(float(v) for v in self._action),
-            speed_ref_rad_s=float(self._w_ref), start_nm=pairs(self._start),
-            learn=pairs(self._learn), wait_step=int(self._wait), leak=self.leak,
-            guard_ratio=self.guard_ratio,
+            **online_table_fields(context, entry=self.name, estimate=self.estimate,
+                                  base=self._base, action=self._action, scale=self._scale,
+                                  speed_ref_rad_s=self._w_ref),
+            start_nm=phasor_pairs(self._start), learn=phasor_pairs(self._learn),
+            wait_step=int(self._wait), leak=self.leak, guard_ratio=self.guard_ratio,
             notes=(f"{self.name}: ff-delay-comp's table on the {self.estimate} detent model "
                    "to start; once per electrical period the speed error's harmonics move "
                    "it through the conjugate of the plant's response at the held speed "

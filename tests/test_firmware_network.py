@@ -82,6 +82,10 @@ def test_the_exported_network_is_the_simulated_policy(entry):
     # td3-per-step's action layer is zero on every seed (docs/agents.md: it learned
     # nothing past its start, ff-delay-comp); the others act.
     assert (np.ptp(actions) == 0.0) == (entry == "td3-per-step")
+    for name, value in net.constant_inputs.items():            # the run's own context
+        np.testing.assert_array_equal(obs[:, net.observation_names.index(name)],
+                                      np.float32(value))
+    assert len(net.constant_inputs) == 9
     policy = resolve_policy(entry).make()
     far = _far_observations(net)
     np.testing.assert_array_equal(network_actions(net, far),
@@ -185,6 +189,15 @@ def test_bad_networks_are_one_line_errors():
         assert "\n" not in str(info.value)
     with pytest.raises(ParameterError, match="not a stepdamp-firmware-network/1"):
         network_from_json({"format": "stepdamp-firmware-law/3"})
+    # Only where it was trained: the mid-band agent on the voltage-mode drive.
+    for entry, mode, text in [("ppo-mid-band", "open-loop", "trained for mid-band only"),
+                              ("ars-servo", "open-loop", "runs in servo only"),
+                              ("ppo-open-loop", "servo", "runs in open-loop only")]:
+        with pytest.raises(ParameterError, match=text) as info:
+            entry_export(entry, _knowledge(), mode=mode)
+        assert "\n" not in str(info.value)
+    voltage = firmware_knowledge(get_preset("patent").replace(drive_mode="voltage"))
+    assert entry_export("ppo-mid-band", voltage).entry == "ppo-mid-band"
 
 
 def test_the_cli_exports_a_learned_entry_and_refuses_a_schedule(tmp_path):

@@ -83,10 +83,12 @@ __all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correctio
            "export_online", "export_any",
            "HOOKS"]
 
-#: What an entry's export hook returns, by hook: a learned entry's network, an
-#: adapting table, a fixed law (tried in this order).
-HOOKS = (("firmware_network", FirmwareNetwork), ("firmware_online", OnlineTableLaw),
-         ("firmware_law", FirmwareLaw))
+#: An entry's export hooks, tried in this order: (hook, what it returns, the kind
+#: :func:`export_kind` names): a learned entry's network, an online table (one
+#: that adapts while it runs), a fixed law.
+HOOKS = (("firmware_network", FirmwareNetwork, "network"),
+         ("firmware_online", OnlineTableLaw, "online table"),
+         ("firmware_law", FirmwareLaw, "law"))
 
 
 def export_law(law: FirmwareLaw, fmt: str, out_dir: str | os.PathLike[str],
@@ -167,15 +169,15 @@ def _base_controller_law(policy: ZeroAction, context: PolicyContext) -> Firmware
 
 
 def export_modes(policy: Any) -> tuple[str, ...]:
-    """The modes ``stepdamp export`` writes ``policy``'s law or network for: the
-    base controller's feedforward (``patent-ff-*``) in every mode, a policy with a
-    ``firmware_law`` or ``firmware_network`` in those its ``firmware_modes``
-    names (every mode where it names none), else none. Read from the policy,
+    """The modes ``stepdamp export`` writes something for ``policy`` in: the base
+    controller's feedforward (``patent-ff-*``) in every mode, a policy with one
+    of the :data:`HOOKS` in those its ``firmware_modes`` names (every mode where
+    it names none), else none. Read from the policy,
     not computed (a law may calibrate first); ``tests/test_firmware.py`` checks
     it against :func:`entry_export` for every default entry."""
     if isinstance(policy, ZeroAction):
         return tuple(MODES) if policy.base_controller != "none" else ()
-    if any(callable(getattr(policy, hook, None)) for hook, _ in HOOKS):
+    if any(callable(getattr(policy, hook, None)) for hook, _, _ in HOOKS):
         declared = getattr(policy, "firmware_modes", tuple(MODES))
         return tuple(m for m in MODES if m in declared)
     return ()
@@ -185,10 +187,8 @@ def export_kind(policy: Any) -> str:
     """What ``stepdamp export`` writes for ``policy`` where :func:`export_modes`
     is not empty: "network" (a learned entry's policy network), "online table"
     (a harmonic table that adapts while it runs) or "law" (fixed)."""
-    for hook, kind in zip((h for h, _ in HOOKS), ("network", "online table", "law")):
-        if callable(getattr(policy, hook, None)):
-            return kind
-    return "law"
+    return next((kind for hook, _, kind in HOOKS if callable(getattr(policy, hook, None))),
+                "law")
 
 
 def _checked_speed(knowledge: MotorKnowledge, mode: str, speed_rps: float | None) -> float:
@@ -257,16 +257,18 @@ def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-l
                   speed_rps: float | None = None
                   ) -> FirmwareLaw | FirmwareNetwork | OnlineTableLaw:
     """What ``export`` writes for ``policy``: a learned entry's network (its
-    ``firmware_network(context)``, :mod:`.firmware_net`), an adapting table (its
+    ``firmware_network(context)``, :mod:`.firmware_net`), an online table (its
     ``firmware_online(context)``, :mod:`.firmware_online`), else
     :func:`policy_law`."""
-    for hook_name, kind in HOOKS[:-1]:
+    for hook_name, kind, _ in HOOKS[:-1]:
         hook = getattr(policy, hook_name, None)
         if not callable(hook):
             continue
         name = str(getattr(policy, "name", policy))
-        if mode in MODES and mode not in export_modes(policy):
-            raise ParameterError(f"entry {name!r} cannot be exported in {mode}")
+        modes = export_modes(policy)
+        if mode in MODES and mode not in modes:
+            raise ParameterError(f"entry {name!r} cannot be exported in {mode}: it runs in "
+                                 f"{' and '.join(modes) or 'no mode'} only")
         out = _call_hook(policy, name, knowledge, mode,
                          _checked_speed(knowledge, mode, speed_rps), hook)
         if not isinstance(out, kind):
@@ -276,15 +278,15 @@ def policy_export(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-l
     return policy_law(policy, knowledge, mode=mode, speed_rps=speed_rps)
 
 
-def export_any(law: FirmwareLaw | FirmwareNetwork | OnlineTableLaw, fmt: str,
+def export_any(export: FirmwareLaw | FirmwareNetwork | OnlineTableLaw, fmt: str,
                out_dir: str | os.PathLike[str], prefix: str | None = None) -> list[str]:
     """Write what :func:`policy_export` returned (:func:`export_law`,
     :func:`export_network` or :func:`export_online`); the paths written."""
-    if isinstance(law, FirmwareNetwork):
-        return export_network(law, fmt, os.fspath(out_dir), prefix)
-    if isinstance(law, OnlineTableLaw):
-        return export_online(law, fmt, os.fspath(out_dir), prefix)
-    return export_law(law, fmt, out_dir, prefix)
+    if isinstance(export, FirmwareNetwork):
+        return export_network(export, fmt, os.fspath(out_dir), prefix)
+    if isinstance(export, OnlineTableLaw):
+        return export_online(export, fmt, os.fspath(out_dir), prefix)
+    return export_law(export, fmt, out_dir, prefix)
 
 
 def entry_law(entry: str, knowledge: MotorKnowledge, *, mode: str = "open-loop",

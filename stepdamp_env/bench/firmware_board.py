@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from .firmware import export_kind, export_modes
 from .registry import PolicySource
 
 __all__ = ["firmware_field", "render_firmware"]
@@ -17,11 +16,17 @@ def firmware_field(sources: Mapping[str, PolicySource]) -> dict[str, dict[str, A
     """Per entry, what ``stepdamp export`` writes (:func:`.firmware.export_kind`:
     "law", "online table" or "network") and for which modes
     (:func:`.firmware.export_modes`); an entry it cannot export has no modes."""
+    from .firmware import export_kind, export_modes
+
     out = {}
     for src in sources.values():
-        policy = src.make()
-        modes = export_modes(policy)
-        out[src.name] = {"kind": export_kind(policy) if modes else "", "modes": list(modes)}
+        try:
+            policy = src.make()
+            modes = export_modes(policy)
+            kind = export_kind(policy) if modes else ""
+        except Exception:       # a description, never worth a board's runs
+            kind, modes = "", ()
+        out[src.name] = {"kind": kind, "modes": list(modes)}
     return out
 
 
@@ -35,7 +40,8 @@ def render_firmware(board: Mapping[str, Any]) -> list[str]:
     if not groups:
         return []
     label = {"law": "a fixed law", "network": "the policy network",
-             "online table": "a table that adapts while it runs (its update and state)"}
+             "online table": "an online table (it adapts while it runs: its update and "
+                             "state)"}
     lines = ["## Firmware export", "",
              "What `stepdamp export ENTRY --motor M` writes for each entry, as C99 and "
              "JSON (docs/firmware.md):", ""]

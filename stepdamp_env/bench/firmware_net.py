@@ -9,8 +9,8 @@ quantity the drive applies until the next decision). The network's every sum
 runs in input order in double, as :func:`stepdamp_env.fixednet.mlp_forward`
 runs it, and tanh is fdlibm's (:mod:`stepdamp_env.fixedmath`), so the C gives
 the simulated policy's action bit for bit on any CPU (compiled without
-contraction into fused multiply-adds: ``-ffp-contract=off``, gcc's default in
-ISO C mode; the source sets it for clang).
+contraction into fused multiply-adds: ``-ffp-contract=off``; the source sets
+it for clang).
 
 What is exported is the network and its action's post-processing (SB3's
 clipping, or the unscaling of a squashed output, then [-1, 1]). Computing the
@@ -33,8 +33,8 @@ from ..params import ParameterError
 from ..version import __version__
 from .firmware_c import c_comment, c_double, check_prefix, default_prefix, write_law_files
 
-__all__ = ["FirmwareNetwork", "NETWORK_FORMAT_ID", "ACTIVATIONS", "network_actions",
-           "network_outputs",
+__all__ = ["FirmwareNetwork", "NETWORK_FORMAT_ID", "ACTIVATIONS", "network_export",
+           "network_actions", "network_outputs",
            "network_to_json", "network_from_json", "network_c_source", "export_network"]
 
 #: The JSON file's ``format`` tag.
@@ -147,6 +147,28 @@ class FirmwareNetwork:
     def multiply_adds(self) -> int:
         """Multiply-adds per decision (the layers' weights; tanh not counted)."""
         return sum(a * b for a, b in zip(self.sizes, self.sizes[1:]))
+
+
+def network_export(policy: Any, net: Any, context: Any, *, observation_names: Sequence[str],
+                   observation_units: Mapping[str, float], decision_hz: float,
+                   action_names: Sequence[str], action_scales: Sequence[float], notes: str,
+                   constant_inputs: Mapping[str, float] | None = None) -> FirmwareNetwork:
+    """The :class:`FirmwareNetwork` of a learned entry ``policy`` (its ``name`` and
+    its SB3 ``model``) whose network ``net`` (a
+    :class:`~stepdamp_env.bench.network.PolicyNetwork`) acts at ``context``
+    (a :class:`~stepdamp_env.bench.policy.PolicyContext`), with what its inputs
+    and outputs mean (the fields of the same names)."""
+    model = policy.model
+    return FirmwareNetwork(
+        entry=policy.name, motor=context.knowledge.nominal.name, mode=context.mode,
+        speed_rps=float(context.speed_rps), decision_hz=decision_hz,
+        observation_names=tuple(observation_names), observation_units=observation_units,
+        action_names=tuple(action_names), action_scales=tuple(action_scales),
+        sizes=tuple(int(s) for s in net.sizes),
+        activations=tuple(ACTIVATIONS[int(a)] for a in net.activations),
+        weights=net.weights, biases=net.biases, squash=bool(model.policy.squash_output),
+        action_low=model.action_space.low, action_high=model.action_space.high, notes=notes,
+        constant_inputs=dict(constant_inputs or {}))
 
 
 def network_actions(net: FirmwareNetwork, observations: np.ndarray) -> np.ndarray:
@@ -315,8 +337,10 @@ def network_c_source(net: FirmwareNetwork, prefix: str | None = None) -> tuple[s
            f"{net.multiply_adds} multiply-adds per decision; every sum in input order in "
            "double, tanh fdlibm's; the output rounded to float, "
            f"{post}, then to [-1, 1]: the simulated policy's action bit for bit. Compile "
-           "without contracting a*b + c into a fused multiply-add (-ffp-contract=off, the "
-           "default of gcc with -std=c99; the source tells clang so).")}
+           "with -ffp-contract=off (no a*b + c fused into one rounding: gcc contracts by "
+           "default in its GNU modes on FMA hardware; the source tells clang so). The "
+           "observation as the benchmark's env gives it: each entry clipped to +-10, 0 "
+           "where not finite, rounded to float.")}
  *
 {c_comment(f"Units at the operating point exported ({net.motor}, {net.mode}, "
            f"{net.speed_rps!r} rev/s): {units}.")}

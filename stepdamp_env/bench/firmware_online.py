@@ -35,7 +35,6 @@ __all__ = ["OnlineTableLaw", "KalmanTable", "RepetitiveTable", "ONLINE_FORMAT_ID
 ONLINE_FORMAT_ID = "stepdamp-firmware-online-table/1"
 
 
-
 def _check_number(law: Any, name: str) -> None:
     value = getattr(law, name)
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
@@ -63,7 +62,7 @@ def _check_step(law: Any, name: str) -> None:
 
 @dataclass(frozen=True)
 class OnlineTableLaw:
-    """What both adapting tables share: the operating point, the table they start
+    """What both online tables share: the operating point, the table they start
     from and how the table is written as the benchmark's action.
 
     Attributes:
@@ -75,6 +74,9 @@ class OnlineTableLaw:
         action_scale_nm: the action's scale (N*m per 1.0).
         initial_action: the first table's action (float32; ``ff-delay-comp``'s).
         speed_ref_rad_s: the observation's velocity unit (rad/s).
+        accel_rps2: the ramp from rest to the held speed the step counts
+            (``start_step``, ``wait_step``) assume (rev/s^2).
+        velocity_estimator: the drive's speed estimate the update reads.
     """
 
     entry: str
@@ -88,19 +90,21 @@ class OnlineTableLaw:
     action_scale_nm: float
     initial_action: tuple[float, ...]
     speed_ref_rad_s: float
+    accel_rps2: float
+    velocity_estimator: str
 
-    #: The JSON's ``kind``.
-    KIND = ""
+    #: The JSON's ``update``: which update moves the table.
+    UPDATE = ""
 
     def __post_init__(self) -> None:
         for name in ("speed_rps", "decision_hz", "km_nm_per_a", "friction_a",
-                     "action_scale_nm", "speed_ref_rad_s"):
+                     "action_scale_nm", "speed_ref_rad_s", "accel_rps2"):
             _check_number(self, name)
         for name in ("base_nm", "initial_action"):
             _check_six(self, name)
         if any(float(np.float32(v)) != v or abs(v) > 1.0 for v in self.initial_action):
             raise ParameterError("initial_action must hold float32 values in [-1, 1]")
-        for name in ("decision_hz", "km_nm_per_a", "action_scale_nm"):
+        for name in ("decision_hz", "km_nm_per_a", "action_scale_nm", "accel_rps2"):
             if not getattr(self, name) > 0.0:
                 raise ParameterError(f"{name}={getattr(self, name)!r} must be > 0")
 
@@ -147,7 +151,7 @@ class KalmanTable(OnlineTableLaw):
     guard_ratio: float
     notes: str = ""
 
-    KIND = "kalman"
+    UPDATE = "kalman"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -196,7 +200,7 @@ class RepetitiveTable(OnlineTableLaw):
     guard_ratio: float
     notes: str = ""
 
-    KIND = "repetitive"
+    UPDATE = "repetitive"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -207,13 +211,13 @@ class RepetitiveTable(OnlineTableLaw):
         _check_step(self, "wait_step")
 
 
-_KINDS = {cls.KIND: cls for cls in (KalmanTable, RepetitiveTable)}
+_UPDATES = {cls.UPDATE: cls for cls in (KalmanTable, RepetitiveTable)}
 
 
 def online_to_json(law: OnlineTableLaw) -> dict[str, Any]:
-    """The law as a JSON object (``format`` :data:`ONLINE_FORMAT_ID`, ``kind``
+    """The law as a JSON object (``format`` :data:`ONLINE_FORMAT_ID`, ``update``
     "kalman" or "repetitive")."""
-    out: dict[str, Any] = {"format": ONLINE_FORMAT_ID, "kind": law.KIND,
+    out: dict[str, Any] = {"format": ONLINE_FORMAT_ID, "update": law.UPDATE,
                            "exported_by": f"stepdamp {__version__}",
                            "harmonics": list(DETENT_HARMONICS)}
     for name in type(law).__dataclass_fields__:
@@ -226,9 +230,9 @@ def online_from_json(data: Mapping[str, Any]) -> OnlineTableLaw:
     """The law of :func:`online_to_json`'s object (a one-line error otherwise)."""
     if not isinstance(data, Mapping) or data.get("format") != ONLINE_FORMAT_ID:
         raise ParameterError(f"not a {ONLINE_FORMAT_ID} object")
-    cls = _KINDS.get(data.get("kind"))
+    cls = _UPDATES.get(data.get("update"))
     if cls is None:
-        raise ParameterError(f"kind={data.get('kind')!r} is not one of {list(_KINDS)}")
+        raise ParameterError(f"update={data.get('update')!r} is not one of {list(_UPDATES)}")
     missing = [f for f in cls.__dataclass_fields__ if f not in data]
     if missing:
         raise ParameterError(f"online table JSON lacks {missing}")

@@ -1,4 +1,4 @@
-"""The adapting harmonic tables of :mod:`.firmware_online` as C99
+"""The online harmonic tables of :mod:`.firmware_online` as C99
 (:func:`online_c_source`) and their files (:func:`export_online`)."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ _KALMAN_STATE = """    double x[6];            /* the ripple's coefficients (rad
 _REPETITIVE_STATE = """    double angle;           /* the electrical angle at the step before (rad) */
     double turned;          /* the angle turned since the period began (rad) */
     double sums[6];         /* sum of z*sin(hx), z*cos(hx) over the period */
-    long count;             /* the period's steps */
+    double count;           /* the period's steps (a double: no overflow) */
     double reference[3];    /* each harmonic's least ripple size */
     int seen;               /* a period has ended */
     double learned_nm[6];   /* the learned table, before its rounding (N*m) */
@@ -120,7 +120,9 @@ void {p}_update(float velocity_error, const float sincos[6], struct {state} *sta
     double h[6], wanted[6], power, variance, weight, re, im;
     int i, k;
 
-    state->step += 1;
+    if (state->step <= {adapt_step}L) {{       /* past it only "later" matters: no overflow */
+        state->step += 1;
+    }}
     if (state->step <= {start_step}L) {{
         return;
     }}
@@ -269,7 +271,7 @@ void {p}_start(struct {state} *state)
     start_table(state);
     state->angle = 0.0;
     state->turned = 0.0;
-    state->count = 0;
+    state->count = 0.0;
     state->seen = 0;
     for (i = 0; i < 6; ++i) {{
         state->sums[i] = 0.0;
@@ -286,7 +288,9 @@ void {p}_update(float velocity_error, const float sincos[6], struct {state} *sta
     double z, angle, re, im, size, reference, wanted[6], inv_count;
     int i, k, diverged;
 
-    state->step += 1;
+    if (state->step <= {wait_step}L + 1) {{   /* past it only "later" matters: no overflow */
+        state->step += 1;
+    }}
     if (state->step <= {wait_step}L) {{
         return;
     }}
@@ -299,11 +303,11 @@ void {p}_update(float velocity_error, const float sincos[6], struct {state} *sta
     for (i = 0; i < 6; ++i) {{
         state->sums[i] += z * (double)sincos[i];
     }}
-    state->count += 1;
+    state->count += 1.0;
     if (!(fabs(state->turned) >= two_pi)) {{
         return;
     }}
-    inv_count = 1.0 / (double)state->count;
+    inv_count = 1.0 / state->count;
     for (k = 0; k < 3; ++k) {{
         re = 2.0 * state->sums[2 * k] * inv_count;
         im = 2.0 * state->sums[2 * k + 1] * inv_count;
@@ -332,7 +336,7 @@ void {p}_update(float velocity_error, const float sincos[6], struct {state} *sta
     }}
     state->seen = 1;
     state->turned -= copysign(two_pi, state->turned);
-    state->count = 0;
+    state->count = 0.0;
 }}
 """
 
@@ -341,8 +345,8 @@ def online_c_source(law: OnlineTableLaw, prefix: str | None = None) -> tuple[str
     """(header text, source text) of the law in C99: a state struct, ``<prefix>_start``,
     ``<prefix>_update`` (every agent step) and ``<prefix>_iq_correction_a``
     (every PWM period). Compiles clean with ``-std=c99 -Wall -Wextra -Werror
-    -pedantic``; link with ``-lm``; compile without contracting a*b + c into a
-    fused multiply-add (gcc's default with -std=c99)."""
+    -pedantic``; link with ``-lm``; compile with ``-ffp-contract=off`` (no a*b + c
+    fused into one rounding) for the simulated bits."""
     p = check_prefix(default_prefix(law.entry) if prefix is None else prefix)
     macro = p.upper()
     state = f"{p}_state"
@@ -353,8 +357,18 @@ def online_c_source(law: OnlineTableLaw, prefix: str | None = None) -> tuple[str
            "the speed error's harmonics 1, 2, 4 summed over each electrical period, and "
            "at the period's end the table moved by them (repetitive control), with a "
            "guard that puts back a harmonic whose ripple grows")
+    if kalman:
+        steps = (f"{macro}_START_STEPS {law.start_step}", f"{macro}_ADAPT_STEPS {law.adapt_step}")
+        counts = (f"The filter starts after {law.start_step} updates and the table moves "
+                  f"after {law.adapt_step} ({macro}_START_STEPS, {macro}_ADAPT_STEPS)")
+        cost = "about 500 multiply-adds per update (the 6x6 covariance)"
+    else:
+        steps = (f"{macro}_WAIT_STEPS {law.wait_step}",)
+        counts = f"Learning starts after {law.wait_step} updates ({macro}_WAIT_STEPS)"
+        cost = ("about 30 multiply-adds and one atan2 per update, 30 more at a period's end")
+    ramp = abs(law.speed_rps) / law.accel_rps2
     header = f"""/*
- * {p}.h: the adapting harmonic table of "{law.entry}" for motor "{law.motor}",
+ * {p}.h: the online (adapting) harmonic table of "{law.entry}" for motor "{law.motor}",
  * exported by stepdamp {__version__} (stepdamp export). Generated: re-export, do not edit.
  *
 {c_comment(f"Operating point: {law.mode}, held command speed {law.speed_rps!r} rev/s. Call "
@@ -363,14 +377,27 @@ def online_c_source(law: OnlineTableLaw, prefix: str | None = None) -> tuple[str
            "and the electrical angle's sines and cosines as the benchmark's observation "
            "gives them (float), and "
            f"{p}_iq_correction_a every PWM period: it adds the table (and in servo the "
-           f"friction feedforward) to the q-current command. The update: {how}. The "
-           "table is kept as the benchmark's float action, so the update is the simulated "
-           "one bit for bit. Compile without contracting a*b + c into a fused multiply-add "
-           "(gcc's default with -std=c99).")}
+           f"friction feedforward) to the q-current command. The update: {how}; {cost}. "
+           "The table is kept as the benchmark's float action, so the update is the "
+           "simulated one bit for bit when compiled with -ffp-contract=off (gcc contracts "
+           "a*b + c into one rounding by default in its GNU modes on FMA hardware).")}
+{c_comment(f"{counts}: counted from the start of the run, which begins at rest with a ramp "
+           f"at {law.accel_rps2!r} rev/s^2 to the held speed ({ramp:.4g} s); with another "
+           "ramp, call start when the ramp would have begun, or scale the counts.")}
 {c_comment(getattr(law, "notes", ""))}
+{c_comment("Update and correction share the table: where the update runs outside the PWM "
+           "interrupt, copy the table (double-buffer it) or mask the interrupt while it "
+           "changes. The inputs must be finite: a NaN stays in the state.")}
  *
- * velocity_error  (w_cmd - w_est) / {law.speed_ref_rad_s!r} rad/s (the observation's).
- * sincos          sin x, cos x, sin 2x, cos 2x, sin 4x, cos 4x of the electrical angle x.
+ * velocity_error  (w_cmd - w_est) / {law.speed_ref_rad_s!r} rad/s as the benchmark's
+ *                 observation holds it: clipped to +-10, 0 if not finite, rounded to
+ *                 float; w_est {law.velocity_estimator}.
+ * sincos          sin x, cos x (rounded to float), then sin 2x = 2 sin x cos x,
+ *                 cos 2x = cos^2 x - sin^2 x and 4x from 2x alike, in double from the
+ *                 unrounded sin x, cos x, each rounded to float: x the electrical angle
+ *                 of electrical_angle_rad at the update.
+ * electrical_angle_rad  the drive's Park angle: in open loop Nr times the command angle
+ *                 on its microstep, in servo Nr times (the encoder angle + half a count).
  * table_nm        the table applied: s1, c1, s2, c2, s4, c4 (N*m), the torque
  *                 s_h sin(h x) + c_h cos(h x).
  */
@@ -378,9 +405,10 @@ def online_c_source(law: OnlineTableLaw, prefix: str | None = None) -> tuple[str
 #define {macro}_H
 
 #define {macro}_DECISION_HZ {c_double(law.decision_hz)}
+{chr(10).join("#define " + s for s in steps)}
 
 struct {state} {{
-    long step;              /* agent steps so far */
+    long step;              /* agent steps so far, counted up to the last that matters */
 {_KALMAN_STATE if kalman else _REPETITIVE_STATE}    int active[3];          /* 0 once a harmonic's guard tripped */
     float action[6];        /* the table as the benchmark's action */
     double table_nm[6];     /* the table applied (N*m) */

@@ -345,8 +345,6 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     return board
 
 
-
-
 def canonical_order(specs: Sequence[str]) -> list[str]:
     """The specs once each, registered policies in registry order, then the others
     sorted: a pair's probability and effect are computed one way round (the other

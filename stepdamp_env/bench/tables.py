@@ -195,8 +195,9 @@ def render_markdown(board: Mapping[str, Any]) -> str:
     extra = render_firmware(board)
     if not extra:
         return text
-    head, sep, versions = text.rpartition("Versions: ")
-    return head + "\n".join(extra) + "\n\n" + sep + versions
+    head, sep, versions = text.rpartition("\nVersions: ")
+    return (head + "\n" + "\n".join(extra) + "\n" + sep + versions if sep
+            else text + "\n" + "\n".join(extra) + "\n")
 
 
 def _render_tables(board: Mapping[str, Any]) -> str:

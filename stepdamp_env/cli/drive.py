@@ -401,8 +401,8 @@ def _identify_plan(args: argparse.Namespace) -> int:
     print("  each at constant speed in open loop, either direction; columns time_s, "
           "position_rad, phase_current_a_A, phase_current_b_A (docs/drivelogs.md)")
     stick = [str(k + 1) for k, s in enumerate(plan.servo_stick_slip) if s]
-    print("  open loop: on 27 catalogue motors such logs identified the detent within 2.7 %, "
-          "servo logs 40 of 81 times over 5 %"
+    print("  open loop: on the catalogue's real motors servo logs identified the detent less "
+          "well (docs/drivelogs.md)"
           + (f"; in servo this motor stalls and reverses (stick-slip) at log "
              f"{', '.join(stick)} in simulation, which biases the fit by tens of per cent"
              if stick else ""))

@@ -22,7 +22,7 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
                         "tuned-gain-pair; in open loop velocity-feedback, "
                         "sensorless-damping), adaptive-ff and repetitive-control (their "
-                        "adapting table), or a "
+                        "online table), or a "
                         "learned entry (its policy network: ppo-open-loop, ...)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
@@ -157,7 +157,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     system = load_system(args.motor, parse_set_overrides(args.overrides))
     register_policies()
     law = entry_export(args.entry, firmware_knowledge(system), mode=args.mode,
-                       speed_rps=args.speed)
+                       speed_rps=args.speed)            # a law, an online table or a network
     check_writable(args.out, "--out", directory=True)
     paths = export_any(law, args.format, args.out, args.prefix)
     prefix = default_prefix(law.entry) if args.prefix is None else args.prefix
@@ -174,9 +174,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
         print(f"{args.entry} on {system.name}, {args.mode}: network "
               f"{'-'.join(map(str, law.sizes))} ({law.multiply_adds} multiply-adds per "
               f"decision at {law.decision_hz:g} Hz"
-              + (f"; the C's {prefix}_policy_action" if args.format == "c" else "") + "), its "
-              "inputs StepperDamp-v1's observation and its outputs the damping law's gains, "
-              f"in {system.name}'s units; wrote {', '.join(paths)}")
+              + (f"; the C's {prefix}_policy_action" if args.format == "c" else "")
+              + f"), its {law.sizes[0]} inputs and {law.sizes[-1]} outputs named, with "
+              f"{system.name}'s units, in what it wrote: {', '.join(paths)}")
         return 0
     f = law.filtered_feedback
     feedback = (f"feedback from filters ({f.kind}) every {f.periods_per_update} PWM periods, "
