@@ -80,8 +80,7 @@ __all__ = ["FirmwareLaw", "FilteredFeedback", "FORMATS", "FORMAT_ID", "correctio
            "harmonic_law", "firmware_knowledge", "default_speed_rps", "policy_law", "entry_law",
            "FirmwareNetwork", "export_network", "policy_export", "entry_export",
            "export_modes", "export_kind", "KalmanTable", "RepetitiveTable", "OnlineTableLaw",
-           "export_online", "export_any",
-           "HOOKS"]
+           "export_online", "export_any", "HOOKS"]
 
 #: An entry's export hooks, tried in this order: (hook, what it returns, the kind
 #: :func:`export_kind` names): a learned entry's network, an online table (one
@@ -172,9 +171,9 @@ def export_modes(policy: Any) -> tuple[str, ...]:
     """The modes ``stepdamp export`` writes something for ``policy`` in: the base
     controller's feedforward (``patent-ff-*``) in every mode, a policy with one
     of the :data:`HOOKS` in those its ``firmware_modes`` names (every mode where
-    it names none), else none. Read from the policy,
-    not computed (a law may calibrate first); ``tests/test_firmware.py`` checks
-    it against :func:`entry_export` for every default entry."""
+    it names none), else none. Read from the policy, not computed (a law may
+    calibrate first); ``tests/test_firmware.py`` checks it against
+    :func:`entry_export` for every default entry."""
     if isinstance(policy, ZeroAction):
         return tuple(MODES) if policy.base_controller != "none" else ()
     if any(callable(getattr(policy, hook, None)) for hook, _, _ in HOOKS):
@@ -228,7 +227,7 @@ def policy_law(policy: Any, knowledge: MotorKnowledge, *, mode: str = "open-loop
     held command speed ``speed_rps`` (rev/s; default :func:`default_speed_rps` of
     the nominal motor): its ``firmware_law(context)`` with the context the
     benchmark's runner gives it, or a one-line ``ParameterError`` naming it and
-    saying why it cannot be exported (a learned entry's network is
+    saying why it cannot be exported (a network or an online table is
     :func:`policy_export`'s)."""
     name = str(getattr(policy, "name", policy))
     speed = _checked_speed(knowledge, mode, speed_rps)

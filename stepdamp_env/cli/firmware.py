@@ -22,8 +22,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                         "ff-delay-comp, calibrated-table, tuned-constant-gain, "
                         "tuned-gain-pair; in open loop velocity-feedback, "
                         "sensorless-damping), adaptive-ff and repetitive-control (their "
-                        "online table), or a "
-                        "learned entry (its policy network: ppo-open-loop, ...)")
+                        "online table), or a learned entry (its policy network: "
+                        "ppo-open-loop, ...)")
     p.add_argument("--motor", required=True, metavar="NAME|FILE.json",
                    help="what the drive knows: a preset or a motor file (to use the model "
                         "identified on your motor, export with `stepdamp identify`'s "
@@ -62,9 +62,9 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
 def _export_schedule(args: argparse.Namespace) -> int:
     """``export --speeds``: one law over a speed range."""
     from ..bench.firmware import entry_law, firmware_knowledge
-    from ..bench.registry import resolve_policy
     from ..bench.firmware_schedule import (build_schedule, export_schedule,
                                            interpolation_error, multiply_adds_per_period)
+    from ..bench.registry import resolve_policy
     from ..sweep import parse_speed_range
 
     if args.speed is not None:
