@@ -76,6 +76,44 @@ def pytest_pyfunc_call(pyfuncitem):
     return True
 
 
+def c_compiler() -> str:
+    """The C compiler on PATH (cc or gcc); the test is skipped without one."""
+    import shutil
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be compiled "
+                    "and checked against the Python law here")
+    return cc
+
+
+def recorded_episode(entry, knowledge, mode, until_s, **run):
+    """A run of the entry at its plant's h=4 resonance (``run_episode`` seed 3)
+    with every observation its policy read and every action it gave (float32
+    rows): (observations, actions, speed in rev/s, the run's result)."""
+    import numpy as np
+
+    from stepdamp_env.bench import run_episode
+    from stepdamp_env.bench.registry import resolve_policy
+
+    policy = resolve_policy(entry).make()
+    seen, acted = [], []
+    act_batch = policy.act_batch
+
+    def recording(observations, rows):
+        actions = act_batch(observations, rows)
+        seen.append(np.array(observations, dtype=np.float32))
+        acted.append(np.array(actions, dtype=np.float32))
+        return actions
+
+    policy.act_batch = recording
+    speed = knowledge.plant.predicted_resonances_rps()[4]
+    result = run_episode(policy, knowledge, knowledge.plant, mode=mode, speed_rps=speed, seed=3,
+                         measure_from_s=0.0, window_s=until_s, until_s=until_s, **run)
+    assert not result.terminated
+    return np.concatenate(seen), np.concatenate(acted), speed, result
+
+
 def run_raw(system, profile, settings=None, n_periods=1000, state=None, window_start_s=0.0,
             trace_every=1):
     """Run the kernel directly; returns (config, final state, accumulators, trace)."""

@@ -6,12 +6,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import subprocess
 
 import numpy as np
 import pytest
 
+from conftest import c_compiler
 from stepdamp_baselines import make_baseline
 from stepdamp_env import kernel as K
 from stepdamp_env.env.layout import OBS
@@ -182,7 +182,7 @@ def test_the_c_filtered_feedback_computes_the_simulations_currents(tmp_path, kno
     """The C update function, compiled with the strict flags and fed a simulated
     run's errors step by step, returns the currents the simulation held, cell for
     cell; the schedule over speed carries the same function."""
-    cc = _compiler()
+    cc = c_compiler()
     plant = knowledge.plant
     speed = plant.predicted_resonances_rps()[4]
     law = entry_law(entry, knowledge, speed_rps=speed)
@@ -219,13 +219,6 @@ def test_the_c_filtered_feedback_computes_the_simulations_currents(tmp_path, kno
         got = np.array([float(v) for v in run.stdout.split()])
         np.testing.assert_array_equal(got, expected)
 
-
-def _compiler() -> str:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be compiled "
-                    "and checked against the Python law here")
-    return cc
 
 
 _DRIVER = """#include <stdio.h>
@@ -277,7 +270,7 @@ def _synthetic_law() -> FirmwareLaw:
 @pytest.mark.parametrize("which", ["tuned-constant-gain/servo", "ff-delay-comp/open-loop",
                                    "tuned-gain-pair/open-loop", "synthetic"])
 def test_the_c_source_computes_the_python_law(tmp_path, which):
-    cc = _compiler()
+    cc = c_compiler()
     if which == "synthetic":
         law = _synthetic_law()
     else:

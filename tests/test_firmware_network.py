@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
+from conftest import c_compiler, recorded_episode
 from stepdamp_env.bench import run_episode
 from stepdamp_env.bench.firmware import entry_export, firmware_knowledge
 from stepdamp_env.bench.firmware_net import (FirmwareNetwork, export_network, network_actions,
@@ -43,24 +43,10 @@ def _recorded_run(entry: str, until_s: float = 0.6):
     from stepdamp_env.params import FeedforwardModel
 
     plant = get_preset("patent")
-    knowledge = MotorKnowledge(nominal=plant, identified=FeedforwardModel.from_motor(plant.motor),
-                               exact=FeedforwardModel.from_motor(plant.motor), plant=plant)
-    policy = resolve_policy(entry).make()
-    seen, acted = [], []
-    act_batch = policy.act_batch
-
-    def recording(observations, rows):
-        actions = act_batch(observations, rows)
-        seen.append(np.array(observations, dtype=np.float32))
-        acted.append(np.array(actions, dtype=np.float32))
-        return actions
-
-    policy.act_batch = recording
-    speed = plant.predicted_resonances_rps()[4]
-    result = run_episode(policy, knowledge, plant, mode="open-loop", speed_rps=speed, seed=3,
-                         measure_from_s=0.0, window_s=until_s, until_s=until_s)
-    assert not result.terminated
-    return np.concatenate(seen), np.concatenate(acted), speed
+    model = FeedforwardModel.from_motor(plant.motor)
+    knowledge = MotorKnowledge(nominal=plant, identified=model, exact=model, plant=plant)
+    obs, actions, speed, _ = recorded_episode(entry, knowledge, "open-loop", until_s)
+    return obs, actions, speed
 
 
 def _far_observations(net: FirmwareNetwork, n: int = 400) -> np.ndarray:
@@ -95,12 +81,6 @@ def test_the_exported_network_is_the_simulated_policy(entry):
     assert not np.array_equal(network_actions(other, far), network_actions(net, far))
 
 
-def _compiler() -> str:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be checked")
-    return cc
-
 
 _DRIVER = """#include <stdio.h>
 #include "{prefix}.h"
@@ -122,12 +102,30 @@ int main(void)
 """
 
 
+def _compiled(net: FirmwareNetwork, rows: np.ndarray, tmp_path) -> np.ndarray:
+    """The exported C, compiled with the strict flags, run on ``rows``: per row its
+    float action and its double output."""
+    cc = c_compiler()
+    paths = export_network(net, "c", str(tmp_path), "net_under_test")
+    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="net_under_test",
+                                                    macro="NET_UNDER_TEST"))
+    exe = str(tmp_path / "driver")
+    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
+                            "-lm"], capture_output=True, text=True, timeout=120)
+    assert build.returncode == 0, build.stderr
+    run = subprocess.run([exe], input=rows.astype("<f4").tobytes(), capture_output=True,
+                         timeout=60)
+    assert run.returncode == 0, run.stderr
+    k = net.sizes[-1]
+    return np.frombuffer(run.stdout, dtype=np.dtype([("action", "<f4", k),
+                                                     ("output", "<f8", k)]))
+
+
 @pytest.mark.parametrize("entry", LEARNED)
 def test_the_c_network_computes_the_simulated_policys_actions(tmp_path, entry):
     """The C99 network, compiled with the strict flags, fed the simulated run's
     observations and observations over the whole box, returns the policy's
     actions cell for cell, bit for bit."""
-    cc = _compiler()
     obs, actions, speed = _recorded_run(entry, until_s=0.3)
     net = entry_export(entry, _knowledge(), speed_rps=speed)
     if entry == "td3-per-step":
@@ -141,19 +139,7 @@ def test_the_c_network_computes_the_simulated_policys_actions(tmp_path, entry):
         net = test_net
     rows = np.concatenate([obs, _far_observations(net)])
     expected = np.concatenate([actions, network_actions(net, rows[len(obs):])])
-    paths = export_network(net, "c", str(tmp_path), "net_under_test")
-    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="net_under_test",
-                                                    macro="NET_UNDER_TEST"))
-    exe = str(tmp_path / "driver")
-    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
-                            "-lm"], capture_output=True, text=True, timeout=120)
-    assert build.returncode == 0, build.stderr
-    run = subprocess.run([exe], input=rows.astype("<f4").tobytes(), capture_output=True,
-                         timeout=60)
-    assert run.returncode == 0, run.stderr
-    k = net.sizes[-1]
-    record = np.dtype([("action", "<f4", k), ("output", "<f8", k)])
-    got = np.frombuffer(run.stdout, dtype=record)
+    got = _compiled(net, rows, tmp_path)
     np.testing.assert_array_equal(got["action"].view(np.uint32), expected.view(np.uint32))
     assert np.any(np.abs(expected) == 1.0)                   # the clip is reached
     # The double output: fixednet's to 1e-12 (the same operations, so in fact exactly).
@@ -250,18 +236,7 @@ def test_the_gain_selectors_network_is_the_one_it_runs(monkeypatch, tmp_path):
     for name, value in net.constant_inputs.items():           # the policy's own constants
         np.testing.assert_array_equal(x[:, net.observation_names.index(name)],
                                       np.float32(value))
-    cc = _compiler()
-    paths = export_network(net, "c", str(tmp_path), "net_under_test")
-    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="net_under_test",
-                                                    macro="NET_UNDER_TEST"))
-    exe = str(tmp_path / "driver")
-    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
-                            "-lm"], capture_output=True, text=True, timeout=120)
-    assert build.returncode == 0, build.stderr
     rows = np.concatenate([x, _far_observations(net)])
-    run = subprocess.run([exe], input=rows.astype("<f4").tobytes(), capture_output=True,
-                         timeout=60)
-    record = np.dtype([("action", "<f4", 1), ("output", "<f8", 1)])
-    got = np.frombuffer(run.stdout, dtype=record)
+    got = _compiled(net, rows, tmp_path)
     np.testing.assert_array_equal(got["action"], network_actions(net, rows))
     np.testing.assert_array_equal(got["output"], network_outputs(net, rows))

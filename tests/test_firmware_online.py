@@ -6,17 +6,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import subprocess
 
 import numpy as np
 import pytest
 
+from conftest import c_compiler, recorded_episode
 from stepdamp_env import kernel as K
-from stepdamp_env.bench import MotorKnowledge, run_episode
+from stepdamp_env.bench import MotorKnowledge
 from stepdamp_env.bench.firmware import KalmanTable, RepetitiveTable, entry_export, export_any
 from stepdamp_env.bench.firmware_online import online_from_json, online_to_json
-from stepdamp_env.bench.registry import resolve_policy
 from stepdamp_env.bench.rig import CalibrationRig
 from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import FeedforwardModel, ParameterError
@@ -45,30 +44,11 @@ def _knowledge(mode: str, nominal_j: float = 1.0) -> MotorKnowledge:
 def _run(entry, knowledge, mode, until_s=0.4):
     """A run of the entry at the h=4 resonance: each step's observation and
     action (float32), and every PWM period (kernel.TRACE columns), per step."""
-    policy = resolve_policy(entry).make()
-    seen, acted = [], []
-    act_batch = policy.act_batch
+    obs, actions, speed, result = recorded_episode(
+        entry, knowledge, mode, until_s, on_step=lambda env, obs, start: env.step_trace,
+        pwm_trace=True)
+    return obs, actions, speed, result.trace
 
-    def recording(observations, rows):
-        actions = act_batch(observations, rows)
-        seen.append(np.array(observations, dtype=np.float32))
-        acted.append(np.array(actions, dtype=np.float32))
-        return actions
-
-    policy.act_batch = recording
-    speed = knowledge.plant.predicted_resonances_rps()[4]
-    result = run_episode(policy, knowledge, knowledge.plant, mode=mode, speed_rps=speed, seed=3,
-                         measure_from_s=0.0, window_s=until_s, until_s=until_s,
-                         on_step=lambda env, obs, start: env.step_trace, pwm_trace=True)
-    assert not result.terminated
-    return np.concatenate(seen), np.concatenate(acted), speed, result.trace
-
-
-def _compiler() -> str:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be checked")
-    return cc
 
 
 _DRIVER = """#include <stdio.h>
@@ -111,7 +91,7 @@ def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, entry, mode, nomin
     moves; the C's correction at each PWM period's angle is the kernel's
     injected q current to 1e-12 A. With the drive's inertia half the motor's,
     a harmonic's guard trips (its table goes back to the start)."""
-    cc = _compiler()
+    cc = c_compiler()
     knowledge = _knowledge(mode, nominal_j)
     obs, actions, speed, trace = _run(entry, knowledge, mode)
     law = entry_export(entry, knowledge, mode=mode, speed_rps=speed)
