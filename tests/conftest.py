@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import os
 
 import numpy as np
 import pytest
@@ -76,6 +77,10 @@ def pytest_pyfunc_call(pyfuncitem):
     return True
 
 
+#: The flags exported C must compile clean with.
+STRICT_C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+
+
 def c_compiler() -> str:
     """The C compiler on PATH (cc or gcc); the test is skipped without one."""
     import shutil
@@ -85,6 +90,23 @@ def c_compiler() -> str:
         pytest.skip("no C compiler (cc or gcc) on PATH: the generated C cannot be compiled "
                     "and checked against the Python law here")
     return cc
+
+
+def compiled_driver(source_c, driver_text, out_dir) -> str:
+    """The executable of an exported ``source_c`` with a test's ``main.c``
+    (``driver_text``), built in ``out_dir`` with :data:`STRICT_C_FLAGS`, -O2 and
+    libm; the build must succeed without a warning."""
+    import subprocess
+
+    cc = c_compiler()
+    main = os.path.join(str(out_dir), "main.c")
+    with open(main, "w") as fh:
+        fh.write(driver_text)
+    exe = os.path.join(str(out_dir), "driver")
+    build = subprocess.run([cc, *STRICT_C_FLAGS, "-O2", "-o", exe, str(source_c), main, "-lm"],
+                           capture_output=True, text=True, timeout=120)
+    assert build.returncode == 0, build.stderr
+    return exe
 
 
 def recorded_episode(entry, knowledge, mode, until_s, **run):

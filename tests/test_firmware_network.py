@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import c_compiler, recorded_episode
+from conftest import compiled_driver, recorded_episode
 from stepdamp_env.bench import run_episode
 from stepdamp_env.bench.firmware import entry_export, firmware_knowledge
 from stepdamp_env.bench.firmware_net import (FirmwareNetwork, export_network, network_actions,
@@ -22,7 +22,6 @@ from stepdamp_env.cli.options import register_policies
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import get_preset
 
-C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 # tanh hidden layers (PPO), ReLU with a squashed tanh output (TD3), linear (ARS).
 LEARNED = ("ppo-open-loop", "td3-per-step", "ars-open-loop")
 
@@ -105,14 +104,9 @@ int main(void)
 def _compiled(net: FirmwareNetwork, rows: np.ndarray, tmp_path) -> np.ndarray:
     """The exported C, compiled with the strict flags, run on ``rows``: per row its
     float action and its double output."""
-    cc = c_compiler()
     paths = export_network(net, "c", str(tmp_path), "net_under_test")
-    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="net_under_test",
-                                                    macro="NET_UNDER_TEST"))
-    exe = str(tmp_path / "driver")
-    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
-                            "-lm"], capture_output=True, text=True, timeout=120)
-    assert build.returncode == 0, build.stderr
+    exe = compiled_driver(paths[1], _DRIVER.format(prefix="net_under_test",
+                                                   macro="NET_UNDER_TEST"), tmp_path)
     run = subprocess.run([exe], input=rows.astype("<f4").tobytes(), capture_output=True,
                          timeout=60)
     assert run.returncode == 0, run.stderr

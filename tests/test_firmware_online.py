@@ -11,7 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import c_compiler, recorded_episode
+from conftest import c_compiler, compiled_driver, recorded_episode
 from stepdamp_env import kernel as K
 from stepdamp_env.bench import MotorKnowledge
 from stepdamp_env.bench.firmware import KalmanTable, RepetitiveTable, entry_export, export_any
@@ -21,7 +21,6 @@ from stepdamp_env.env.layout import HARMONIC_COS, HARMONIC_SIN, OBS
 from stepdamp_env.params import FeedforwardModel, ParameterError
 from stepdamp_env.presets import get_preset
 
-C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 
 def _knowledge(mode: str, nominal_j: float = 1.0) -> MotorKnowledge:
@@ -91,7 +90,7 @@ def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, entry, mode, nomin
     moves; the C's correction at each PWM period's angle is the kernel's
     injected q current to 1e-12 A. With the drive's inertia half the motor's,
     a harmonic's guard trips (its table goes back to the start)."""
-    cc = c_compiler()
+    c_compiler()                     # skips before the run without a compiler
     knowledge = _knowledge(mode, nominal_j)
     obs, actions, speed, trace = _run(entry, knowledge, mode)
     law = entry_export(entry, knowledge, mode=mode, speed_rps=speed)
@@ -110,11 +109,7 @@ def test_the_c_table_adapts_as_the_simulated_policy(tmp_path, entry, mode, nomin
     if kalman:
         assert bool(tripped) == (nominal_j != 1.0)
     paths = export_any(law, "c", tmp_path, "table_under_test")
-    (tmp_path / "main.c").write_text(_DRIVER.format(p="table_under_test"))
-    exe = str(tmp_path / "driver")
-    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
-                            "-lm"], capture_output=True, text=True, timeout=120)
-    assert build.returncode == 0, build.stderr
+    exe = compiled_driver(paths[1], _DRIVER.format(p="table_under_test"), tmp_path)
     plant = knowledge.plant
     m = plant.motor
     step = m.full_step_rad / plant.drive.microsteps

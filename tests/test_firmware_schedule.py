@@ -6,12 +6,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import subprocess
 
 import numpy as np
 import pytest
 
+from conftest import compiled_driver
 from stepdamp_env.bench.firmware import correction, entry_law, firmware_knowledge, position_lowpass
 from stepdamp_env.bench.firmware_schedule import (build_schedule, export_schedule,
                                                   interpolation_error, schedule_correction,
@@ -22,7 +22,6 @@ from stepdamp_env.params import ParameterError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MOTOR = os.path.join(ROOT, "docs", "motors", "17hs4401.json")
-C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 
 @pytest.fixture(scope="module")
@@ -91,16 +90,9 @@ int main(void)
 
 
 def test_the_c_computes_the_python_schedule(tmp_path, knowledge):
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc) on PATH")
     schedule = build_schedule(_law_at("tuned-gain-pair", knowledge), 0.3, 2.7, 13)
     paths = export_schedule(schedule, "c", tmp_path, "sched")
-    (tmp_path / "main.c").write_text(_DRIVER.format(prefix="sched"))
-    exe = str(tmp_path / "driver")
-    build = subprocess.run([cc, *C_FLAGS, "-O2", "-o", exe, paths[1], str(tmp_path / "main.c"),
-                            "-lm"], capture_output=True, text=True, timeout=120)
-    assert build.returncode == 0, build.stderr
+    exe = compiled_driver(paths[1], _DRIVER.format(prefix="sched"), tmp_path)
     rng = np.random.default_rng(52)
     n = 1000
     x = rng.uniform(-2000.0, 2000.0, n)
