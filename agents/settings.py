@@ -87,6 +87,14 @@ def _int_or_text(text: str) -> int | str:
         return text
 
 
+def _float_or_text(text: str) -> float | str:
+    """An option's number, or its text as given (refused with its range by check_args)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 #: ``--eval-rng``: validations isolated from the training's generators, or drawing
 #: torch's as before 0.18.0 (the committed models).
 EVAL_RNG_CHOICES = ("isolated", "shared")
@@ -135,6 +143,11 @@ class Args:
                            low=0, high=TRAINING_SEED_LIMIT - 1001)
     val_motors_per_preset: int = option(2, "validation motors drawn around each preset",
                                         metavar="N", low=1, high=1000)
+    stop_at_db: float | None = option(None, "with --select-on dev: stop training at the "
+                                      "first dev check during training whose attenuation "
+                                      "reaches this many dB (its model is final.zip); "
+                                      "default: train --total-timesteps",
+                                      metavar="DB", parse=_float_or_text)
     checkpoint_freq: int = option(10_000, "agent steps between checkpoints (0: never)",
                                   metavar="STEPS", low=0, high=1e12)
     progress: bool = option(True, "no progress bar", negate="no-progress")
@@ -182,6 +195,13 @@ def check_args(args: Args) -> None:
     """Every argument in its range, else a one-line ``ParameterError``."""
     # Ranges (env seeds 1000*seed + k stay below TRAINING_SEED_LIMIT) and choices.
     check_ranges(args)
+    stop = args.stop_at_db
+    if stop is not None and (isinstance(stop, (bool, str)) or not math.isfinite(stop)
+                             or not -200.0 <= stop <= 200.0):
+        raise ParameterError(f"--stop-at-db {args.stop_at_db!r} is outside its allowed range "
+                             "[-200, 200] (dB)")
+    if args.stop_at_db is not None and (args.select_on != "dev" or args.eval_freq <= 0):
+        raise ParameterError("--stop-at-db needs --select-on dev and --eval-freq above 0")
     if args.ray_address is not None and args.backend != "ray":
         raise ParameterError("--ray-address needs --backend ray")
     import numba

@@ -259,14 +259,20 @@ def train(args: Args) -> dict[str, Any]:
     log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,
                            "n_envs": env.num_envs, "total_timesteps": total, "evaluations": []}
     best: dict[str, Any] = {}
+    checks_s = [0.0]                    # wall seconds spent in dev checks so far
     t0 = time.time()
 
     def evaluate(tag: str) -> dict[str, Any]:
+        start = time.time()
         path = os.path.join(args.out, "_eval.zip")
         save_agent(model, path, config)
         with kept_generators(args.eval_rng == "isolated"):
             res = validator.score(path)
-        res.update(step=int(model.num_timesteps), wall_s=round(time.time() - t0, 1), tag=tag)
+        end = time.time()
+        # train_s: the wall time up to this check without the checks before it.
+        res.update(step=int(model.num_timesteps), wall_s=round(end - t0, 1), tag=tag,
+                   train_s=round(start - t0 - checks_s[0], 2), check_s=round(end - start, 2))
+        checks_s[0] += end - start
         log["evaluations"].append(res)
         head = f"[{res['wall_s']:7.1f} s] step {res['step']:>8d}  "
         if args.select_on == "dev":
@@ -301,7 +307,10 @@ def train(args: Args) -> dict[str, Any]:
                 self.bar.update(n - self.bar.n)
             if validator is not None and n - self.last_eval >= args.eval_freq:
                 self.last_eval = n
-                evaluate("periodic")
+                res = evaluate("periodic")
+                if args.stop_at_db is not None and res["attenuation_db"] >= args.stop_at_db:
+                    log["stopped_at_db"] = args.stop_at_db
+                    return False
             if args.checkpoint_freq and n - self.last_ckpt >= args.checkpoint_freq:
                 self.last_ckpt = n
                 os.makedirs(os.path.join(args.out, "checkpoints"), exist_ok=True)
@@ -318,7 +327,7 @@ def train(args: Args) -> dict[str, Any]:
     model.learn(total_timesteps=total, callback=Loop())
     train_s = time.time() - t0
     save_agent(model, os.path.join(args.out, "final.zip"), config)
-    if validator is not None:
+    if validator is not None and "stopped_at_db" not in log:
         evaluate("final")
     log["train_wall_s"] = round(train_s, 1)
     log["wall_s"] = round(time.time() - t0, 1)
@@ -329,7 +338,7 @@ def train(args: Args) -> dict[str, Any]:
     with open(os.path.join(args.out, "train_log.json"), "w", encoding="utf-8") as fh:
         json.dump(log, fh, indent=2, default=str)
         fh.write("\n")
-    print(f"trained {total} steps in {train_s:.1f} s (wall incl. validation "
+    print(f"trained {int(model.num_timesteps)} steps in {train_s:.1f} s (wall incl. validation "
           f"{log['wall_s']:.1f} s); wrote {args.out}/final.zip"
           + (", best.zip" if validator else "") + ", train_log.json", flush=True)
     env.close()

@@ -1,0 +1,144 @@
+"""Time to quality: how long PPO trains before it damps as well as `tuned-constant-gain`.
+
+Run: ``PYTHONPATH=. python benchmarks/time_to_quality.py [--seeds 21-25]
+[--configs committed fast] [--eval-freq 25000] [--budget 1500000] [--out DIR]``.
+
+The quality is `tuned-constant-gain`'s attenuation on stepdamp-bench v3's dev
+split of the open-loop suite (IQM over the dev motors, dB), measured in this run
+by the same dev board that ``stepdamp train --select-on dev`` checks a model on.
+Each config trains PPO for the open-loop suite with ``--stop-at-db`` at that
+value, one seed after the other, the configs interleaved seed by seed (so that
+the machine's drift falls on both). Dev checks every ``--eval-freq`` decisions;
+never a scored split. For each run it prints the decisions and the wall seconds
+to the first dev check at or above the quality: ``train s`` without the dev
+checks, ``wall s`` with them (what a user waits for, given that check interval),
+and the process's time end to end. A run that does not reach it within
+``--budget`` decisions counts as not reached (its time is a lower bound).
+
+Configs (:data:`CONFIGS`): ``committed`` is `ppo-open-loop`'s training
+(agents/hyperparams/ppo.yml at 25 Hz: 32 drives, 8 per preset, 100-step
+rollouts, ten epochs of minibatches of 400). The others collect about the same
+rollout (3,072 decisions) from 256 drives of 12 steps, 64 per preset: two
+groups of 32 SIMD lanes per preset, one per numba thread (below 32 drives a
+preset's env steps in the scalar kernel), and do five epochs:
+``lanes-5-epochs`` of minibatches of 384, ``lanes-big-batch`` of 768 at twice
+the learning rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+#: Training configs: ``stepdamp train`` options beyond the common ones.
+CONFIGS: dict[str, list[str]] = {
+    "committed": ["--hyperparam", "env_kwargs={agent_hz: 25.0}"],
+    "lanes-5-epochs": ["--hyperparam", "env_kwargs={agent_hz: 25.0}",
+                       "--hyperparam", "n_envs=256", "--hyperparam", "n_steps=12",
+                       "--hyperparam", "batch_size=384", "--hyperparam", "n_epochs=5"],
+    "lanes-big-batch": ["--hyperparam", "env_kwargs={agent_hz: 25.0}",
+                        "--hyperparam", "n_envs=256", "--hyperparam", "n_steps=12",
+                        "--hyperparam", "batch_size=768", "--hyperparam", "n_epochs=5",
+                        "--hyperparam", "learning_rate=0.0006"],
+}
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "MPLBACKEND": "Agg",
+            "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def quality_db(out: str, entry: str = "tuned-constant-gain") -> float:
+    """``entry``'s IQM attenuation (dB) on v3's dev split, open-loop suite."""
+    subprocess.run([sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--protocol", "v3",
+                    "--split", "dev", "--suite", "open-loop", "--entries", entry, "--out", out,
+                    "--no-plots", "--no-progress", "--workers", "1"],
+                   check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+    with open(os.path.join(out, "leaderboard.json"), encoding="utf-8") as fh:
+        board = json.load(fh)
+    return float(next(e for e in board["entries"]
+                      if e["name"] == entry)["attenuation_db"]["iqm"])
+
+
+def train_until(config: str, seed: int, target_db: float, eval_freq: int, budget: int,
+                out: str) -> dict:
+    """One ``stepdamp train`` run stopped at ``target_db``; what it took."""
+    cmd = [sys.executable, "-m", "stepdamp_env.cli", "train", "--algo", "ppo",
+           "--suite", "open-loop", "--select-on", "dev", "--seed", str(seed), "--out", out,
+           "--eval-freq", str(eval_freq), "--total-timesteps", str(budget),
+           "--stop-at-db", repr(target_db), "--checkpoint-freq", "0", "--no-progress",
+           "--no-tensorboard", *CONFIGS[config]]
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+    end_to_end = time.perf_counter() - t0
+    with open(os.path.join(out, "train_log.json"), encoding="utf-8") as fh:
+        log = json.load(fh)
+    checks = [e for e in log["evaluations"] if e["tag"] == "periodic"]
+    hit = next((e for e in checks if e["attenuation_db"] >= target_db), None)
+    last = hit or checks[-1]
+    checks_s = sum(e["check_s"] for e in log["evaluations"] if e["wall_s"] <= last["wall_s"])
+    return {"config": config, "seed": seed, "reached": hit is not None,
+            "decisions": last["step"], "train_s": last["train_s"],
+            "wall_s": last["train_s"] + checks_s, "end_to_end_s": end_to_end,
+            "best_db": max(e["attenuation_db"] for e in checks),
+            "curve": [(e["step"], e["train_s"], e["attenuation_db"]) for e in checks]}
+
+
+def parse_seeds(text: str) -> list[int]:
+    lo, sep, hi = text.partition("-")
+    return list(range(int(lo), int(hi) + 1)) if sep else [int(s) for s in text.split(",")]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", default="21-25", help="training seeds (fresh: the committed "
+                   "ppo-open-loop used 11-15)")
+    p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    p.add_argument("--eval-freq", type=int, default=25_000, help="decisions between dev checks")
+    p.add_argument("--budget", type=int, default=1_200_000, help="decisions at most per run")
+    p.add_argument("--out", default=None, help="keep the runs here (default: a temporary dir)")
+    a = p.parse_args()
+    out = a.out or tempfile.mkdtemp(prefix="ttq-")
+    target = quality_db(os.path.join(out, "quality"))
+    print(f"quality: tuned-constant-gain on v3 dev, open-loop: {target:.2f} dB "
+          f"(dev checks every {a.eval_freq} decisions, at most {a.budget})", flush=True)
+    rows = []
+    for seed in parse_seeds(a.seeds):
+        for config in a.configs:
+            r = train_until(config, seed, target, a.eval_freq, a.budget,
+                            os.path.join(out, config, f"seed{seed}"))
+            rows.append(r)
+            print(f"{config:10s} seed {seed:3d}: {'reached' if r['reached'] else 'NOT reached'}"
+                  f" at {r['decisions']:>9,d} decisions, train {r['train_s']:7.1f} s, with dev "
+                  f"checks {r['wall_s']:7.1f} s, end to end {r['end_to_end_s']:7.1f} s "
+                  f"(best dev {r['best_db']:.2f} dB)", flush=True)
+    print("\nconfig      reached  decisions (median)  train s (median, range)   with checks s")
+    medians = {}
+    for config in a.configs:
+        rs = [r for r in rows if r["config"] == config]
+        tr = [r["train_s"] for r in rs]
+        medians[config] = statistics.median(tr)
+        print(f"{config:10s}  {sum(r['reached'] for r in rs)}/{len(rs)}     "
+              f"{statistics.median(r['decisions'] for r in rs):>12,.0f}    "
+              f"{medians[config]:7.1f} [{min(tr):.1f}, {max(tr):.1f}]      "
+              f"{statistics.median(r['wall_s'] for r in rs):7.1f}")
+    if "committed" in medians:
+        for config, m in medians.items():
+            if config != "committed":
+                print(f"{config} / committed, median train s: {m / medians['committed']:.2f}")
+    with open(os.path.join(out, "time_to_quality.json"), "w", encoding="utf-8") as fh:
+        json.dump({"quality_db": target, "eval_freq": a.eval_freq, "budget": a.budget,
+                   "runs": rows}, fh, indent=1)
+    print(f"wrote {os.path.join(out, 'time_to_quality.json')}")
+
+
+if __name__ == "__main__":
+    main()
