@@ -67,9 +67,11 @@ def test_held_out_motor_identified_from_its_logs_with_the_nominal_prior(held_out
     assert abs(errors["Fs"]) < 0.2 and abs(errors["D"]) < 0.2, errors
     assert result.fitted == ("J", "D")
     assert result.speeds_rps == pytest.approx(SPEEDS_RPS, rel=0.01)
-    # The prior is another motor (J -33 %): it says so, and nothing else is warned.
-    assert "J 4e-05 kg*m^2 against the logs' 6.00" in result.warnings[0]
-    assert all(w.startswith("the prior disagrees with the logs: ") for w in result.warnings)
+    # Servo logs are warned of; the prior is another motor (J -33 %): it says so,
+    # and nothing else is warned.
+    assert result.warnings[0].startswith("servo logs: ")
+    assert "J 4e-05 kg*m^2 against the logs' 6.00" in result.warnings[1]
+    assert all(w.startswith("the prior disagrees with the logs: ") for w in result.warnings[1:])
     # Each amplitude's error within three stated uncertainties, each under 5 %.
     for name in ("Kd1", "Kd2", "Kd4"):
         assert result.relative_uncertainty(name) < 0.05

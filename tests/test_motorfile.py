@@ -331,17 +331,26 @@ def test_drive_logs_of_the_example_motor_identify_back(tmp_path, capsys):
     as the prior."""
     truth = ["--set", "Kd1=0.002", "--set", "Kd2=0.004", "--set", "Kd4=0.016",
              "--set", "phi1=0.4", "--set", "phi2=-0.7", "--set", "current_noise_a=0.01"]
-    logs = []
-    for v in ("0.2", "0.45"):
-        logs += ["--log", str(tmp_path / f"log_{v}.csv")]
-        assert main(["simulate", "--motor", EXAMPLE, *truth, "--mode", "servo", "--speed", v,
-                     "--duration", "1.2", "--trace", logs[-1]]) == 0
-    assert main(["identify", "--motor", EXAMPLE, *logs, "--out", str(tmp_path / "id")]) == 0
-    text = capsys.readouterr().out
-    # The file's assumed detent is not the truth's: said, and nothing else.
-    warnings = [line for line in text.splitlines() if line.startswith("warning")]
+    def identify(mode: str, speeds_durations: tuple[tuple[str, str], ...], out: str
+                 ) -> list[str]:
+        logs = []
+        for v, duration in speeds_durations:
+            logs += ["--log", str(tmp_path / f"{mode}_{v}.csv")]
+            assert main(["simulate", "--motor", EXAMPLE, *truth, "--mode", mode, "--speed", v,
+                         "--duration", duration, "--trace", logs[-1]]) == 0
+        assert main(["identify", "--motor", EXAMPLE, *logs, "--out", str(tmp_path / out)]) == 0
+        return [line for line in capsys.readouterr().out.splitlines()
+                if line.startswith("warning")]
+
+    # Open loop at two of the plan's speeds: the file's assumed detent is not the
+    # truth's: said, and nothing else.
+    warnings = identify("open-loop", (("0.2501", "3.6"), ("0.3751", "2.5")), "id")
     assert len(warnings) == 1 and warnings[0].startswith(
         "warning: the prior disagrees with the logs: Kd1 0.0033 N*m against the logs' 0.00")
+    # Servo logs get a warning of their own besides.
+    servo = identify("servo", (("0.2", "1.2"), ("0.45", "1.2")), "id_servo")
+    assert len(servo) == 2 and servo[0].startswith(
+        "warning: servo logs: on 3 of 81 ")
     got = json.loads((tmp_path / "id" / "identified_motor.json").read_text())
     assert got["Kd4"] == pytest.approx(0.016, rel=0.10)
     assert got["Kd2"] == pytest.approx(0.004, rel=0.10)
