@@ -1,7 +1,7 @@
 """Performance: the kernel's rate, and the board's and PPO's share of it, in one run.
 
 Run: ``PYTHONPATH=. python benchmarks/bench_performance.py [--cores 2] [--skip-board]
-[--skip-ppo]``.
+[--skip-ppo] [--skip-lanes] [--ttq-seeds 21-25]``.
 
 Everything is measured in this run, one thing after the other:
 
@@ -13,6 +13,8 @@ Everything is measured in this run, one thing after the other:
   ``simulated_seconds / wall_seconds / (cores x kernel)``; ``wall_seconds`` is the
   board's own (motors, identification, runs, scores; no imports or figures), and
   the end-to-end time is printed beside it. Target: >= 0.5.
+* **lanes**: ``benchmarks/bench_simd.py``'s rates per drive variant (64 drives,
+  one pinned core), the kernel's and the SIMD lanes', and whether their bits agree.
 * **PPO**: SB3's PPO on ``StepperDamp-v1`` at 100 Hz (0.01 s simulated per env
   step), throughput settings (512 drives, 32-step rollouts, one epoch of batches
   of 8192; torch on one thread), updates included, with the drives on one of
@@ -21,6 +23,9 @@ Everything is measured in this run, one thing after the other:
   --algo ppo --num-threads N`` with the committed settings (32 drives, 100-step
   rollouts, ten epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
   ``env-steps/s x 0.01 s / (cores x kernel)``. Target: >= 0.5.
+* **time to quality** (``--ttq-seeds``): ``benchmarks/time_to_quality.py``,
+  PPO's training wall time until a dev check reaches `tuned-constant-gain`'s dev
+  attenuation in the open-loop suite, the committed config against a faster one.
 """
 
 from __future__ import annotations
@@ -52,6 +57,26 @@ def kernel_rate() -> float:
                           os.path.join(ROOT, "benchmarks", "bench_sim.py")],
                          check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
     return float(json.loads(out.stdout.strip().splitlines()[-1])["median"])
+
+
+def lanes_rates(periods: int = 10000) -> dict:
+    """``benchmarks/bench_simd.py``'s kernel and lanes rates (x real time) per drive
+    variant, 64 drives on one pinned core, numba compiling for this CPU."""
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "bench_simd.py"),
+                          "--child", "--periods", str(periods)],
+                         check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def time_to_quality(seeds: str, configs: list[str]) -> list[str]:
+    """``benchmarks/time_to_quality.py``'s summary lines (PPO to tuned-constant-gain's
+    dev attenuation, the configs interleaved seed by seed)."""
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "time_to_quality.py"),
+                          "--seeds", seeds, "--configs", *configs],
+                         check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+    lines = out.stdout.strip().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("config "))
+    return [lines[0]] + lines[start:-1]
 
 
 def board(cores: int, out: str) -> tuple[float, dict]:
@@ -141,12 +166,22 @@ def main() -> None:
     p.add_argument("--skip-ppo", action="store_true")
     p.add_argument("--ppo-steps", type=int, default=96_000,
                    help="env steps of the committed-settings PPO run")
+    p.add_argument("--skip-lanes", action="store_true")
+    p.add_argument("--ttq-seeds", default=None, metavar="K-L",
+                   help="also time PPO to quality with these seeds (benchmarks/"
+                        "time_to_quality.py; about 5 minutes per seed and config here)")
+    p.add_argument("--ttq-configs", nargs="+", default=["committed", "lanes-5-epochs"])
     args = p.parse_args()
     sys.path.insert(0, ROOT)
     rate = kernel_rate()
     ceiling = args.cores * rate
     print(f"kernel: {rate:.1f} simulated s per s on one core; ceiling on {args.cores} cores "
           f"{ceiling:.0f} (100 Hz: {ceiling * 100:,.0f} env-steps/s)", flush=True)
+    if not args.skip_lanes:
+        for variant, r in lanes_rates().items():
+            print(f"lanes, {variant:9s} (64 drives, one core): kernel {r['kernel']:6.1f} x, "
+                  f"lanes {r['lanes']:6.1f} x real time, {r['lanes'] / r['kernel']:.2f} of the "
+                  f"kernel, {'the same bits' if r['same_bits'] else 'BITS DIFFER'}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         if not args.skip_board:
             board(args.cores, os.path.join(tmp, "b0"))                  # fills the caches
@@ -174,6 +209,9 @@ def main() -> None:
                       f"{threads} thread(s): {t['env_steps'] / t['wall_seconds']:,.0f} "
                       f"env-steps/s, efficiency "
                       f"{t['simulated_seconds_per_wall_second'] / ceiling:.2f}", flush=True)
+    if args.ttq_seeds:
+        for line in time_to_quality(args.ttq_seeds, args.ttq_configs):
+            print(f"time to quality: {line}", flush=True)
 
 
 if __name__ == "__main__":

@@ -288,6 +288,23 @@ def test_warm_up_marks_this_code_version_compiled(tmp_path, monkeypatch, capsys)
     assert capsys.readouterr().err == ""
 
 
+def test_the_compiled_marker_is_this_cpus():
+    """numba's cache compiles anew for another CPU: the marker (and so the
+    compiling notice) is per target machine too."""
+    import subprocess
+    import sys
+
+    from stepdamp_env.bench.warmup import compiled_marker, machine_tag
+
+    code = "from stepdamp_env.bench.warmup import compiled_marker; print(compiled_marker())"
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           check=True, env={**os.environ, "NUMBA_CPU_NAME": "nehalem",
+                                            "NUMBA_CPU_FEATURES": ""}).stdout.strip()
+    here = compiled_marker()
+    assert here.endswith("-" + machine_tag()) and len(machine_tag()) == 12
+    assert os.path.dirname(other) == os.path.dirname(here) and other != here
+
+
 def test_warm_lanes_compiles_the_lanes_only_where_batches_step_in_them(monkeypatch, capsys):
     """The board's SIMD lanes are compiled by the warm-up (their own marker) where
     batches step in them by default; on a CPU without AVX2 nothing happens."""

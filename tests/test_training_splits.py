@@ -99,3 +99,39 @@ def test_without_suite_a_model_records_none_and_runs_in_every_suite(tmp_path):
     agent = StepAgent(os.path.join(out, "final.zip"))
     assert "suite" not in agent.config["training"] and trained_suites(agent.config) is None
     assert agent.card.suites is None                    # every suite
+
+
+def test_stop_at_db_stops_at_the_first_dev_check_that_reaches_it(tmp_path):
+    """``--stop-at-db``: the first dev check during training at or above it ends
+    the training (no final check: that check's model is final.zip); each check
+    records its own time apart from the training's."""
+    out = str(tmp_path / "stop")
+    log = train(Args(algo="ars", out=out, total_timesteps=800, eval_freq=100, checkpoint_freq=0,
+                     progress=False, tensorboard=False, suite="open-loop", select_on="dev",
+                     stop_at_db=-200.0, envs_per_motor=1,
+                     extra={"n_delta": 1, "n_top": 1, "env_kwargs": {"agent_hz": 25.0,
+                                                                     "episode_s": 0.2}}))
+    checks = log["evaluations"]
+    assert [c["tag"] for c in checks] == ["initial (zero residual = base controller)",
+                                          "periodic"]
+    assert log["stopped_at_db"] == -200.0 and checks[1]["step"] < 800
+    assert all(c["check_s"] > 0 and 0 <= c["train_s"] <= c["wall_s"] for c in checks)
+    assert checks[1]["train_s"] + checks[0]["check_s"] <= checks[1]["wall_s"]
+    assert os.path.exists(os.path.join(out, "final.zip"))
+
+
+@pytest.mark.parametrize("value, message", [
+    ("x", r"--stop-at-db 'x' is outside its allowed range \[-200, 200\] \(dB\)"),
+    ("nan", r"--stop-at-db nan is outside"),
+    ("300", r"--stop-at-db 300.0 is outside"),
+])
+def test_stop_at_db_refuses_what_is_not_a_db_value(value, message):
+    from stepdamp_agents.train import main
+
+    with pytest.raises(ParameterError, match=message):
+        main(["--algo", "ars", "--select-on", "dev", "--stop-at-db", value, "--out", "unused"])
+
+
+def test_stop_at_db_needs_dev_checks():
+    with pytest.raises(ParameterError, match="--stop-at-db needs --select-on dev"):
+        train(Args(algo="ars", out="unused", stop_at_db=30.0))

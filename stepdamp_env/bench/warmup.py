@@ -22,18 +22,31 @@ from ..parallel import pool_map
 from ..params import SystemParams
 from ..simulation import RunSettings, SpeedProfile, simulate
 
-__all__ = ["warm_up", "warm_lanes", "compiled_marker"]
+__all__ = ["warm_up", "warm_lanes", "compiled_marker", "machine_tag"]
 
 
 def compiled_marker(part: str = "") -> str | None:
-    """The file the warm-up leaves once this code has compiled (None: nothing is
-    cached); ``part`` "lanes": the SIMD lanes' (:func:`warm_lanes`). Like numba's
-    cache (:func:`.numba_cache.package_subpath`), it is the code's, wherever the
-    code is installed (``pip install .`` beside ``-e .``, a CI checkout)."""
+    """The file the warm-up leaves once this code has compiled for this CPU (None:
+    nothing is cached); ``part`` "lanes": the SIMD lanes' (:func:`warm_lanes`).
+    Like numba's cache (:func:`.numba_cache.package_subpath`), it is the code's,
+    wherever the code is installed (``pip install .`` beside ``-e .``, a CI
+    checkout). Its name holds :func:`machine_tag`: a cache shared by another CPU
+    (or ``NUMBA_CPU_NAME``) compiles anew, so the notice is given again."""
     where = numba_cache.active_cache_dir()           # "": nothing is cached, always cold
     if not where:
         return None
-    return os.path.join(where, f"compiled{'-' + part if part else ''}")
+    return os.path.join(where, f"compiled{'-' + part if part else ''}-{machine_tag()}")
+
+
+def machine_tag() -> str:
+    """12 hex digits of numba's target machine (triple, CPU name and features):
+    what numba's cache index keys compiled code by, besides the code."""
+    import hashlib
+
+    from numba.core.registry import cpu_target
+
+    machine = repr(cpu_target.target_context.codegen().magic_tuple())
+    return hashlib.sha256(machine.encode()).hexdigest()[:12]
 
 
 def _warm_plain(system: SystemParams) -> None:
