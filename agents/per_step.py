@@ -44,7 +44,7 @@ from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext
                                        resolve_estimate)
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.bench.suites import get_suite, suite_of
-from stepdamp_env.params import ParameterError
+from stepdamp_env.params import DRIVE_MODES, ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
 
 from .residual import WholeVecEnv
@@ -201,6 +201,15 @@ class StepAgent(RowPolicy):
             return ("open-loop", "servo")
         return tuple(m for m in ("open-loop", "servo")
                      if any(get_suite(s).mode == m for s in suites))
+
+    @property
+    def firmware_drives(self) -> tuple[str, ...]:
+        """The drives (``drive_mode``) ``stepdamp export`` writes its network for:
+        those of the suites it was trained for (both for a model trained before
+        ``--suite``)."""
+        suites = self.card.suites
+        return tuple(d for d in DRIVE_MODES
+                     if suites is None or any(get_suite(s).drive_mode == d for s in suites))
 
     def firmware_network(self, context: PolicyContext) -> FirmwareNetwork:
         """The model's network for a drive's firmware (``stepdamp export``), with

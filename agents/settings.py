@@ -200,8 +200,12 @@ def check_args(args: Args) -> None:
                              or not -200.0 <= stop <= 200.0):
         raise ParameterError(f"--stop-at-db {args.stop_at_db!r} is outside its allowed range "
                              "[-200, 200] (dB)")
-    if args.stop_at_db is not None and (args.select_on != "dev" or args.eval_freq <= 0):
+    if stop is not None and (args.select_on != "dev" or args.eval_freq <= 0):
         raise ParameterError("--stop-at-db needs --select-on dev and --eval-freq above 0")
+    if stop is not None and args.algo == "ars":
+        # sb3-contrib's ARS runs its updates to the end whatever a callback returns.
+        raise ParameterError("--stop-at-db is not supported with --algo ars (its updates "
+                             "run to --total-timesteps); use ppo, ppo_lstm, sac or td3")
     if args.ray_address is not None and args.backend != "ray":
         raise ParameterError("--ray-address needs --backend ray")
     import numba

@@ -64,7 +64,7 @@ def lanes_rates(periods: int = 10000) -> dict:
     variant, 64 drives on one pinned core, numba compiling for this CPU."""
     out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "bench_simd.py"),
                           "--child", "--periods", str(periods)],
-                         check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+                         check=True, stdout=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -73,7 +73,7 @@ def time_to_quality(seeds: str, configs: list[str]) -> list[str]:
     dev attenuation, the configs interleaved seed by seed)."""
     out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "time_to_quality.py"),
                           "--seeds", seeds, "--configs", *configs],
-                         check=True, capture_output=True, text=True, env=_env(), cwd=ROOT)
+                         check=True, stdout=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
     lines = out.stdout.strip().splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("config "))
     return [lines[0]] + lines[start:-1]

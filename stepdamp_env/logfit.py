@@ -560,7 +560,8 @@ def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[s
                            samples=len(log.t), residual_rms_a=rms, residual_fraction=fraction,
                            warnings=tuple(log_warnings)))
         warnings += log_warnings
-    servo = [log.label for log in logs if _is_servo_log(log, nominal.motor.Nr)]
+    servo = [log.label for log in logs if method == "torque-balance"
+             and _is_servo_log(log, nominal.motor.Nr)]
     if servo:
         # Measured by benchmarks/identify_plan_catalogue.py (docs/drivelogs.md).
         which = "" if len(servo) == len(logs) else ", ".join(servo) + ": "

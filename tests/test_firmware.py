@@ -452,11 +452,12 @@ def test_bad_arguments_name_the_parameter(tmp_path):
 
 
 def test_the_export_modes_an_entry_declares_are_those_export_writes():
-    """export_modes (what the board's firmware section says) against what
-    entry_export does, for every default entry in both modes."""
+    """export_modes and firmware_drives (what the board's firmware section says)
+    against what entry_export does, for every default entry in both modes (and
+    on both drives where the entry names its drives)."""
     from stepdamp_env.bench.firmware import FirmwareNetwork, OnlineTableLaw, entry_export, \
         export_kind, export_modes
-    from stepdamp_env.bench.policy import policy_card
+    from stepdamp_env.bench.firmware_board import firmware_field, render_firmware
     from stepdamp_env.bench.registry import default_policy_names
     from stepdamp_env.cli.options import register_policies
 
@@ -464,19 +465,28 @@ def test_the_export_modes_an_entry_declares_are_those_export_writes():
     kinds = set()
     for name in default_policy_names():
         policy = resolve_policy(name).make()
-        card = policy_card(policy)
-        # An entry trained for the mid-band suite exports for the voltage-mode drive.
-        drive = "voltage" if card and card.suites == ("mid-band",) else "current"
-        knowledge = firmware_knowledge(get_preset("patent").replace(drive_mode=drive))
-        for mode in ("open-loop", "servo"):
-            try:
-                written = entry_export(name, knowledge, mode=mode)
-            except ParameterError:
-                written = None
-            assert (written is not None) == (mode in export_modes(policy)), (name, mode)
-            if written is not None:
-                kind = ("network" if isinstance(written, FirmwareNetwork) else
-                        "online table" if isinstance(written, OnlineTableLaw) else "law")
-                assert kind == export_kind(policy), name
-                kinds.add(kind)
+        drives = getattr(policy, "firmware_drives", None)
+        for drive in ("current", "voltage") if drives is not None else ("current",):
+            knowledge = firmware_knowledge(get_preset("patent").replace(drive_mode=drive))
+            for mode in ("open-loop", "servo"):
+                try:
+                    written = entry_export(name, knowledge, mode=mode)
+                except ParameterError:
+                    written = None
+                declared = mode in export_modes(policy) and (drives is None or drive in drives)
+                assert (written is not None) == declared, (name, mode, drive)
+                if written is not None:
+                    kind = ("network" if isinstance(written, FirmwareNetwork) else
+                            "online table" if isinstance(written, OnlineTableLaw) else "law")
+                    assert kind == export_kind(policy), name
+                    kinds.add(kind)
     assert kinds == {"law", "network", "online table"}
+    # The mid-band networks: open loop, voltage-mode drive, and the board says so.
+    board = {"firmware": firmware_field({n: resolve_policy(n) for n in ("ppo-mid-band",
+                                                                          "ppo-open-loop")})}
+    assert board["firmware"]["ppo-mid-band"] == {"kind": "network", "modes": ["open-loop"],
+                                                 "drives": ["voltage"]}
+    assert render_firmware(board)[4:] == [
+        "- the policy network, in open loop only: `ppo-open-loop`",
+        "- the policy network, in open loop only, on the voltage-mode drive only: "
+        "`ppo-mid-band`"]

@@ -106,17 +106,17 @@ def test_stop_at_db_stops_at_the_first_dev_check_that_reaches_it(tmp_path):
     the training (no final check: that check's model is final.zip); each check
     records its own time apart from the training's."""
     out = str(tmp_path / "stop")
-    log = train(Args(algo="ars", out=out, total_timesteps=800, eval_freq=100, checkpoint_freq=0,
+    log = train(Args(algo="ppo", out=out, total_timesteps=800, eval_freq=100, checkpoint_freq=0,
                      progress=False, tensorboard=False, suite="open-loop", select_on="dev",
                      stop_at_db=-200.0, envs_per_motor=1,
-                     extra={"n_delta": 1, "n_top": 1, "env_kwargs": {"agent_hz": 25.0,
-                                                                     "episode_s": 0.2}}))
+                     extra={"n_steps": 50, "batch_size": 50,
+                            "env_kwargs": {"agent_hz": 25.0, "episode_s": 0.2}}))
     checks = log["evaluations"]
     assert [c["tag"] for c in checks] == ["initial (zero residual = base controller)",
                                           "periodic"]
-    assert log["stopped_at_db"] == -200.0 and checks[1]["step"] < 800
-    assert all(c["check_s"] > 0 and 0 <= c["train_s"] <= c["wall_s"] for c in checks)
-    assert checks[1]["train_s"] + checks[0]["check_s"] <= checks[1]["wall_s"]
+    assert log["stopped_at_db"] == -200.0 and 100 <= checks[1]["step"] < 800
+    assert all(c["check_s"] > 0 and 0 <= c["learn_s"] <= c["wall_s"] for c in checks)
+    assert checks[1]["learn_s"] + checks[0]["check_s"] <= checks[1]["wall_s"] + 0.1
     assert os.path.exists(os.path.join(out, "final.zip"))
 
 
@@ -129,9 +129,11 @@ def test_stop_at_db_refuses_what_is_not_a_db_value(value, message):
     from stepdamp_agents.train import main
 
     with pytest.raises(ParameterError, match=message):
-        main(["--algo", "ars", "--select-on", "dev", "--stop-at-db", value, "--out", "unused"])
+        main(["--algo", "ppo", "--select-on", "dev", "--stop-at-db", value, "--out", "unused"])
 
 
-def test_stop_at_db_needs_dev_checks():
+def test_stop_at_db_needs_dev_checks_and_an_algorithm_that_stops():
     with pytest.raises(ParameterError, match="--stop-at-db needs --select-on dev"):
-        train(Args(algo="ars", out="unused", stop_at_db=30.0))
+        train(Args(algo="ppo", out="unused", stop_at_db=30.0))
+    with pytest.raises(ParameterError, match="--stop-at-db is not supported with --algo ars"):
+        train(Args(algo="ars", out="unused", stop_at_db=30.0, select_on="dev"))
