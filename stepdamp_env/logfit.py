@@ -36,8 +36,8 @@ from . import fixedmath as fm
 from .drivelog import read_trace
 from .identify import effort_response, model_from_coefficients
 from .logstats import (AMPLITUDES, MAX_UNCERTAINTY, PHASES, PRIOR_J_UNCERTAINTY,
-                       balance_uncertainty, coefficient_uncertainty, covariance, judgements,
-                       noise_inflation, root)
+                       balance_uncertainty, coefficient_uncertainty, covariance, is_servo_log,
+                       judgements, noise_inflation, root, servo_logs_warning)
 from .motorfile import load_system
 from .params import DETENT_HARMONICS, FeedforwardModel, ParameterError, SystemParams
 
@@ -293,14 +293,6 @@ def _harmonic_columns(x: np.ndarray) -> list[np.ndarray]:
     return cols
 
 
-def _is_servo_log(log: _Log, nr: int) -> bool:
-    """Whether the log's currents have no mean d part at the encoder angle (a
-    servo commands none; open loop commands its holding current)."""
-    s1, c1 = fm.sincos_array(np.ascontiguousarray(nr * log.theta))
-    d_mean = abs(float(np.mean(log.ia * c1 + log.ib * s1)))
-    return d_mean <= 0.1 * _rms(-log.ia * s1 + log.ib * c1) + 1e-3
-
-
 def _q_current(log: _Log, nr: int) -> np.ndarray:
     """The log's currents along the q axis of the encoder angle (A)."""
     s, c = fm.sincos_array(np.ascontiguousarray(nr * log.theta))
@@ -437,11 +429,10 @@ def _effort(nominal: SystemParams, logs: list[_Log]
     for k, log in enumerate(logs):
         s1, c1 = fm.sincos_array(np.ascontiguousarray(m.Nr * log.theta))
         effort = m.Km * (-log.ia * s1 + log.ib * c1)
-        if not _is_servo_log(log, m.Nr):
-            d_mean = abs(float(np.mean(log.ia * c1 + log.ib * s1)))
-            raise ParameterError(f"{log.label}: the command current has a mean d-axis part of "
-                                 f"{d_mean:.3g} A at the encoder angle: not a servo log; the "
-                                 "effort method needs servo logs (use torque-balance)")
+        if not is_servo_log(log.theta, log.ia, log.ib, m.Nr):
+            raise ParameterError(f"{log.label}: the command current has a mean d-axis part at "
+                                 "the encoder angle: not a servo log; the effort method needs "
+                                 "servo logs (use torque-balance)")
         a = np.column_stack([np.ones_like(effort)] + _harmonic_columns(m.Nr * log.theta))
         sol = fm.lstsq(a, effort)
         if not np.all(np.isfinite(sol)):
@@ -560,15 +551,9 @@ def identify_from_tables(nominal: SystemParams | str, tables: Sequence[Mapping[s
                            samples=len(log.t), residual_rms_a=rms, residual_fraction=fraction,
                            warnings=tuple(log_warnings)))
         warnings += log_warnings
-    servo = [log.label for log in logs if method == "torque-balance"
-             and _is_servo_log(log, nominal.motor.Nr)]
-    if servo:
-        # Measured by benchmarks/identify_plan_catalogue.py (docs/drivelogs.md).
-        which = "" if len(servo) == len(logs) else ", ".join(servo) + ": "
-        warnings.append(f"{which}servo log{'s' if len(servo) > 1 else ''}: on "
-                        "3 of 81 simulated catalogue identifications servo logs came out "
-                        "6-8 % off with every stated uncertainty under 5 %; open-loop logs, "
-                        "as `stepdamp identify --plan` asks, within 2.7 %")
+    warnings += servo_logs_warning([log.label for log in logs if method == "torque-balance"
+                                    and is_servo_log(log.theta, log.ia, log.ib,
+                                                     nominal.motor.Nr)], len(logs))
     all_res = np.concatenate([r for _, r in fitted])
     all_sig = np.concatenate([s - np.mean(s) for s, _ in fitted])
     total = _rms(all_res) / km
