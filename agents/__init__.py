@@ -25,9 +25,10 @@ residuals on the model-based baselines.
   stepdamp-bench v3 suite, selected on its dev split (training seeds 11-15),
   ``ars-open-loop``, ``ars-servo`` and ``ars-mid-band``, and with PPO
   ``ppo-open-loop`` and ``ppo-mid-band`` (0.14.0), and ``ppo-open-loop-long``
-  (0.17.0: ``ppo-open-loop`` trained for 1.5M decisions);
-* :mod:`stepdamp_agents.selection`: model selection on v3's dev split, and the
-  splits a training config records.
+  (0.17.0: ``ppo-open-loop`` trained for 1.5M decisions); ``ppo-moves`` (0.19.0:
+  trained for stepdamp-bench v4's moves suite, selected on its dev split);
+* :mod:`stepdamp_agents.selection`: model selection on a dev split (v3's; v4's
+  for moves), and the splits a training config records.
 
 :func:`register_policies` (the ``stepdamp.policies`` entry point
 ``reference-agents``) registers every committed entry by its name, with all its

@@ -43,7 +43,7 @@ from stepdamp_env.bench.firmware_net import FirmwareNetwork, network_export
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
                                        resolve_estimate)
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
-from stepdamp_env.bench.suites import get_suite, suite_of
+from stepdamp_env.bench.suites import get_suite
 from stepdamp_env.params import DRIVE_MODES, ParameterError
 from stepdamp_env.sb3 import StepperDampSB3VecEnv, make_sb3_vec_env_v1
 
@@ -231,8 +231,11 @@ class StepAgent(RowPolicy):
                                  "a plain network of linear layers")
         nominal = context.knowledge.nominal
         drive = nominal.drive.drive_mode
-        suite = suite_of(context.mode, drive)
-        if self.card.suites is not None and suite not in self.card.suites:
+        # The suites it was trained for that run this mode and drive (moves: open
+        # loop on the current-mode drive).
+        if self.card.suites is not None and not any(
+                (get_suite(s).mode, get_suite(s).drive_mode) == (context.mode, drive)
+                for s in self.card.suites):
             raise ParameterError(f"entry {self.name!r} cannot be exported for {context.mode} "
                                  f"on a {drive}-mode drive: it was trained for "
                                  f"{', '.join(self.card.suites)} only (suite "

@@ -57,7 +57,8 @@ def load_agent_config(path: str) -> dict[str, Any]:
 def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float], ...]:
     """What an agent's training covered, as ``PolicyCard.trained_on``: its env's
     suite (open-loop or servo on the current-mode drive, mid-band: open loop on
-    the voltage-mode drive) and the speeds it drew (rev/s). Those are the uniform range
+    the voltage-mode drive; moves: the suite a model trained on moves was trained
+    for) and the speeds it drew (rev/s, the cruise's in a move). Those are the uniform range
     ``speed_range_rps`` and, with ``resonance_prob`` > 0, each training motor's
     resonances f_h (1 +- ``resonance_spread``), where f_h scales with
     sqrt(Km/J) over the randomisation box. The ranges are merged where they
@@ -89,6 +90,8 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
         else:
             merged.append([lo, hi])
     suite = suite_of(str(kwargs.get("mode", "open-loop")), drive)
+    if kwargs.get("profile", "constant") == "move":
+        suite = training.get("suite")       # moves: the speeds are the cruise's
     return tuple((suite, lo, hi) for lo, hi in merged) if suite else ()
 
 

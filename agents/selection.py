@@ -1,4 +1,5 @@
-"""Model selection on stepdamp-bench v3's dev split (``stepdamp train --select-on dev``).
+"""Model selection on a dev split (``stepdamp train --select-on dev``): stepdamp-bench
+v3's for the suites v3 has, v4's for the moves suite.
 
 The dev split (``stepdamp leaderboard --split dev``) is drawn from the training
 distribution with its own seed and is never scored: it is the split for
@@ -37,16 +38,20 @@ def training_splits(config: dict[str, Any]) -> dict[str, str]:
 
 
 class DevValidator:
-    """Scores a saved model on v3's dev motors of ``suite`` (dB, higher is better)."""
+    """Scores a saved model on the dev motors of ``suite`` (dB, higher is better):
+    v3's, or v4's for a suite v3 does not have (moves)."""
 
     metric = "attenuation_db"
     higher_is_better = True
 
     def __init__(self, suite: str) -> None:
         from stepdamp_env.bench.protocols import protocol_for
+        from stepdamp_env.bench.suites import SUITES_THROUGH_V3
 
         self.suite = suite
-        self.protocol = protocol_for("v3").with_splits(["dev"]).with_suites([suite])
+        # v3's dev split where v3 has the suite (the committed models); v4's otherwise.
+        self.version = "v3" if suite in SUITES_THROUGH_V3 else "v4"
+        self.protocol = protocol_for(self.version).with_splits(["dev"]).with_suites([suite])
 
     def score(self, path: str) -> dict[str, Any]:
         """The dev board's row of the model in ``path`` (a ``stepdamp train`` zip)."""

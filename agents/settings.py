@@ -113,12 +113,12 @@ class Args:
                                     metavar="K-L", parse=parse_seeds, low=0, high=999)
     env: str = option(ENV_ID_V1, "StepperDamp-v1: per-step agents (default); "
                       "StepperDampResidual-v0: the v0 gain selector", choices=ENV_IDS)
-    suite: str | None = option(None, "the stepdamp-bench v3 suite trained for (StepperDamp-v1): "
+    suite: str | None = option(None, "the stepdamp-bench suite trained for (StepperDamp-v1): "
                                "its mode, drive and speeds (agents/task.py SUITE_TASKS); the "
                                "model runs in that suite only. Default: the task as the YAML "
                                "and --hyperparam give it, run in every suite", choices=tuple(SUITE_TASKS))
-    select_on: str = option("validation", "where best.zip is chosen: 'dev', v3's dev split of "
-                            "the suite (attenuation dB, higher is better); 'validation', "
+    select_on: str = option("validation", "where best.zip is chosen: 'dev', v3's dev split "
+                            "(v4's for moves) of the suite (attenuation dB, higher is better); 'validation', "
                             "motors drawn from the training distribution (v1's headline "
                             "ratio; the committed v1-era agents)", choices=SELECTION_SPLITS)
     out: str = option("runs/residual", "output directory (models, logs)", metavar="DIR")

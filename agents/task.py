@@ -79,12 +79,10 @@ def task_kwargs(env_kwargs: dict[str, Any] | None = None
 #: dominates a 0.4 s return), the protocol's sensors, the exact detent model.
 REFERENCE_TASK: dict[str, Any] = copy.deepcopy(V2_DEFAULTS)    # StepperDamp-v2's defaults
 
-#: What ``stepdamp train --suite`` sets on top of the task for each constant-speed
-#: suite (:attr:`stepdamp_env.bench.suites.Suite.training_task`; v4's moves suite
-#: has no training task yet).
+#: What ``stepdamp train --suite`` sets on top of the task for each suite
+#: (:attr:`stepdamp_env.bench.suites.Suite.training_task`; v4's moves suite since 0.19.0).
 SUITE_TASKS: dict[str, dict[str, Any]] = {name: copy.deepcopy(dict(s.training_task))
-                                          for name, s in SUITES_BY_NAME.items()
-                                          if s.profile == "constant"}
+                                          for name, s in SUITES_BY_NAME.items()}
 
 
 def suite_task(env_kwargs: dict[str, Any], suite: str) -> dict[str, Any]:

@@ -14,7 +14,9 @@ Two figures, one panel per entry and one line per seed, and a table printed:
   suite's dev motors) against env steps;
 * ``--out-experiments``: the same for the entries ``--names`` found in the
   ``--experiments`` directories (variants tried on dev, committed as entries or
-  not), with a comparison entry's dev attenuation drawn at ``--line``. The open-loop
+  not), with a comparison entry's dev attenuation drawn at ``--line`` (named
+  ``--line-name``), and with ``--out-experiments-wall`` against the training's
+  wall time (``learn_s`` of the logs: without the dev checks). The open-loop
   variants of 0.17.0::
 
       python scripts/learning_curves.py --experiments agents/reference \
@@ -54,13 +56,15 @@ def curves(directory: str = REFERENCE) -> tuple[Curves, Curves]:
         evals = log["evaluations"]
         on_dev = bool(evals) and "attenuation_db" in evals[0]
         key = "attenuation_db" if on_dev else "headline_iqm"
-        points = sorted((int(e["step"]), float(e[key])) for e in evals)
+        # (env steps, value, training wall s without the checks: learn_s where logged)
+        points = sorted((int(e["step"]), float(e[key]), float(e.get("learn_s", "nan")))
+                        for e in evals)
         (dev if on_dev else validation).setdefault(m["name"], {})[int(m["seed"])] = points
     return validation, dev
 
 
 def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = None,
-         shared: bool = False) -> None:
+         shared: bool = False, wall: bool = False) -> None:
     if not data:
         return
     # Validation: log axis (a run that blows up, TD3 at 200x its start, and one that
@@ -74,8 +78,8 @@ def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = 
     for ax, (name, seeds) in zip(axes.ravel(), sorted(data.items())):
         for seed, pts in sorted(seeds.items()):
             draw = ax.plot if on_dev else ax.semilogy
-            draw([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
-                 label=f"seed {seed}")
+            draw([p[2] if wall else p[0] for p in pts], [p[1] for p in pts], marker="o",
+                 ms=3, label=f"seed {seed}")
             best = (max if on_dev else min)(p[1] for p in pts)
             fmt = ".2f" if on_dev else ".4f"
             print(f"{name:20s} seed {seed}: " + " ".join(f"{p[1]:{fmt}}" for p in pts)
@@ -85,7 +89,8 @@ def plot(data: Curves, out: str, on_dev: bool, line: tuple[str, float] | None = 
         if line is not None:
             ax.axhline(line[1], color="tab:red", ls=":", lw=1.2, label=line[0])
         ax.set_title(name)
-        ax.set_xlabel("env steps (decisions)" if on_dev else "agent steps")
+        ax.set_xlabel("training wall time, s (2 cores, without the dev checks)" if wall
+                      else "env steps (decisions)" if on_dev else "agent steps")
         ax.set_ylabel("dev attenuation IQM (dB)" if on_dev else
                       "validation headline IQM (ripple / undamped)")
         ax.grid(True, which="both", alpha=0.3)
@@ -106,14 +111,18 @@ def main() -> None:
     ap.add_argument("--names", nargs="*", default=None,
                     help="the entries of --experiments to draw (default: all)")
     ap.add_argument("--out-experiments", default="docs/figures/learning_curves_open_loop_dev.png")
+    ap.add_argument("--out-experiments-wall", default=None,
+                    help="the --experiments figure against training wall time, too")
     ap.add_argument("--line", type=float, default=None,
-                    help="tuned-constant-gain's dev attenuation (dB), drawn in each panel")
+                    help="a comparison entry's dev attenuation (dB), drawn in each panel")
+    ap.add_argument("--line-name", default="tuned-constant-gain",
+                    help="the entry --line is (default tuned-constant-gain)")
     a = ap.parse_args()
     validation, dev = curves()
     plot(validation, a.out, on_dev=False)
     plot(dev, a.out_dev, on_dev=True)
     if a.experiments:
-        line = None if a.line is None else (f"tuned-constant-gain {a.line:.1f} dB", a.line)
+        line = None if a.line is None else (f"{a.line_name} {a.line:.1f} dB", a.line)
         found: Curves = {}
         for directory in a.experiments:
             found.update(curves(directory)[1])
@@ -123,6 +132,9 @@ def main() -> None:
             ap.error(f"--names {missing}: no dev training log in {list(a.experiments)}")
         plot({n: found[n] for n in names}, a.out_experiments, on_dev=True, line=line,
              shared=True)
+        if a.out_experiments_wall:
+            plot({n: found[n] for n in names}, a.out_experiments_wall, on_dev=True, line=line,
+                 shared=True, wall=True)
 
 
 if __name__ == "__main__":

@@ -45,8 +45,8 @@ class Suite:
             the voltage-mode drive, and speeds drawn uniformly over the dev
             split's headline speeds (servo 0.168-0.545 rev/s, mid-band
             1.58-10.79) widened by x0.8 and x1.2 (open loop: the reference task's
-            own draw, which covers its resonances). Chosen on the dev split,
-            never on a scored one.
+            own draw, which covers its resonances; moves: that draw as moves).
+            Chosen on the dev split, never on a scored one.
         profile: the command (a :class:`..simulation.SpeedProfile` kind):
             "constant" (a ramp to each speed, then held) or "move" (point-to-point
             moves cruising at each speed, v4's moves suite: the protocol gives
@@ -193,4 +193,9 @@ register_suite(Suite(
     "pass the lower resonances, a cruise at a resonant speed, the stop and its settling",
     "moves cruising at the open-loop headline speeds f2 and f1, each as a trapezoid and "
     "as an S-curve", "the same motor without torque harmonics", "v4",
+    # Trained on moves of the machines' range, never on the protocol's cells: the
+    # reference task's speeds, either ramp, peak accelerations log-uniform over
+    # belt axes' 1,000-10,000 mm/s^2 on 40 and 32 mm/rev pulleys (25-312.5 rev/s^2),
+    # the suite's 0.3 s cruise (added in 0.19.0).
+    {"profile": "move", "ramp": "any", "cruise_s": 0.3, "accel_range_rps2": [25.0, 312.5]},
     profile="move", tuning="open-loop"))

@@ -16,7 +16,7 @@ from .layout import ACTION_MODES
 from .registration import ENV_ID
 
 __all__ = ["DriveOptions", "EnvOptions", "DEFAULT_RANDOMIZATION", "RANDOMIZABLE_FIELDS", "PHASE_FIELDS",
-           "BASE_CONTROLLERS", "ACTION_MODES", "ESTIMATES", "default_action_scales",
+           "BASE_CONTROLLERS", "ACTION_MODES", "DRAWN_RAMP", "ESTIMATES", "default_action_scales",
            "periods_per_agent_step",
            "check_number", "check_choice", "check_pair", "OPTIONS_DOC"]
 
@@ -43,6 +43,8 @@ RANDOMIZABLE_FIELDS = SCALED_FIELDS + PHASE_FIELDS
 
 # The base controller is the simulation core's damping ("patent-ff" first: the default).
 BASE_CONTROLLERS = tuple(sorted(_CORE_BASE_CONTROLLERS, key=lambda d: d != "patent-ff"))
+#: ``ramp`` value that draws each episode's ramp from ``RAMPS``, equally likely.
+DRAWN_RAMP = "any"
 # Named models of the base controller ("exact": the episode's plant; "nominal": the
 # un-randomised motor); a FeedforwardModel is accepted too.
 ESTIMATES = ("exact", "nominal")
@@ -135,6 +137,8 @@ class DriveOptions:
     profile: str = "constant"
     ramp: str = "trapezoid"
     distance_rev: float = 0.0
+    cruise_s: float | None = None
+    accel_range_rps2: tuple[float, float] | None = None
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID) -> "DriveOptions":
@@ -185,15 +189,27 @@ class DriveOptions:
             check_number("measure_until_s", self.measure_until_s, float(self.measure_from_s),
                          1e6, low_open=True)
         check_choice("profile", self.profile, PROFILE_KINDS)
-        check_choice("ramp", self.ramp, RAMPS)
+        check_choice("ramp", self.ramp, RAMPS + (DRAWN_RAMP,))
         distance = check_number("distance_rev", self.distance_rev, -1e6, 1e6)
-        if self.profile == "move" and distance == 0.0:
+        if self.cruise_s is not None:
+            check_number("cruise_s", self.cruise_s, 0.0, 1e4)
+            if self.profile != "move" or distance != 0.0:
+                raise ParameterError(f"cruise_s={self.cruise_s!r} needs profile='move' and "
+                                     "distance_rev=0 (the move's distance is its ramps and "
+                                     "this cruise at the episode's speed)")
+        elif self.profile == "move" and distance == 0.0:
             raise ParameterError(f"distance_rev={self.distance_rev!r} is outside its allowed "
-                                 "range for a move: 0 < |distance_rev| <= 1e6 (rev)")
+                                 "range for a move: 0 < |distance_rev| <= 1e6 (rev), or give "
+                                 "cruise_s")
         if self.profile == "constant" and (distance != 0.0 or self.ramp != "trapezoid"):
             raise ParameterError(f"distance_rev={self.distance_rev!r}, ramp={self.ramp!r} need "
                                  "profile='move' (a constant speed has no distance and ramps "
                                  "at a constant acceleration)")
+        if self.accel_range_rps2 is not None:
+            lo, hi = check_pair("accel_range_rps2", self.accel_range_rps2)
+            if not MIN_ACCEL_RPS2 <= lo <= hi <= 1e5:
+                raise _bad("accel_range_rps2", self.accel_range_rps2,
+                           f"{MIN_ACCEL_RPS2} <= low <= high <= 1e5 (rev/s^2)")
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) \
                 or not 1 <= self.substeps <= 1000:
             raise _bad("substeps", self.substeps, "[1, 1000] (integer)")
@@ -302,6 +318,13 @@ OPTIONS_DOC = """
       (half-cosine ramps of peak acceleration ``accel_rps2``: bounded jerk).
       After a move the command rests at its end. Added in 0.18.0; the defaults
       give earlier rollouts.
+    * Moves drawn per episode (added in 0.19.0; the defaults draw nothing more,
+      so earlier rollouts are unchanged): ``ramp`` "any" draws the ramp of each
+      episode ("trapezoid" or "s-curve", equally likely); ``accel_range_rps2``
+      (None) draws its (peak) acceleration log-uniformly in (low, high)
+      (rev/s^2) instead of ``accel_rps2``; ``cruise_s`` (None; with
+      ``distance_rev`` 0) sets the distance to the ramps plus this cruise (s) at
+      the episode's speed. The draws follow the noise seed's, ramp first.
     * Sensor noise and offsets are motor-file fields (``current_noise_a``,
       ``current_offset_a``, ``current_offset_b``, via ``overrides``); each
       episode draws its own noise seed.

@@ -18,10 +18,12 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from .. import fixedmath as fm
 from .. import kernel as K
 from ..params import RESONANCE_HARMONICS, FeedforwardModel, SystemParams, predicted_resonances
 from ..motorfile import load_system
-from ..simulation import RunSettings, SpeedProfile, build_config, check_integrable, initial_state
+from ..simulation import (RAMPS, RunSettings, SpeedProfile, build_config, check_integrable,
+                          initial_state, ramps_distance_rev)
 from . import compiled as C
 from .engine import DriveBatch, EnvTask
 from .layout import ACTION_NAMES, OBS
@@ -181,11 +183,42 @@ class EpisodeSampler(EnvTask):
         lo, hi = o.speed_range_rps
         return float(rng.uniform(lo, hi)), 0
 
-    def profile(self, speed_rps: float) -> SpeedProfile:
-        """The episode's command at ``speed_rps`` (the options' profile)."""
+    def draw_move(self, rng: np.random.Generator) -> tuple[str, float]:
+        """(ramp, (peak) acceleration in rev/s^2) of an episode: the options', or
+        drawn where they ask (``ramp`` "any", ``accel_range_rps2``), ramp first;
+        nothing is drawn otherwise."""
         o = self._options
-        return SpeedProfile(speed_rps=speed_rps, accel_rps2=o.accel_rps2, kind=o.profile,
-                            distance_rev=o.distance_rev, ramp=o.ramp)
+        ramp = RAMPS[int(rng.integers(len(RAMPS)))] if o.ramp not in RAMPS else o.ramp
+        accel = float(o.accel_rps2)
+        if o.accel_range_rps2 is not None:
+            lo, hi = (float(v) for v in o.accel_range_rps2)
+            # fixedmath's exp and log: libm's last bit differs between CPUs.
+            accel = float(fm.exp(rng.uniform(fm.log(lo), fm.log(hi))))
+        return ramp, accel
+
+    def profile(self, speed_rps: float, ramp: str | None = None,
+                accel_rps2: float | None = None) -> SpeedProfile:
+        """The episode's command at ``speed_rps`` (the options' profile), with the
+        ramp and acceleration :meth:`draw_move` gave (default: the options');
+        with ``cruise_s`` the distance is both ramps plus the cruise (rev)."""
+        o = self._options
+        ramp = o.ramp if ramp is None else ramp
+        accel = float(o.accel_rps2 if accel_rps2 is None else accel_rps2)
+        distance = o.distance_rev
+        if o.cruise_s is not None:
+            distance = ramps_distance_rev(speed_rps, accel, ramp) + speed_rps * float(o.cruise_s)
+        return SpeedProfile(speed_rps=speed_rps, accel_rps2=accel, kind=o.profile,
+                            distance_rev=distance, ramp=ramp)
+
+    def move_info(self, ramp: str, accel_rps2: float) -> dict[str, Any]:
+        """What an episode drew of its move, for the reset info ({} if nothing)."""
+        o = self._options
+        out: dict[str, Any] = {}
+        if o.ramp not in RAMPS:
+            out["ramp"] = ramp
+        if o.accel_range_rps2 is not None:
+            out["accel_rps2"] = accel_rps2
+        return out
 
     def window(self) -> tuple[float, float]:
         """The core's metrics window (start, end) in s. Without measure_from_s
@@ -214,10 +247,11 @@ class EpisodeSampler(EnvTask):
         estimate = self._set_estimate()     # None: the core uses the plant's exact values
         # The sensor noise of the episode: its own stream, drawn after the speed.
         noise_seed = int(rng.integers(2 ** 53))
+        ramp, accel = self.draw_move(rng)
         settings = RunSettings(mode=o.mode, base_controller=o.base_controller, substeps=int(o.substeps),
                                estimate=estimate, velocity_estimator=o.velocity_estimator,
                                noise_seed=noise_seed)
-        c[:] = build_config(system, self.profile(speed), settings, *self.window())
+        c[:] = build_config(system, self.profile(speed, ramp, accel), settings, *self.window())
         s[:] = initial_state(c)
         par[C.PARAM.FULL_STEP] = system.motor.full_step_rad
         par[C.PARAM.LAG_LIMIT] = o.lag_limit_steps * system.motor.full_step_rad
@@ -228,7 +262,7 @@ class EpisodeSampler(EnvTask):
         par[C.PARAM.CUR_PEN] = o.current_penalty
         par[C.PARAM.TERM_PEN] = o.termination_penalty
         par[C.PARAM.ACT_SCALE:C.PARAM.ACT_SCALE + self._act_dim] = self._action_scales
-        return {"speed_rps": speed, "target_harmonic": h}, system
+        return {"speed_rps": speed, "target_harmonic": h, **self.move_info(ramp, accel)}, system
 
     def observe(self, drives: DriveBatch, rows: slice | None) -> None:
         d = drives.view(rows)

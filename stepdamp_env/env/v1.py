@@ -150,11 +150,12 @@ class TaskV1(EnvTask):
         system = d.draw_system(rng)
         speed, h = d.draw_speed(rng, system)
         noise_seed = int(rng.integers(2 ** 53))
+        ramp, accel = d.draw_move(rng)
         estimate = self.episode_estimate(system)
         settings = RunSettings(mode=o.mode, base_controller="patent-ff" if o.base_controller != "none"
                                else "none", substeps=int(o.substeps), estimate=estimate,
                                velocity_estimator=o.velocity_estimator, noise_seed=noise_seed)
-        c[:] = build_config(system, d.profile(speed), settings, *d.window())
+        c[:] = build_config(system, d.profile(speed, ramp, accel), settings, *d.window())
         if o.base_controller == "ff-delay-comp":
             c[list(_FF_COLUMNS)] = self.base_coefficients(estimate, speed)
         s[:] = initial_state(c)
@@ -175,7 +176,7 @@ class TaskV1(EnvTask):
         law[K.LAW.LIMIT] = self.law_limit_a
         if self.n_context:
             drives.extra["ctx"][i] = self.context(estimate, speed)
-        return {"speed_rps": speed, "target_harmonic": h}, system
+        return {"speed_rps": speed, "target_harmonic": h, **d.move_info(ramp, accel)}, system
 
     def observe(self, drives: DriveBatch, rows: slice | None) -> None:
         d = drives.view(rows)

@@ -101,7 +101,7 @@ from ..verdicts import table_facts
 from .decibels import DecibelProtocol, attenuation_db, ratio_of_db
 from .drawn import QUICK_SETTINGS, DrawnProtocol, load_motors_file
 
-__all__ = ["ProtocolV4", "SPLITS", "CATALOGUE_PATH", "full_protocol_v4", "quick_protocol_v4",
+__all__ = ["ProtocolV4", "PUBLISHED_ENTRIES_V4", "SPLITS", "CATALOGUE_PATH", "full_protocol_v4", "quick_protocol_v4",
            "coverage", "evaluation_seeds", "catalogue_systems"]
 
 SPLITS = ("dev", "interpolation", "extrapolation", "catalogue", "custom")
@@ -158,6 +158,18 @@ def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
     return (len(covered) / len(cells) if cells else 0.0), covered
 
 
+#: The default entries of the published v4 board (0.18.0); a later entry (the
+#: agents trained for moves, 0.19.0) runs on v4 with ``--entries``/``--policy``
+#: and joins the defaults of the next version.
+PUBLISHED_ENTRIES_V4 = (
+    "none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
+    "velocity-feedback", "sensorless-damping", "calibrated-table", "repetitive-control",
+    "tuned-constant-gain", "tuned-gain-pair", "oracle-floor", "plant-bound",
+    "ars-mid-band", "ars-open-loop", "ars-per-step", "ars-per-step-25hz", "ars-servo",
+    "ppo-gain-selector", "ppo-mid-band", "ppo-open-loop", "ppo-open-loop-long",
+    "ppo-per-step", "td3-per-step")
+
+
 @dataclass(frozen=True)
 class ProtocolV4(DecibelProtocol):
     """Every setting of ``stepdamp-bench v4`` (module docstring, docs/protocol_v4.md)."""
@@ -190,7 +202,7 @@ class ProtocolV4(DecibelProtocol):
 
     known_splits: ClassVar[tuple[str, ...]] = SPLITS
     known_suites: ClassVar[tuple[str, ...]] = SUITES_V4
-    published_entries: ClassVar[tuple[str, ...] | None] = None
+    published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V4
     #: Every run metric, the position error's too.
     run_metrics: ClassVar[tuple[str, ...] | None] = None
     #: v3's bound, superseded here by ``plant-bound`` (BOUND_ENTRY).
