@@ -30,7 +30,7 @@ from stepdamp_env.io import read_json
 from stepdamp_env.params import ParameterError
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
                                        resolve_estimate)
-from stepdamp_env.bench.suites import suite_of
+from stepdamp_env.bench.suites import SUITES_BY_NAME
 
 __all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "trained_suites",
            "load_model", "clear_model_cache", "agent_config_path"]
@@ -56,9 +56,10 @@ def load_agent_config(path: str) -> dict[str, Any]:
 
 def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float], ...]:
     """What an agent's training covered, as ``PolicyCard.trained_on``: its env's
-    suite (open-loop or servo on the current-mode drive, mid-band: open loop on
-    the voltage-mode drive; moves: the suite a model trained on moves was trained
-    for) and the speeds it drew (rev/s, the cruise's in a move). Those are the uniform range
+    suite, the one of its mode, drive and command (open-loop or servo on the
+    current-mode drive, mid-band: open loop on the voltage-mode drive, moves:
+    moves in open loop on the current-mode drive), and the speeds it drew
+    (rev/s, the cruise's in a move). Those are the uniform range
     ``speed_range_rps`` and, with ``resonance_prob`` > 0, each training motor's
     resonances f_h (1 +- ``resonance_spread``), where f_h scales with
     sqrt(Km/J) over the randomisation box. The ranges are merged where they
@@ -89,9 +90,11 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
             merged[-1][1] = max(merged[-1][1], hi)
         else:
             merged.append([lo, hi])
-    suite = suite_of(str(kwargs.get("mode", "open-loop")), drive)
-    if kwargs.get("profile", "constant") == "move":
-        suite = training.get("suite")       # moves: the speeds are the cruise's
+    mode = str(kwargs.get("mode", "open-loop"))
+    profile = str(kwargs.get("profile", "constant"))
+    # The suite of the env's mode, drive and command (moves: the speeds are the cruise's).
+    suite = next((s.name for s in SUITES_BY_NAME.values()
+                  if (s.mode, s.drive_mode, s.profile) == (mode, drive, profile)), None)
     return tuple((suite, lo, hi) for lo, hi in merged) if suite else ()
 
 

@@ -4,9 +4,10 @@ v3's for the suites v3 has, v4's for the moves suite.
 The dev split (``stepdamp leaderboard --split dev``) is drawn from the training
 distribution with its own seed and is never scored: it is the split for
 tuning, ablations and model selection. :class:`DevValidator` scores a saved
-model as the v3 board does on the dev motors of one suite (identified models,
-the first evaluation seed; the attenuation counts the headline speeds) and
-returns the attenuation in dB (IQM over motors; higher is better).
+model as the protocol's board does on the dev motors of one suite (identified
+models, the protocol's evaluation seeds: v3's one, v4's three; the attenuation
+counts the headline speeds) and returns the attenuation in dB (IQM over
+motors; higher is better).
 
 A training run records what it used in its config (``training.splits``):
 ``{"motors": "train", "selection": "dev"}`` here, ``"validation"`` for the
@@ -26,7 +27,7 @@ __all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "training_splits
 #: the training distribution below the training seed limit.
 SELECTION_SPLITS = ("dev", "validation")
 #: The splits a board scores; no training, tuning or selection may see them.
-SCORED_SPLITS = ("interpolation", "extrapolation", "custom")
+SCORED_SPLITS = ("interpolation", "extrapolation", "catalogue", "custom")
 
 
 def training_splits(config: dict[str, Any]) -> dict[str, str]:

@@ -222,6 +222,10 @@ def check_args(args: Args) -> None:
     if args.algo not in algos:
         raise ParameterError(f"--algo {args.algo!r} is not one of {list(algos)} "
                              f"(for --env {args.env})")
+    if args.suite == "moves" and args.select_on != "dev" and args.eval_freq > 0:
+        # The validation motors are run at constant speeds: not what moves score.
+        raise ParameterError("--suite moves selects on --select-on dev (v4's dev split of "
+                             "the moves suite) or on nothing (--eval-freq 0)")
     if args.env != ENV_ID_V1 and (args.suite is not None or args.select_on != "validation"):
         raise ParameterError(f"--suite and --select-on dev need --env {ENV_ID_V1}")
     given = args.extra.get("env_kwargs") or {}

@@ -35,13 +35,18 @@ def test_drawn_moves_options_are_checked_in_one_line():
         (dict(profile="move", speed_rps=1.0, cruise_s=-0.1), r"cruise_s=-0.1 is outside .*\[0.0, "),
         (dict(profile="move", speed_rps=1.0, cruise_s=0.3, accel_range_rps2=(100.0, 10.0)),
          r"accel_range_rps2=\(100.0, 10.0\) is outside its allowed range"),
-        (dict(accel_range_rps2=(0.0, 10.0)), r"accel_range_rps2=.* <= low <= high <= 1e5"),
-        (dict(accel_range_rps2=5.0), "accel_range_rps2 must be a"),
+        (dict(profile="move", speed_rps=1.0, cruise_s=0.3, accel_range_rps2=(0.0, 10.0)),
+         r"accel_range_rps2=.* <= low <= high <= 1e5"),
+        (dict(profile="move", speed_rps=1.0, cruise_s=0.3, accel_range_rps2=5.0),
+         "accel_range_rps2 must be a"),
         (dict(profile="move", speed_rps=1.0), r"or give cruise_s"),
+        (dict(accel_range_rps2=(25.0, 50.0)), "accel_range_rps2=.* needs profile='move'"),
+        (dict(profile="move", speed_rps=1.0, cruise_s=2e4), r"\[0.0, 10000.0\] \(s\)"),
     ]
     for kwargs, message in cases:
-        with pytest.raises(ParameterError, match=message):
+        with pytest.raises(ParameterError, match=message) as caught:
             StepperDampEnv(**kwargs)
+        assert "\n" not in str(caught.value)
 
 
 def test_the_default_options_draw_nothing_more():
@@ -58,6 +63,19 @@ def test_the_default_options_draw_nothing_more():
         assert rng.bit_generator.state == before
         assert (ramp, accel) == (kwargs.get("ramp", "trapezoid"), task.options.accel_rps2)
         assert task.draws.move_info(ramp, accel) == {}
+
+
+def test_the_move_draws_come_after_the_episodes_other_draws():
+    """With the move drawn or fixed, a seed gives the same motor, speed and
+    harmonic; only the drawn options add keys to the reset info."""
+    drawn = _moves_env()
+    fixed = _moves_env(ramp="trapezoid", accel_range_rps2=None)
+    for seed in range(6):
+        info_d = drawn.reset(seed=seed)[1]
+        info_f = fixed.reset(seed=seed)[1]
+        assert {k: info_d[k] for k in info_f} == info_f
+        assert set(info_d) - set(info_f) == {"ramp", "accel_rps2"}
+        assert "ramp" not in info_f and "accel_rps2" not in info_f
 
 
 def test_moves_are_drawn_per_episode_and_cruise_for_cruise_s():
@@ -84,20 +102,21 @@ def test_moves_are_drawn_per_episode_and_cruise_for_cruise_s():
         assert prof.cruise() == pytest.approx((ramp_s, 0.3), rel=1e-9)
 
 
-def test_a_moves_episode_moves_and_rests_where_its_command_ends():
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_moves_episode_moves_and_rests_where_its_command_ends(seed):
     env = _moves_env()
-    obs, info = env.reset(seed=3)
+    obs, info = env.reset(seed=seed)
     assert info["ramp"] in RAMPS and 25.0 <= info["accel_rps2"] <= 312.5
     zero = np.zeros(env.action_space.shape, dtype=np.float32)
     speeds = []
     while True:
         obs, reward, terminated, truncated, _ = env.step(zero)
-        speeds.append(float(obs[8]))                 # speed_command over f1
+        speeds.append(float(obs[8]))                 # speed_command (the command, scaled)
         if terminated or truncated:
             break
     assert not terminated
-    # The command rises from rest to the cruise and comes back to rest.
-    assert speeds[0] < max(speeds) and speeds[-1] == 0.0 and max(speeds) > 0.0
+    # The command cruises (a ramp may end within the first step) and comes back to rest.
+    assert max(speeds) > 0.0 and speeds[-1] == 0.0
 
 
 def test_a_model_trained_for_moves_covers_the_moves_suite_only():
@@ -114,6 +133,9 @@ def test_a_model_trained_for_moves_covers_the_moves_suite_only():
                           "env_kwargs": copy.deepcopy(REFERENCE_TASK)}
     assert [r[1:] for r in training_coverage(config)] == [r[1:] for r in ranges]
     assert {s for s, _, _ in training_coverage(config)} == {"open-loop"}
+    # The suite is the env's (mode, drive, command), whatever --suite said.
+    config["training"] = {"motors": ["patent"], "env_kwargs": suite_task(REFERENCE_TASK, "moves")}
+    assert {s for s, _, _ in training_coverage(config)} == {"moves"}
 
 
 def test_the_moves_dev_check_is_v4s_and_the_others_stay_v3s():
@@ -129,8 +151,12 @@ def test_train_refuses_what_the_moves_task_sets():
     from stepdamp_agents.settings import Args, check_args
 
     with pytest.raises(ParameterError, match=r"env_kwargs \['profile'\]: --suite moves sets"):
-        check_args(Args(suite="moves", extra={"env_kwargs": {"profile": "constant"}}))
-    check_args(Args(suite="moves", extra={"env_kwargs": {"agent_hz": 25.0}}))
+        check_args(Args(suite="moves", select_on="dev",
+                        extra={"env_kwargs": {"profile": "constant"}}))
+    check_args(Args(suite="moves", select_on="dev", extra={"env_kwargs": {"agent_hz": 25.0}}))
+    with pytest.raises(ParameterError, match="--suite moves selects on --select-on dev"):
+        check_args(Args(suite="moves"))
+    check_args(Args(suite="moves", eval_freq=0))
 
 
 def test_v4s_default_entries_are_its_published_boards():

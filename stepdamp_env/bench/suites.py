@@ -193,9 +193,10 @@ register_suite(Suite(
     "pass the lower resonances, a cruise at a resonant speed, the stop and its settling",
     "moves cruising at the open-loop headline speeds f2 and f1, each as a trapezoid and "
     "as an S-curve", "the same motor without torque harmonics", "v4",
-    # Trained on moves of the machines' range, never on the protocol's cells: the
-    # reference task's speeds, either ramp, peak accelerations log-uniform over
-    # belt axes' 1,000-10,000 mm/s^2 on 40 and 32 mm/rev pulleys (25-312.5 rev/s^2),
-    # the suite's 0.3 s cruise (added in 0.19.0).
+    # Moves over a machine range rather than the protocol's two accelerations (the
+    # range holds them): the reference task's speeds, either ramp, peak accelerations
+    # log-uniform over belt axes' 1,000-10,000 mm/s^2 on 40 and 32 mm/rev pulleys
+    # (25-312.5 rev/s^2), not capped by the motor's torque as the cells are (the
+    # presets reach these), the suite's 0.3 s cruise (added in 0.19.0).
     {"profile": "move", "ramp": "any", "cruise_s": 0.3, "accel_range_rps2": [25.0, 312.5]},
     profile="move", tuning="open-loop"))

@@ -192,7 +192,10 @@ class DriveOptions:
         check_choice("ramp", self.ramp, RAMPS + (DRAWN_RAMP,))
         distance = check_number("distance_rev", self.distance_rev, -1e6, 1e6)
         if self.cruise_s is not None:
-            check_number("cruise_s", self.cruise_s, 0.0, 1e4)
+            try:
+                check_number("cruise_s", self.cruise_s, 0.0, 1e4)
+            except ParameterError as exc:
+                raise ParameterError(f"{exc} (s)") from None
             if self.profile != "move" or distance != 0.0:
                 raise ParameterError(f"cruise_s={self.cruise_s!r} needs profile='move' and "
                                      "distance_rev=0 (the move's distance is its ramps and "
@@ -206,6 +209,9 @@ class DriveOptions:
                                  "profile='move' (a constant speed has no distance and ramps "
                                  "at a constant acceleration)")
         if self.accel_range_rps2 is not None:
+            if self.profile != "move":
+                raise ParameterError(f"accel_range_rps2={self.accel_range_rps2!r} needs "
+                                     "profile='move' (a constant speed ramps at accel_rps2)")
             lo, hi = check_pair("accel_range_rps2", self.accel_range_rps2)
             if not MIN_ACCEL_RPS2 <= lo <= hi <= 1e5:
                 raise _bad("accel_range_rps2", self.accel_range_rps2,
@@ -322,7 +328,7 @@ OPTIONS_DOC = """
       so earlier rollouts are unchanged): ``ramp`` "any" draws the ramp of each
       episode ("trapezoid" or "s-curve", equally likely); ``accel_range_rps2``
       (None) draws its (peak) acceleration log-uniformly in (low, high)
-      (rev/s^2) instead of ``accel_rps2``; ``cruise_s`` (None; with
+      (rev/s^2), in place of ``accel_rps2``; ``cruise_s`` (None; with
       ``distance_rev`` 0) sets the distance to the ramps plus this cruise (s) at
       the episode's speed. The draws follow the noise seed's, ramp first.
     * Sensor noise and offsets are motor-file fields (``current_noise_a``,

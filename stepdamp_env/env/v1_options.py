@@ -166,7 +166,8 @@ OPTIONS_DOC_V1 = """
     ``accel_rps2``, ``agent_hz``, ``harmonic_scale_nm``, ``current_scale_a``,
     ``current_limit_factor``, ``lag_limit_steps``, ``privileged``, ``substeps``,
     ``velocity_estimator``, ``measure_from_s``, ``measure_until_s``, ``profile``,
-    ``ramp``, ``distance_rev`` (see ``StepperDamp-v0``). New or
+    ``ramp``, ``distance_rev``, ``cruise_s``, ``accel_range_rps2`` (see
+    ``StepperDamp-v0``). New or
     changed in v1:
 
     * ``base_controller`` ("ff-delay-comp"): the drive's model-based damping under

@@ -160,7 +160,8 @@ def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
 
 #: The default entries of the published v4 board (0.18.0); a later entry (the
 #: agents trained for moves, 0.19.0) runs on v4 with ``--entries``/``--policy``
-#: and joins the defaults of the next version.
+#: and joins the defaults of the next version. Written out rather than derived
+#: from v3's list: a version reads no other version's settings.
 PUBLISHED_ENTRIES_V4 = (
     "none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
     "velocity-feedback", "sensorless-damping", "calibrated-table", "repetitive-control",
