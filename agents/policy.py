@@ -30,7 +30,7 @@ from stepdamp_env.io import read_json
 from stepdamp_env.params import ParameterError
 from stepdamp_env.bench.policy import (MotorKnowledge, PolicyCard, PolicyContext, RowPolicy,
                                        resolve_estimate)
-from stepdamp_env.bench.suites import SUITES_BY_NAME
+from stepdamp_env.bench.suites import suite_of
 
 __all__ = ["ResidualAgent", "load_agent_config", "training_coverage", "trained_suites",
            "load_model", "clear_model_cache", "agent_config_path"]
@@ -90,11 +90,9 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
             merged[-1][1] = max(merged[-1][1], hi)
         else:
             merged.append([lo, hi])
-    mode = str(kwargs.get("mode", "open-loop"))
-    profile = str(kwargs.get("profile", "constant"))
     # The suite of the env's mode, drive and command (moves: the speeds are the cruise's).
-    suite = next((s.name for s in SUITES_BY_NAME.values()
-                  if (s.mode, s.drive_mode, s.profile) == (mode, drive, profile)), None)
+    suite = suite_of(str(kwargs.get("mode", "open-loop")), drive,
+                     str(kwargs.get("profile", "constant")))
     return tuple((suite, lo, hi) for lo, hi in merged) if suite else ()
 
 

@@ -147,11 +147,11 @@ def nearest_suite(mode: str, drive_mode: str) -> str | None:
     return suite_of(mode, drive_mode) or suite_of("open-loop", drive_mode)
 
 
-def suite_of(mode: str, drive_mode: str) -> str | None:
-    """The constant-speed suite a run of ``mode`` on a ``drive_mode`` drive
-    belongs to (None if none: a servo on the voltage-mode drive)."""
+def suite_of(mode: str, drive_mode: str, profile: str = "constant") -> str | None:
+    """The suite a run of ``mode`` on a ``drive_mode`` drive with the command
+    ``profile`` belongs to (None if none: a servo on the voltage-mode drive)."""
     return next((s.name for s in SUITES_BY_NAME.values()
-                 if (s.mode, s.drive_mode, s.profile) == (mode, drive_mode, "constant")), None)
+                 if (s.mode, s.drive_mode, s.profile) == (mode, drive_mode, profile)), None)
 
 
 def tuned_suite(suite: str, tuned: Collection[str]) -> str:
