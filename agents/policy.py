@@ -65,6 +65,7 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
     sqrt(Km/J) over the randomisation box. The ranges are merged where they
     overlap."""
     from stepdamp_env.env.options import DEFAULT_RANDOMIZATION, EnvOptions
+    from stepdamp_env.motorfile import load_system
     from stepdamp_env.presets import get_preset
 
     training = config.get("training", {})
@@ -80,8 +81,10 @@ def training_coverage(config: dict[str, Any]) -> tuple[tuple[str, float, float],
         km_lo, km_hi = box.get("Km", (1.0, 1.0))
         j_lo, j_hi = box.get("J", (1.0, 1.0))
         spread = float(kwargs.get("resonance_spread", EnvOptions.resonance_spread))
-        for name in training.get("motors", []):
-            for f in get_preset(name).predicted_resonances_rps().values():
+        for motor in training.get("motors", []):
+            # A preset's name, or a datasheet mapping drawn from the pool.
+            system = load_system(motor) if isinstance(motor, dict) else get_preset(motor)
+            for f in system.predicted_resonances_rps().values():
                 ranges.append((f * math.sqrt(km_lo / j_hi) * (1.0 - spread),
                                f * math.sqrt(km_hi / j_lo) * (1.0 + spread)))
     merged: list[list[float]] = []

@@ -1,5 +1,6 @@
 """Model selection on a dev split (``stepdamp train --select-on dev``): stepdamp-bench
-v3's for the suites v3 has, v4's for the moves suite.
+v3's for the suites v3 has, v4's for the moves suite; with ``--motor-pool
+datasheets``, v4's board on motors drawn from the datasheet pool's dev part.
 
 The dev split (``stepdamp leaderboard --split dev``) is drawn from the training
 distribution with its own seed and is never scored: it is the split for
@@ -10,7 +11,8 @@ counts the headline speeds) and returns the attenuation in dB (IQM over
 motors; higher is better).
 
 A training run records what it used in its config (``training.splits``):
-``{"motors": "train", "selection": "dev"}`` here, ``"validation"`` for the
+``{"motors": "train", "selection": "dev"}`` here (``"pool-train"`` and
+``"pool-dev"`` for the datasheet pool's parts), ``"validation"`` for the
 training-distribution motors of :class:`stepdamp_agents.train.Validator`,
 ``"none"`` when training ran no checks (the final model). None is a scored
 split (:data:`SCORED_SPLITS`).
@@ -19,9 +21,11 @@ split (:data:`SCORED_SPLITS`).
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 from typing import Any
 
-__all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "training_splits"]
+__all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "POOL_DEV_DRAW",
+           "training_splits"]
 
 #: Where a model may be selected: the dev split, or validation motors drawn from
 #: the training distribution below the training seed limit.
@@ -38,21 +42,37 @@ def training_splits(config: dict[str, Any]) -> dict[str, str]:
     return dict(recorded) if recorded else {"motors": "train", "selection": "validation"}
 
 
+#: The datasheet pool's dev motors for selection (``--motor-pool datasheets``):
+#: how many, and the seed of their draw from the pool's dev part.
+POOL_DEV_DRAW = MappingProxyType({"count": 12, "seed": 950_000})
+
+
 class DevValidator:
     """Scores a saved model on the dev motors of ``suite`` (dB, higher is better):
-    v3's, or v4's for a suite v3 does not have (moves)."""
+    v3's, or v4's for a suite v3 does not have (moves); with ``pool``, v4's
+    board on the motors :data:`POOL_DEV_DRAW` draws from the datasheet pool's dev
+    part (:mod:`stepdamp_env.motorpool`), each the drive's own model as a
+    catalogue motor is."""
 
     metric = "attenuation_db"
     higher_is_better = True
 
-    def __init__(self, suite: str) -> None:
+    def __init__(self, suite: str, pool: bool = False) -> None:
         from stepdamp_env.bench.protocols import protocol_for
         from stepdamp_env.bench.suites import SUITES_THROUGH_V3
 
         self.suite = suite
         # v3's dev split where v3 has the suite (the committed models); v4's otherwise.
-        self.version = "v3" if suite in SUITES_THROUGH_V3 else "v4"
-        self.protocol = protocol_for(self.version).with_splits(["dev"]).with_suites([suite])
+        self.version = "v3" if suite in SUITES_THROUGH_V3 and not pool else "v4"
+        protocol = protocol_for(self.version).with_suites([suite])
+        if pool:
+            from stepdamp_env.motorpool import draw_datasheets, pool_systems
+
+            dev = pool_systems(draw_datasheets(POOL_DEV_DRAW["seed"], POOL_DEV_DRAW["count"],
+                                               "dev"))
+            self.protocol = protocol.with_custom_motors(dev)
+        else:
+            self.protocol = protocol.with_splits(["dev"])
 
     def score(self, path: str) -> dict[str, Any]:
         """The dev board's row of the model in ``path`` (a ``stepdamp train`` zip)."""

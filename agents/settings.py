@@ -25,9 +25,10 @@ from .train_per_step import FAMILY as PER_STEP
 #: The agent families, by the env they train on (``--env``).
 FAMILIES: dict[str, TrainingFamily] = {f.env_id: f for f in (PER_STEP, GAIN_SELECTOR)}
 
-__all__ = ["FAMILIES", "ALGO_CHOICES", "Args", "ENV_IDS", "HYPERPARAMS_DIR", "POSITIVE_INT_KWARGS",
-           "PRESETS", "add_arguments", "args_from_namespace", "check_args", "load_hyperparams",
-           "parse_overrides", "parse_policy_kwargs", "parse_seeds", "split_hyperparams"]
+__all__ = ["FAMILIES", "ALGO_CHOICES", "Args", "ENV_IDS", "HYPERPARAMS_DIR", "MOTOR_POOLS",
+           "POSITIVE_INT_KWARGS", "PRESETS", "add_arguments", "args_from_namespace", "check_args",
+           "load_hyperparams", "parse_overrides", "parse_policy_kwargs", "parse_seeds",
+           "split_hyperparams"]
 
 
 HYPERPARAMS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hyperparams")
@@ -98,6 +99,8 @@ def _float_or_text(text: str) -> float | str:
 #: ``--eval-rng``: validations isolated from the training's generators, or drawing
 #: torch's as before 0.18.0 (the committed models).
 EVAL_RNG_CHOICES = ("isolated", "shared")
+#: Where training motors come from (``--motor-pool``).
+MOTOR_POOLS = ("presets", "datasheets")
 
 
 @dataclass
@@ -128,6 +131,14 @@ class Args:
                                      metavar="FILE.yml")
     motors: tuple[str, ...] = option(PRESETS, "presets the training motors are drawn around",
                                      metavar="PRESET", many=True, flag="--presets")
+    motor_pool: str = option("presets", "where the training motors come from: 'presets', "
+                             "drawn around --presets; 'datasheets', real catalogue motors' "
+                             "datasheets (stepdamp_env.motorpool: drawn from the pool's train "
+                             "part, selected on its dev part; needs --select-on dev or "
+                             "--eval-freq 0)", choices=MOTOR_POOLS)
+    pool_motors: int = option(32, "with --motor-pool datasheets: training motors drawn from "
+                              "the pool (each its own drive model, --envs-per-preset drives "
+                              "each)", metavar="N", low=1, high=1024)
     envs_per_motor: int | None = option(None, "vectorised drives per preset (default: n_envs "
                                         "of the YAML / presets)", metavar="N", low=1, high=4096,
                                         flag="--envs-per-preset")
@@ -235,6 +246,10 @@ def check_args(args: Args) -> None:
         if clash:
             raise ParameterError(f"--hyperparam env_kwargs {clash}: --suite {args.suite} sets them "
                                  "(agents/task.py SUITE_TASKS); leave them out or drop --suite")
+    if args.motor_pool == "datasheets" and (args.env != ENV_ID_V1 or (
+            args.select_on != "dev" and args.eval_freq > 0)):
+        raise ParameterError(f"--motor-pool datasheets needs --env {ENV_ID_V1} and --select-on "
+                             "dev (the pool's dev motors) or --eval-freq 0")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--presets {list(args.motors)}: choose presets from {list(PRESETS)}")

@@ -156,18 +156,38 @@ class Validator:
                 "step_losses": int(sum(r["failed"] for r in runs))}
 
 
-def _agent_config(args: Args, sp: dict[str, Any]) -> dict[str, Any]:
+def training_motors(args: Args) -> tuple[Any, ...]:
+    """The motors the drives are built around: preset names, or datasheet mappings
+    drawn from the pool's train part with seed ``1000 * seed`` (``--motor-pool``)."""
+    if args.motor_pool == "datasheets":
+        from stepdamp_env.motorpool import draw_datasheets
+
+        return draw_datasheets(1000 * args.seed, args.pool_motors, "train")
+    return tuple(args.motors)
+
+
+def _agent_config(args: Args, sp: dict[str, Any], motors: tuple[Any, ...]) -> dict[str, Any]:
     family = FAMILIES[args.env]
-    training = {"seed": args.seed, "env_seed": 1000 * args.seed, "motors": list(args.motors),
+    pool = args.motor_pool == "datasheets"
+    training = {"seed": args.seed, "env_seed": 1000 * args.seed, "motors": list(motors),
                 "env_kwargs": sp["env_kwargs"],
-                # What the run saw: motors drawn below TRAINING_SEED_LIMIT, and where
-                # best.zip was chosen (stepdamp_agents.selection); never a scored split.
+                # What the run saw: motors drawn below TRAINING_SEED_LIMIT (or from the
+                # datasheet pool's train part), and where best.zip was chosen
+                # (stepdamp_agents.selection); never a scored split.
                 **({"suite": args.suite} if args.suite is not None else {}),
-                "splits": {"motors": "train",
-                           "selection": args.select_on if args.eval_freq > 0 else "none"},
+                **({"motor_pool": "datasheets", "pool_draw": _pool_draw()} if pool else {}),
+                "splits": {"motors": "pool-train" if pool else "train",
+                           "selection": ("pool-dev" if pool else args.select_on)
+                           if args.eval_freq > 0 else "none"},
                 "hyperparams": args.hyperparams or f"agents/hyperparams/{args.algo}.yml"}
     return family.agent_config(args.name or f"{args.algo}-{family.kind}", args.algo,
                                sp["env_kwargs"], sp["wrapper_kwargs"], training)
+
+
+def _pool_draw() -> dict[str, Any]:
+    from stepdamp_env.motorpool import PoolDraw, as_json
+
+    return as_json(PoolDraw())
 
 
 def set_start_action(model: Any, action: Any, algo: str) -> None:
@@ -212,7 +232,8 @@ def train(args: Args) -> dict[str, Any]:
     torch.set_num_threads(1)
     family = FAMILIES[args.env]
     sp = split_hyperparams(load_hyperparams(args), args.env)
-    per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(args.motors))
+    motors = training_motors(args)
+    per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(motors))
     total = int(args.total_timesteps or sp["n_timesteps"])
     wk = sp["wrapper_kwargs"]
     if args.suite is not None:
@@ -222,10 +243,10 @@ def train(args: Args) -> dict[str, Any]:
     algo_kwargs = dict(sp["algo_kwargs"])
     check_algo_kwargs(algo_kwargs)
     threads = training_threads(args)
-    env = family.make_env(args.motors, per_motor, 1000 * args.seed, env_kwargs, wk, args.algo,
+    env = family.make_env(motors, per_motor, 1000 * args.seed, env_kwargs, wk, args.algo,
                           algo_kwargs, threads)
     os.makedirs(args.out, exist_ok=True)
-    config = _agent_config(args, sp)
+    config = _agent_config(args, sp, motors)
     start_action = algo_kwargs.pop("start_action", None)
     if isinstance(algo_kwargs.get("action_noise"), tuple):
         from stable_baselines3.common.noise import NormalActionNoise
@@ -254,7 +275,8 @@ def train(args: Args) -> dict[str, Any]:
     model.set_logger(configure(os.path.join(args.out, "logs"), formats))
     validator: Any = None
     if args.eval_freq > 0:
-        validator = DevValidator(args.suite or "open-loop") if args.select_on == "dev" else \
+        validator = DevValidator(args.suite or "open-loop", pool=args.motor_pool == "datasheets") \
+            if args.select_on == "dev" else \
             Validator(args, env_kwargs)
     log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,
                            "n_envs": env.num_envs, "total_timesteps": total, "evaluations": []}

@@ -31,7 +31,7 @@ FLOORS = {
     "stepdamp_env.logstats": 2, "stepdamp_env.logplan": 2,
     "stepdamp_env": 3,                       # the package root exports the env floor
     "stepdamp_env.env": 3, "stepdamp_env.sb3": 3, "stepdamp_env.fields": 0,
-    "stepdamp_env.motorfile": 0,
+    "stepdamp_env.motorfile": 0, "stepdamp_env.motorpool": 0,
     "stepdamp_env.bench": 4,
     "stepdamp_baselines": 5, "stepdamp_agents": 5,
     "stepdamp_env.cli": 6,

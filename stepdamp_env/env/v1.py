@@ -103,6 +103,9 @@ class TaskV1(EnvTask):
         self.privileged = bool(o.privileged)
         self.extra_rows = {"history": (len(V.HISTORY) * o.history, np.float32),
                            "ctx": (self.n_context, np.float32)}
+        self.cruise_reward = o.reward_window == "cruise"
+        if self.cruise_reward:          # each drive's cruise (start, end) in s
+            self.extra_rows["cruise"] = (2, np.float64)
 
     def observation_space(self) -> spaces.Box:
         high = np.full(self.obs_dim, C.OBS_BOUND, dtype=np.float32)
@@ -155,7 +158,11 @@ class TaskV1(EnvTask):
         settings = RunSettings(mode=o.mode, base_controller="patent-ff" if o.base_controller != "none"
                                else "none", substeps=int(o.substeps), estimate=estimate,
                                velocity_estimator=o.velocity_estimator, noise_seed=noise_seed)
-        c[:] = build_config(system, d.profile(speed, ramp, accel), settings, *d.window())
+        profile = d.profile(speed, ramp, accel)
+        c[:] = build_config(system, profile, settings, *d.window())
+        if self.cruise_reward:
+            start, length = profile.cruise()
+            drives.extra["cruise"][i] = (start, start + length)
         if o.base_controller == "ff-delay-comp":
             c[list(_FF_COLUMNS)] = self.base_coefficients(estimate, speed)
         s[:] = initial_state(c)
@@ -182,6 +189,11 @@ class TaskV1(EnvTask):
         d = drives.view(rows)
         V.observe(d.s, d.acc, d.law, d.a, d.par, C.KERNEL_INDEX, V.LAW_INDEX, d.extra["history"],
                   d.extra["ctx"], self.privileged, C.OBS_BOUND, REWARD_BOUND, d.obs, d.out)
+        if self.cruise_reward:
+            # The step just run is step t (t counts steps before it): its middle.
+            mid = (d.t + 0.5) * self.seconds_per_step
+            cruise = d.extra["cruise"]
+            d.out[(mid < cruise[:, 0]) | (mid >= cruise[:, 1]), V.OUT.REWARD] = 0.0
 
     def load(self, drives: DriveBatch, a: np.ndarray) -> int:
         if self.gain_phase:
@@ -307,6 +319,7 @@ _DOC = """Residual active damping of a hybrid stepper drive (US 7,733,051), vers
     """ + OPTIONS_DOC_V1 + """
     ## Version History
 
+    * v1 (package 0.19): option ``reward_window`` (default "episode": as before).
     * v3 (package 0.18): v2 with ``action_mode`` "gain-phase" (the damping
       law's gain and phase, two numbers; no action of the box lost steps on the
       tested draws): ``gym.make("StepperDamp-v3")``.

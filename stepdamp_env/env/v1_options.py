@@ -16,7 +16,7 @@ from .options import DriveOptions, EnvOptions, check_choice, check_number
 from .registration import ENV_ID_V1
 
 __all__ = ["EnvOptionsV1", "MotorUnits", "BASE_CONTROLLERS_V1", "ACTION_NAMES_V1",
-           "ACTION_MODES_V1", "GAIN_PHASE_LIMIT_RAD", "CONTEXTS", "CONTEXT_NAMES", "OBSERVATION_NAMES_V1",
+           "REWARD_WINDOWS", "ACTION_MODES_V1", "GAIN_PHASE_LIMIT_RAD", "CONTEXTS", "CONTEXT_NAMES", "OBSERVATION_NAMES_V1",
            "OBSERVATION_UNITS_V1", "REWARD_BOUND", "DEFAULT_EPISODE_S", "observation_names_v1"]
 
 BASE_CONTROLLERS_V1 = ("ff-delay-comp", "patent-ff", "none")
@@ -32,6 +32,8 @@ ACTION_MODES_V1 = ("damping-gains", "harmonic", "current", "harmonic+current", "
 #: no action of the box lost steps on the tested draws (tests/test_env_v3.py),
 #: where a lead of pi/2 does.
 GAIN_PHASE_LIMIT_RAD = math.pi / 4
+#: ``reward_window``: every step, or the command's cruise only.
+REWARD_WINDOWS = ("episode", "cruise")
 CONTEXTS = ("hidden", "visible")
 CONTEXT_NAMES = ("speed_over_resonance_h4", "speed_over_resonance_h2", "speed_over_resonance_h1",
                  "model_s1", "model_c1", "model_s2", "model_c2", "model_s4", "model_c4")
@@ -111,6 +113,7 @@ class EnvOptionsV1(DriveOptions):
     resonant_rate_scale: float = 0.05
     law_limit_factor: float = 0.5
     current_penalty: float = 0.0
+    reward_window: str = "episode"
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any], env_id: str = ENV_ID_V1) -> "EnvOptionsV1":
@@ -122,6 +125,7 @@ class EnvOptionsV1(DriveOptions):
         check_choice("base_controller", self.base_controller, BASE_CONTROLLERS_V1)
         check_choice("action_mode", self.action_mode, ACTION_MODES_V1)
         check_choice("context", self.context, CONTEXTS)
+        check_choice("reward_window", self.reward_window, REWARD_WINDOWS)
         self.check_drive()
         check_number("episode_s", self.episode_s, 0.0, 1e4, low_open=True)
         if isinstance(self.history, bool) or not isinstance(self.history, (int, np.integer)) \
@@ -188,6 +192,12 @@ OPTIONS_DOC_V1 = """
       resonance); ``law_limit_factor`` (0.5): the law's current bound, as a
       fraction of the holding current.
     * ``current_penalty`` (0.0): weight of the injected-current term of the reward.
+    * ``reward_window`` ("episode"): the steps that are rewarded: every one, or
+      "cruise", those whose middle lies in the command's cruise (a move's, from
+      the end of its first ramp to the start of its deceleration; at a constant
+      speed, from the end of the ramp), the window the leaderboard's headline
+      ripple is measured in; the other steps' reward is 0 (ending early still
+      loses the rest of the episode).
     * ``nominal`` (None): the drive's datasheet model (a preset name, a motor
       file or a ``SystemParams``) when it is not the motor itself, as on the
       leaderboard, where ``motor`` is the true plant: units, action scales,
