@@ -13,7 +13,7 @@ methods, so the command line stays quick to parse.
 from __future__ import annotations
 
 import abc
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 __all__ = ["TrainingFamily"]
 
@@ -34,11 +34,11 @@ class TrainingFamily(abc.ABC):
         options, wrapper kwargs)."""
 
     @abc.abstractmethod
-    def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
+    def make_env(self, motors: Sequence[Any], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
                  algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
-        """The training ``VecEnv``: ``per_motor`` drives around each preset of
-        ``motors``, drive k seeded ``seed + k``, each step's drives on ``num_threads``
+        """The training ``VecEnv``: ``per_motor`` drives around each motor of
+        ``motors`` (preset names or datasheet mappings), drive k seeded ``seed + k``, each step's drives on ``num_threads``
         of numba's threads; may set defaults in ``algo_kwargs``."""
 
     @abc.abstractmethod

@@ -136,9 +136,10 @@ class SameEpisodes(VecEnvWrapper):
         return self.venv.step_wait()
 
 
-def make_training_env(motors: Sequence[str], envs_per_motor: int, seed: int,
+def make_training_env(motors: Sequence[Any], envs_per_motor: int, seed: int,
                       options: dict[str, Any], num_threads: int = 1) -> PresetsVecEnv:
-    """``envs_per_motor`` drives around each preset of ``motors`` (v1 ``options``
+    """``envs_per_motor`` drives around each motor of ``motors`` (preset names or
+    datasheet mappings; v1 ``options``
     without ``motor``), drive k seeded ``seed + k``, each preset's drives stepped
     on ``num_threads`` of numba's threads."""
     opts = {k: v for k, v in options.items() if k != "motor"}

@@ -250,6 +250,11 @@ def check_args(args: Args) -> None:
             args.select_on != "dev" and args.eval_freq > 0)):
         raise ParameterError(f"--motor-pool datasheets needs --env {ENV_ID_V1} and --select-on "
                              "dev (the pool's dev motors) or --eval-freq 0")
+    if args.motor_pool == "datasheets" and tuple(args.motors) != PRESETS:
+        raise ParameterError("--presets does not apply with --motor-pool datasheets (its "
+                             "motors are drawn from the pool); leave it out")
+    if args.motor_pool != "datasheets" and args.pool_motors != 32:
+        raise ParameterError("--pool-motors needs --motor-pool datasheets")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--presets {list(args.motors)}: choose presets from {list(PRESETS)}")

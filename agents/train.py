@@ -58,7 +58,7 @@ from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
 from stepdamp_env.io import write_json
 from stepdamp_env.params import ParameterError
 
-from .selection import DevValidator
+from .selection import POOL_DEV_DRAW, DevValidator
 # The settings live in .settings; the command's names are kept here too.
 from .settings import (ALGO_CHOICES, FAMILIES, Args, add_arguments, args_from_namespace,
                        check_algo_kwargs, check_args, load_hyperparams, parse_policy_kwargs,
@@ -175,7 +175,8 @@ def _agent_config(args: Args, sp: dict[str, Any], motors: tuple[Any, ...]) -> di
                 # datasheet pool's train part), and where best.zip was chosen
                 # (stepdamp_agents.selection); never a scored split.
                 **({"suite": args.suite} if args.suite is not None else {}),
-                **({"motor_pool": "datasheets", "pool_draw": _pool_draw()} if pool else {}),
+                **({"motor_pool": "datasheets", "pool_draw": _pool_draw(),
+                    "pool_dev": dict(POOL_DEV_DRAW)} if pool else {}),
                 "splits": {"motors": "pool-train" if pool else "train",
                            "selection": ("pool-dev" if pool else args.select_on)
                            if args.eval_freq > 0 else "none"},
@@ -233,6 +234,10 @@ def train(args: Args) -> dict[str, Any]:
     family = FAMILIES[args.env]
     sp = split_hyperparams(load_hyperparams(args), args.env)
     motors = training_motors(args)
+    if args.envs_per_motor is None and len(motors) > sp["n_envs"]:
+        raise ParameterError(f"--pool-motors {len(motors)} is more than the {sp['n_envs']} "
+                             "drives (n_envs); allowed: at most n_envs, or give "
+                             "--envs-per-preset")
     per_motor = args.envs_per_motor or max(1, sp["n_envs"] // len(motors))
     total = int(args.total_timesteps or sp["n_timesteps"])
     wk = sp["wrapper_kwargs"]

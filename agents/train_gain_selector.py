@@ -10,7 +10,7 @@ back as :class:`~.policy.ResidualAgent`; validation settles as the core does.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from stepdamp_env.env import DEFAULT_EPISODE_STEPS
 
@@ -29,7 +29,7 @@ class GainSelectorTraining(TrainingFamily):
                     ) -> tuple[dict[str, Any], dict[str, Any]]:
         return task_kwargs(env_kwargs)
 
-    def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
+    def make_env(self, motors: Sequence[Any], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
                  algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
         from .residual import make_residual_vec_env

@@ -11,7 +11,7 @@ update (:class:`~.per_step.SameEpisodes`). Saved models are read back as
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from .family import TrainingFamily
 from .task import ENV_ID_V1, INTERFACE_OPTIONS, task_options
@@ -28,7 +28,7 @@ class PerStepTraining(TrainingFamily):
                     ) -> tuple[dict[str, Any], dict[str, Any]]:
         return task_options(env_kwargs), {}
 
-    def make_env(self, motors: tuple[str, ...], per_motor: int, seed: int,
+    def make_env(self, motors: Sequence[Any], per_motor: int, seed: int,
                  env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any],
                  algo: str, algo_kwargs: dict[str, Any], num_threads: int = 1) -> Any:
         from .per_step import SameEpisodes, make_training_env

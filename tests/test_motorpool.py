@@ -109,8 +109,10 @@ def test_bad_draw_settings_are_refused_in_one_line(kwargs, message):
     assert "\n" not in str(info.value)
 
 
-def test_bad_counts_and_parts_are_refused_in_one_line():
+def test_bad_counts_seeds_and_parts_are_refused_in_one_line():
     with pytest.raises(ParameterError, match=r"count=0 is outside its allowed range \[1, 4096\]"):
         draw_datasheets(1, 0)
+    with pytest.raises(ParameterError, match=r"seed=-1 is outside its allowed range"):
+        draw_datasheets(-1, 2)
     with pytest.raises(ParameterError, match=r"part='test' is not one of \['train', 'dev'\]"):
         pool_motors("test")

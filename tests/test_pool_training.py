@@ -75,11 +75,13 @@ def test_the_datasheet_pool_needs_v1_and_dev_selection():
 
     check_args(_args(motor_pool="datasheets"))
     check_args(_args(motor_pool="datasheets", select_on="validation", suite=None, eval_freq=0))
-    for bad in (dict(motor_pool="datasheets", select_on="validation", suite=None),
-                dict(motor_pool="pool")):
+    for bad, flag in ((dict(motor_pool="datasheets", select_on="validation", suite=None),
+                       "--motor-pool"), (dict(motor_pool="pool"), "--motor-pool"),
+                      (dict(motor_pool="datasheets", motors=("patent",)), "--presets"),
+                      (dict(pool_motors=8), "--pool-motors")):
         with pytest.raises(ParameterError) as caught:
             check_args(_args(**bad))
-        assert "\n" not in str(caught.value) and "--motor-pool" in str(caught.value)
+        assert "\n" not in str(caught.value) and flag in str(caught.value)
 
 
 def test_pool_training_motors_come_from_the_train_part_by_seed():

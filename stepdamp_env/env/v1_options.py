@@ -193,11 +193,13 @@ OPTIONS_DOC_V1 = """
       fraction of the holding current.
     * ``current_penalty`` (0.0): weight of the injected-current term of the reward.
     * ``reward_window`` ("episode"): the steps that are rewarded: every one, or
-      "cruise", those whose middle lies in the command's cruise (a move's, from
-      the end of its first ramp to the start of its deceleration; at a constant
-      speed, from the end of the ramp), the window the leaderboard's headline
-      ripple is measured in; the other steps' reward is 0 (ending early still
-      loses the rest of the episode).
+      "cruise", those whose middle lies in the command's cruise, the other
+      steps' reward being 0 (ending early still loses the rest of the
+      episode). A move's cruise runs from the end of its first ramp to the
+      start of its deceleration: the window of the moves suite's headline
+      ripple. A move too short to cruise rewards no step. At a constant speed
+      the cruise runs from the end of the ramp on; the leaderboard's window
+      there starts a settling time later.
     * ``nominal`` (None): the drive's datasheet model (a preset name, a motor
       file or a ``SystemParams``) when it is not the motor itself, as on the
       leaderboard, where ``motor`` is the true plant: units, action scales,
