@@ -19,6 +19,15 @@ file's ``excluded``):
 
 A motor is in the ``dev`` part when its name's sha256 starts with a byte
 divisible by 5, else in ``train``.
+
+``--exclude-relatives`` (not yet the committed pool, which keeps 42 relatives of
+scored motors: docs/motors.md) also leaves out every relative of a scored motor:
+one of the same series (the model name without its brand, up to its first
+``-``, ``_`` or ``(``, five characters or more: another winding of the same
+frame) or a near twin (the same step angle, and rated current, holding torque,
+R and L each within x1.25: wider than what training draws around a motor); and
+a hash-dev motor with a twin in ``train`` (the same series, or within x1.10)
+goes to ``train``, so that no dev motor is a twin of a training motor.
 """
 
 from __future__ import annotations
@@ -48,6 +57,24 @@ def split_of(name: str) -> str:
 
 def plain(name: str) -> str:
     return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+NEAR_KEYS = ("rated_current_A", "holding_torque_Nm", "phase_resistance_ohm", "phase_inductance_H")
+
+
+def series(name: str) -> str | None:
+    """The model's series: its name (without the brand) up to the first -, _ or (."""
+    model = name.split(" ", 1)[1] if " " in name else name
+    head = plain(re.split(r"[-_(]", model)[0])
+    return head if len(head) >= 5 else None
+
+
+def related(a: dict, b: dict, factor: float) -> bool:
+    """The same series, or the same step angle with NEAR_KEYS within ``factor``."""
+    sa = series(a["name"])
+    return (sa is not None and sa == series(b["name"])) or (
+        a["step_angle_deg"] == b["step_angle_deg"]
+        and all(1.0 / factor <= a[k] / b[k] <= factor for k in NEAR_KEYS))
 
 
 def values_key(m: dict) -> tuple:
@@ -80,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--database", required=True)
     p.add_argument("--commit", required=True)
     p.add_argument("--out", default=OUT)
+    p.add_argument("--exclude-relatives", action="store_true")
     a = p.parse_args(argv)
     with open(CATALOGUE, encoding="utf-8") as fh:
         scored = json.load(fh)
@@ -92,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         if any(s in name or name in s for s in scored_names) \
                 or any(s in name for s in EXCLUDED_NAMES) or values_key(m) in scored_values:
             excluded["scored"] += 1
+        elif a.exclude_relatives and any(related(m, s, 1.25) for s in scored):
+            excluded["scored_relative"] = excluded.get("scored_relative", 0) + 1
         elif m["step_angle_deg"] not in (1.8, 0.9):
             excluded["step_angle"] += 1
         elif not TAU_S[0] <= m["phase_inductance_H"] / m["phase_resistance_ohm"] <= TAU_S[1]:
@@ -101,6 +131,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             seen.add(values_key(m))
             pool.append({**m, "split": split_of(m["name"])})
+    if a.exclude_relatives:
+        train = [m for m in pool if m["split"] == "train"]
+        for m in pool:
+            if m["split"] == "dev" and any(related(m, t, 1.10) for t in train):
+                m["split"] = "train"
     doc = {"about": "Training pool of real catalogue motors (stepdamp_env.motorpool): "
                     "datasheet values from a public table, none in a scored split; built by "
                     "scripts/build_datasheet_pool.py, which states what was left out and why.",
