@@ -42,26 +42,27 @@ def training_splits(config: dict[str, Any]) -> dict[str, str]:
     return dict(recorded) if recorded else {"motors": "train", "selection": "validation"}
 
 
-#: The datasheet pool's dev motors for selection (``--motor-pool datasheets``):
+#: A datasheet pool's dev motors for selection (``--motor-pool datasheets...``):
 #: how many, and the seed of their draw from the pool's dev part.
 POOL_DEV_DRAW = MappingProxyType({"count": 12, "seed": 950_000})
 
 
 class DevValidator:
     """Scores a saved model on the dev motors of ``suite`` (dB, higher is better):
-    v3's, or v4's for a suite v3 does not have (moves); with ``pool``, v4's
-    board on the motors :data:`POOL_DEV_DRAW` draws from the datasheet pool's dev
-    part (:mod:`stepdamp_env.motorpool`), each the drive's own model as a
-    catalogue motor is."""
+    v3's, or v4's for a suite v3 does not have (moves); with a datasheet
+    ``motor_pool``, v4's board on the motors :data:`POOL_DEV_DRAW` draws from
+    that pool's dev part (:mod:`stepdamp_env.motorpool`), each the drive's own
+    model as a catalogue motor is."""
 
     metric = "attenuation_db"
     higher_is_better = True
 
-    def __init__(self, suite: str, pool: bool = False) -> None:
+    def __init__(self, suite: str, motor_pool: str = "presets") -> None:
         from stepdamp_env.bench.protocols import protocol_for
         from stepdamp_env.bench.suites import SUITES_THROUGH_V3
 
         self.suite = suite
+        pool = motor_pool != "presets"
         # v3's dev split where v3 has the suite (the committed models); v4's otherwise.
         self.version = "v3" if suite in SUITES_THROUGH_V3 and not pool else "v4"
         protocol = protocol_for(self.version).with_suites([suite])
@@ -69,7 +70,7 @@ class DevValidator:
             from stepdamp_env.motorpool import draw_datasheets, pool_systems
 
             dev = pool_systems(draw_datasheets(POOL_DEV_DRAW["seed"], POOL_DEV_DRAW["count"],
-                                               "dev"))
+                                               "dev", motor_pool=motor_pool))
             self.protocol = protocol.with_custom_motors(dev)
         else:
             self.protocol = protocol.with_splits(["dev"])

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stepdamp_env.bench.protocol import TRAINING_SEED_LIMIT
+from stepdamp_env.motorpool import MOTOR_POOLS as DATASHEET_POOLS
 from stepdamp_env.params import ParameterError
 from stepdamp_env.presets import preset_names
 
@@ -100,7 +101,7 @@ def _float_or_text(text: str) -> float | str:
 #: torch's as before 0.18.0 (the committed models).
 EVAL_RNG_CHOICES = ("isolated", "shared")
 #: Where training motors come from (``--motor-pool``).
-MOTOR_POOLS = ("presets", "datasheets")
+MOTOR_POOLS = ("presets", *DATASHEET_POOLS)
 
 
 @dataclass
@@ -135,8 +136,9 @@ class Args:
                              "drawn around --presets; 'datasheets', real catalogue motors' "
                              "datasheets (stepdamp_env.motorpool: drawn from the pool's train "
                              "part, selected on its dev part; needs --select-on dev or "
-                             "--eval-freq 0)", choices=MOTOR_POOLS)
-    pool_motors: int = option(32, "with --motor-pool datasheets: training motors drawn from "
+                             "--eval-freq 0); 'datasheets-unrelated', the same without the "
+                             "scored catalogue motors' relatives", choices=MOTOR_POOLS)
+    pool_motors: int = option(32, "with a --motor-pool of datasheets: training motors drawn from "
                               "the pool (each its own drive model, --envs-per-preset drives "
                               "each)", metavar="N", low=1, high=1024)
     envs_per_motor: int | None = option(None, "vectorised drives per preset (default: n_envs "
@@ -246,15 +248,15 @@ def check_args(args: Args) -> None:
         if clash:
             raise ParameterError(f"--hyperparam env_kwargs {clash}: --suite {args.suite} sets them "
                                  "(agents/task.py SUITE_TASKS); leave them out or drop --suite")
-    if args.motor_pool == "datasheets" and (args.env != ENV_ID_V1 or (
-            args.select_on != "dev" and args.eval_freq > 0)):
-        raise ParameterError(f"--motor-pool datasheets needs --env {ENV_ID_V1} and --select-on "
-                             "dev (the pool's dev motors) or --eval-freq 0")
-    if args.motor_pool == "datasheets" and tuple(args.motors) != PRESETS:
-        raise ParameterError("--presets does not apply with --motor-pool datasheets (its "
+    pool = args.motor_pool != "presets"
+    if pool and (args.env != ENV_ID_V1 or (args.select_on != "dev" and args.eval_freq > 0)):
+        raise ParameterError(f"--motor-pool {args.motor_pool} needs --env {ENV_ID_V1} and "
+                             "--select-on dev (the pool's dev motors) or --eval-freq 0")
+    if pool and tuple(args.motors) != PRESETS:
+        raise ParameterError(f"--presets does not apply with --motor-pool {args.motor_pool} (its "
                              "motors are drawn from the pool); leave it out")
-    if args.motor_pool != "datasheets" and args.pool_motors != 32:
-        raise ParameterError("--pool-motors needs --motor-pool datasheets")
+    if not pool and args.pool_motors != 32:
+        raise ParameterError("--pool-motors needs a --motor-pool of datasheets")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--presets {list(args.motors)}: choose presets from {list(PRESETS)}")

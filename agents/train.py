@@ -159,23 +159,24 @@ class Validator:
 def training_motors(args: Args) -> tuple[Any, ...]:
     """The motors the drives are built around: preset names, or datasheet mappings
     drawn from the pool's train part with seed ``1000 * seed`` (``--motor-pool``)."""
-    if args.motor_pool == "datasheets":
+    if args.motor_pool != "presets":
         from stepdamp_env.motorpool import draw_datasheets
 
-        return draw_datasheets(1000 * args.seed, args.pool_motors, "train")
+        return draw_datasheets(1000 * args.seed, args.pool_motors, "train",
+                               motor_pool=args.motor_pool)
     return tuple(args.motors)
 
 
 def _agent_config(args: Args, sp: dict[str, Any], motors: tuple[Any, ...]) -> dict[str, Any]:
     family = FAMILIES[args.env]
-    pool = args.motor_pool == "datasheets"
+    pool = args.motor_pool != "presets"
     training = {"seed": args.seed, "env_seed": 1000 * args.seed, "motors": list(motors),
                 "env_kwargs": sp["env_kwargs"],
                 # What the run saw: motors drawn below TRAINING_SEED_LIMIT (or from the
                 # datasheet pool's train part), and where best.zip was chosen
                 # (stepdamp_agents.selection); never a scored split.
                 **({"suite": args.suite} if args.suite is not None else {}),
-                **({"motor_pool": "datasheets", "pool_draw": _pool_draw(),
+                **({"motor_pool": args.motor_pool, "pool_draw": _pool_draw(),
                     "pool_dev": dict(POOL_DEV_DRAW)} if pool else {}),
                 "splits": {"motors": "pool-train" if pool else "train",
                            "selection": ("pool-dev" if pool else args.select_on)
@@ -280,7 +281,7 @@ def train(args: Args) -> dict[str, Any]:
     model.set_logger(configure(os.path.join(args.out, "logs"), formats))
     validator: Any = None
     if args.eval_freq > 0:
-        validator = DevValidator(args.suite or "open-loop", pool=args.motor_pool == "datasheets") \
+        validator = DevValidator(args.suite or "open-loop", motor_pool=args.motor_pool) \
             if args.select_on == "dev" else \
             Validator(args, env_kwargs)
     log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,

@@ -8,6 +8,9 @@ motors, NEMA 8 to 34, from a public table of datasheet values, none of them a
 motor of the scored catalogue (some are its relatives: docs/motors.md). Each
 motor is in the ``train`` or the ``dev`` part (by its name's hash): training
 draws from ``train``, model selection from ``dev``; neither is ever scored.
+``datasheet_pool_unrelated.json`` (the pool ``"datasheets-unrelated"``, built
+with ``--exclude-relatives``) leaves out the scored motors' relatives too: 186
+motors, 166 train and 20 dev, no dev motor a twin of a training motor.
 
 A drawn training motor is a datasheet mapping (a motor file's object,
 :func:`stepdamp_env.motorfile.load_system`) around one pool motor chosen
@@ -33,6 +36,7 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from functools import lru_cache
+from types import MappingProxyType
 from typing import Any, Sequence
 
 import numpy as np
@@ -43,10 +47,15 @@ from .io import read_json
 from .motorfile import load_system
 from .params import SystemParams
 
-__all__ = ["POOL_PATH", "POOL_PARTS", "PoolDraw", "pool", "pool_motors",
+__all__ = ["POOL_PATH", "MOTOR_POOLS", "POOL_PARTS", "PoolDraw", "pool", "pool_motors",
            "draw_datasheet", "draw_datasheets", "pool_systems", "as_json"]
 
 POOL_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "datasheet_pool.json")
+#: The pools by name (``--motor-pool``): each a file beside this module.
+MOTOR_POOLS = MappingProxyType({
+    "datasheets": POOL_PATH,
+    "datasheets-unrelated": os.path.join(os.path.dirname(POOL_PATH),
+                                         "datasheet_pool_unrelated.json")})
 POOL_PARTS = ("train", "dev")
 _KEYS = ("step_angle_deg", "rated_current_A", "holding_torque_Nm", "phase_resistance_ohm",
          "phase_inductance_H")
@@ -83,17 +92,20 @@ class PoolDraw:
                                      f"{lo_ok:g} < low <= high <= {hi_ok:g}")
 
 
-@lru_cache(maxsize=1)
-def pool() -> dict[str, Any]:
-    """The pool file's content (read once)."""
-    return read_json(POOL_PATH, "datasheet pool")
+@lru_cache(maxsize=None)
+def pool(motor_pool: str = "datasheets") -> dict[str, Any]:
+    """The content of the pool file named ``motor_pool`` (read once)."""
+    if motor_pool not in MOTOR_POOLS:
+        raise ParameterError(f"motor_pool={motor_pool!r} is not one of {list(MOTOR_POOLS)}")
+    return read_json(MOTOR_POOLS[motor_pool], "datasheet pool")
 
 
-def pool_motors(part: str = "train") -> tuple[dict[str, Any], ...]:
+def pool_motors(part: str = "train", motor_pool: str = "datasheets"
+                ) -> tuple[dict[str, Any], ...]:
     """The pool's motors of one part ("train" or "dev"), in the file's order."""
     if part not in POOL_PARTS:
         raise ParameterError(f"part={part!r} is not one of {list(POOL_PARTS)}")
-    return tuple(m for m in pool()["motors"] if m["split"] == part)
+    return tuple(m for m in pool(motor_pool)["motors"] if m["split"] == part)
 
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -101,10 +113,10 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 
 def draw_datasheet(rng: np.random.Generator, part: str = "train", draw: PoolDraw = PoolDraw(),
-                   index: int = 0) -> dict[str, Any]:
+                   index: int = 0, motor_pool: str = "datasheets") -> dict[str, Any]:
     """One training motor (a datasheet mapping named ``<pool motor>~<index>``)
     around a pool motor of ``part`` chosen uniformly."""
-    motors = pool_motors(part)
+    motors = pool_motors(part, motor_pool)
     m = motors[int(rng.integers(len(motors)))]
     out: dict[str, Any] = {"name": f"{m['name']}~{index}"}
     out.update({k: m[k] for k in _KEYS})
@@ -122,8 +134,8 @@ def draw_datasheet(rng: np.random.Generator, part: str = "train", draw: PoolDraw
     return out
 
 
-def draw_datasheets(seed: int, count: int, part: str = "train",
-                    draw: PoolDraw = PoolDraw()) -> tuple[dict[str, Any], ...]:
+def draw_datasheets(seed: int, count: int, part: str = "train", draw: PoolDraw = PoolDraw(),
+                    motor_pool: str = "datasheets") -> tuple[dict[str, Any], ...]:
     """``count`` training motors drawn with ``seed`` (each one that builds: a
     draw the model refuses is drawn again)."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) \
@@ -140,7 +152,7 @@ def draw_datasheets(seed: int, count: int, part: str = "train",
         if tries > 100 * count:
             raise ParameterError(f"the pool's {part} part gave {len(out)} usable motors of "
                                  f"{count} in {tries} draws")
-        values = draw_datasheet(rng, part, draw, len(out))
+        values = draw_datasheet(rng, part, draw, len(out), motor_pool)
         try:
             load_system(values)
         except ParameterError:

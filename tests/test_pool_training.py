@@ -100,7 +100,7 @@ def test_pool_selection_runs_v4_on_the_pools_dev_motors():
     from stepdamp_agents.selection import POOL_DEV_DRAW, DevValidator
     from stepdamp_env.motorpool import pool_motors
 
-    v = DevValidator("moves", pool=True)
+    v = DevValidator("moves", motor_pool="datasheets")
     assert v.version == "v4" and v.protocol.splits == ("custom",)
     dev = {m["name"] for m in pool_motors("dev")}
     names = [s.name for s in v.protocol.custom_motors]
@@ -108,7 +108,7 @@ def test_pool_selection_runs_v4_on_the_pools_dev_motors():
     assert all(n.rsplit("~", 1)[0] in dev for n in names)
     # Without the pool: v3's dev split where v3 has the suite, as before.
     assert DevValidator("open-loop").version == "v3"
-    assert DevValidator("open-loop", pool=True).version == "v4"
+    assert DevValidator("open-loop", motor_pool="datasheets").version == "v4"
 
 
 def test_coverage_of_pool_training_is_each_motors_resonances():
