@@ -28,7 +28,9 @@ residuals on the model-based baselines.
   (0.17.0: ``ppo-open-loop`` trained for 1.5M decisions); ``ppo-moves`` (0.19.0:
   trained for stepdamp-bench v4's moves suite, selected on its dev split) and
   ``ppo-mid-band-datasheets`` (0.19.0: the mid-band trained on real catalogue
-  motors, the datasheet pool's train part, selected on its dev part);
+  motors, the datasheet pool's train part, selected on its dev part) and
+  ``ppo-mid-band-unrelated`` (the same on the pool without the scored
+  catalogue motors' relatives);
 * :mod:`stepdamp_agents.selection`: model selection on a dev split (v3's; v4's
   for moves), and the splits a training config records.
 

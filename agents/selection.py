@@ -24,6 +24,8 @@ import math
 from types import MappingProxyType
 from typing import Any
 
+from stepdamp_env.params import ParameterError
+
 __all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "POOL_DEV_DRAW",
            "training_splits"]
 
@@ -61,6 +63,11 @@ class DevValidator:
         from stepdamp_env.bench.protocols import protocol_for
         from stepdamp_env.bench.suites import SUITES_THROUGH_V3
 
+        from stepdamp_env.motorpool import MOTOR_POOLS
+
+        if motor_pool != "presets" and motor_pool not in MOTOR_POOLS:
+            raise ParameterError(f"motor_pool={motor_pool!r} is not one of "
+                                 f"{['presets', *MOTOR_POOLS]}")
         self.suite = suite
         pool = motor_pool != "presets"
         # v3's dev split where v3 has the suite (the committed models); v4's otherwise.

@@ -256,7 +256,7 @@ def check_args(args: Args) -> None:
         raise ParameterError(f"--presets does not apply with --motor-pool {args.motor_pool} (its "
                              "motors are drawn from the pool); leave it out")
     if not pool and args.pool_motors != 32:
-        raise ParameterError("--pool-motors needs a --motor-pool of datasheets")
+        raise ParameterError(f"--pool-motors needs --motor-pool one of {list(DATASHEET_POOLS)}")
     unknown = sorted(set(args.motors) - set(PRESETS))
     if unknown or not args.motors:
         raise ParameterError(f"--presets {list(args.motors)}: choose presets from {list(PRESETS)}")

@@ -20,8 +20,9 @@ file's ``excluded``):
 A motor is in the ``dev`` part when its name's sha256 starts with a byte
 divisible by 5, else in ``train``.
 
-``--exclude-relatives`` (not yet the committed pool, which keeps 42 relatives of
-scored motors: docs/motors.md) also leaves out every relative of a scored motor:
+``--exclude-relatives`` (written to ``stepdamp_env/datasheet_pool_unrelated.json``,
+the pool ``datasheets-unrelated``; the default pool keeps 42 relatives of scored
+motors: docs/motors.md) also leaves out every relative of a scored motor:
 one of the same series (the model name without its brand, up to its first
 ``-``, ``_`` or ``(``, five characters or more: another winding of the same
 frame) or a near twin (the same step angle, and rated current, holding torque,
@@ -42,6 +43,7 @@ import sys
 HERE = os.path.dirname(os.path.abspath(__file__))
 CATALOGUE = os.path.join(HERE, "..", "stepdamp_env", "bench", "catalogue.json")
 OUT = os.path.join(HERE, "..", "stepdamp_env", "datasheet_pool.json")
+OUT_UNRELATED = os.path.join(HERE, "..", "stepdamp_env", "datasheet_pool_unrelated.json")
 REPO, PATH = "TheDevMinerTV/stepper-simulator", "src/lib/stepper-db.ts"
 KEYS = ("step_angle_deg", "rated_current_A", "holding_torque_Nm", "phase_resistance_ohm",
         "phase_inductance_H")
@@ -106,9 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--database", required=True)
     p.add_argument("--commit", required=True)
-    p.add_argument("--out", default=OUT)
+    p.add_argument("--out", default=None,
+                   help="default: stepdamp_env/datasheet_pool.json, or with --exclude-relatives "
+                        "stepdamp_env/datasheet_pool_unrelated.json")
     p.add_argument("--exclude-relatives", action="store_true")
     a = p.parse_args(argv)
+    out = a.out or (OUT_UNRELATED if a.exclude_relatives else OUT)
     with open(CATALOGUE, encoding="utf-8") as fh:
         scored = json.load(fh)
     scored_names = [plain(m["name"]) for m in scored]
@@ -138,13 +143,15 @@ def main(argv: list[str] | None = None) -> int:
                 m["split"] = "train"
     doc = {"about": "Training pool of real catalogue motors (stepdamp_env.motorpool): "
                     "datasheet values from a public table, none in a scored split; built by "
-                    "scripts/build_datasheet_pool.py, which states what was left out and why.",
+                    "scripts/build_datasheet_pool.py, which states what was left out and why."
+                    + (" Without the scored motors' relatives (--exclude-relatives)."
+                       if a.exclude_relatives else ""),
            "excluded": excluded, "motors": pool}
-    tmp = a.out + ".tmp"
+    tmp = out + ".tmp"
     with open(tmp, "w", encoding="utf-8") as fh:
         json.dump(doc, fh, indent=1)
         fh.write("\n")
-    os.replace(tmp, a.out)
+    os.replace(tmp, out)
     n_dev = sum(m["split"] == "dev" for m in pool)
     print(f"{len(pool)} motors ({len(pool) - n_dev} train, {n_dev} dev); excluded {excluded}")
     return 0

@@ -92,12 +92,16 @@ class PoolDraw:
                                      f"{lo_ok:g} < low <= high <= {hi_ok:g}")
 
 
-@lru_cache(maxsize=None)
 def pool(motor_pool: str = "datasheets") -> dict[str, Any]:
     """The content of the pool file named ``motor_pool`` (read once)."""
-    if motor_pool not in MOTOR_POOLS:
+    if not isinstance(motor_pool, str) or motor_pool not in MOTOR_POOLS:
         raise ParameterError(f"motor_pool={motor_pool!r} is not one of {list(MOTOR_POOLS)}")
-    return read_json(MOTOR_POOLS[motor_pool], "datasheet pool")
+    return _read(MOTOR_POOLS[motor_pool])
+
+
+@lru_cache(maxsize=None)
+def _read(path: str) -> dict[str, Any]:
+    return read_json(path, "datasheet pool")
 
 
 def pool_motors(part: str = "train", motor_pool: str = "datasheets"

@@ -25,7 +25,7 @@ POLICY_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"
                   "navy", "gold", "teal", "magenta", "lime", "maroon", "indigo",
                   "coral", "yellowgreen", "slategray", "sienna", "deepskyblue",
                   "darkorange", "olivedrab", "crimson", "darkviolet", "peru",
-                  "steelblue")
+                  "steelblue", "hotpink", "chocolate", "darkkhaki", "mediumpurple")
 POLICY_MARKERS = ("s", "^", "D", "v", "P", "X", "<", ">", "*")
 #: The simulation core's damping settings, styled like the policies of the same name.
 BASE_CONTROLLER_STYLES = {"none": ("black", "o"), "patent-ff": (POLICY_COLOURS[0], POLICY_MARKERS[0])}

@@ -231,3 +231,21 @@ def test_report_check_reruns_a_board_of_one_split_and_fewer_seeds(tmp_path, caps
     assert main(["report", str(out), "--check", "--sample", "2"]) == 0
     printed = capsys.readouterr().out
     assert "DIFFERS" not in printed and printed.strip().endswith("checks reproduce")
+
+
+def test_a_motor_no_entry_scores_says_why_in_the_per_motor_table():
+    # A pool dev motor whose mid-band speeds all lie off the suite's headline band
+    # (docs/results/ablations: the committed dev board) once printed an empty row.
+    import json
+    import os
+
+    from stepdamp_env.bench.tables import NO_MOTOR_SCORE, render_per_motor
+
+    path = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "ablations",
+                        "mid-band-pool-unrelated", "dev_board", "leaderboard.json")
+    with open(path, encoding="utf-8") as fh:
+        board = json.load(fh)
+    lines = render_per_motor(board, "mid-band", "custom").splitlines()
+    row = [ln for ln in lines if ln.startswith("| Stepperonline 17HM08-1204S~6 |")]
+    assert row == [f"| Stepperonline 17HM08-1204S~6 | {NO_MOTOR_SCORE} |"]
+    assert sum(NO_MOTOR_SCORE in ln for ln in lines) == 1

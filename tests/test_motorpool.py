@@ -116,3 +116,42 @@ def test_bad_counts_seeds_and_parts_are_refused_in_one_line():
         draw_datasheets(-1, 2)
     with pytest.raises(ParameterError, match=r"part='test' is not one of \['train', 'dev'\]"):
         pool_motors("test")
+    with pytest.raises(ParameterError, match=r"motor_pool='presets' is not one of "
+                                             r"\['datasheets', 'datasheets-unrelated'\]"):
+        draw_datasheets(1, 2, motor_pool="presets")
+
+
+def _series(name):
+    # The model without its brand, up to its first -, _ or (: another winding of a frame.
+    head = _plain(re.split(r"[-_(]", name.split(" ", 1)[-1])[0])
+    return head if len(head) >= 5 else None
+
+
+def _near(a, b, factor):
+    return a["step_angle_deg"] == b["step_angle_deg"] and all(
+        1 / factor <= a[k] / b[k] <= factor for k in KEYS[1:])
+
+
+def test_the_unrelated_pool_leaves_out_every_relative_of_a_scored_motor():
+    with open(CATALOGUE_PATH, encoding="utf-8") as fh:
+        scored = json.load(fh)
+    full = {m["name"]: m for m in pool()["motors"]}
+    unrelated = pool("datasheets-unrelated")["motors"]
+    assert (len(pool_motors("train", "datasheets-unrelated")),
+            len(pool_motors("dev", "datasheets-unrelated"))) == (166, 20)
+    scored_series = {_series(m["name"]) for m in scored} - {None}
+    for m in unrelated:
+        # A motor of the full pool, values unchanged; a hash-dev motor may move to train.
+        assert {k: v for k, v in m.items() if k != "split"} == \
+            {k: v for k, v in full[m["name"]].items() if k != "split"}
+        assert _series(m["name"]) not in scored_series, m["name"]
+        assert not any(_near(m, s, 1.25) for s in scored), m["name"]
+    train = pool_motors("train", "datasheets-unrelated")
+    for d in pool_motors("dev", "datasheets-unrelated"):
+        assert full[d["name"]]["split"] == "dev"
+        assert not any(_near(d, t, 1.10) or (_series(d["name"]) is not None and
+                                             _series(d["name"]) == _series(t["name"]))
+                       for t in train), d["name"]
+    dev = {m["name"] for m in pool_motors("dev", "datasheets-unrelated")}
+    drawn = draw_datasheets(950_000, 12, "dev", motor_pool="datasheets-unrelated")
+    assert all(v["name"].rsplit("~", 1)[0] in dev for v in drawn)

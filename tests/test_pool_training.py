@@ -109,6 +109,13 @@ def test_pool_selection_runs_v4_on_the_pools_dev_motors():
     # Without the pool: v3's dev split where v3 has the suite, as before.
     assert DevValidator("open-loop").version == "v3"
     assert DevValidator("open-loop", motor_pool="datasheets").version == "v4"
+    unrelated = {m["name"] for m in pool_motors("dev", "datasheets-unrelated")}
+    names = [s.name for s in DevValidator("mid-band", "datasheets-unrelated")
+             .protocol.custom_motors]
+    assert len(names) == 12 and all(n.rsplit("~", 1)[0] in unrelated for n in names)
+    with pytest.raises(ParameterError, match=r"^motor_pool='pool' is not one of \['presets', "
+                                             r"'datasheets', 'datasheets-unrelated'\]$"):
+        DevValidator("mid-band", "pool")
 
 
 def test_coverage_of_pool_training_is_each_motors_resonances():
@@ -136,14 +143,14 @@ def test_committed_pool_models_saw_only_the_pools_train_part():
     from stepdamp_agents import REFERENCE_DIR
     from stepdamp_env.motorpool import pool_motors
 
-    train = {m["name"] for m in pool_motors("train")}
     found = 0
     for path in sorted(glob.glob(os.path.join(REFERENCE_DIR, "*.agent.json"))):
         with open(path, encoding="utf-8") as fh:
             training = json.load(fh)["training"]
-        if training.get("motor_pool") != "datasheets":
+        if training.get("motor_pool", "presets") == "presets":
             continue
         found += 1
+        train = {m["name"] for m in pool_motors("train", training["motor_pool"])}
         assert training["splits"] == {"motors": "pool-train", "selection": "pool-dev"}, path
         assert all(m["name"].rsplit("~", 1)[0] in train for m in training["motors"]), path
     assert found >= 5

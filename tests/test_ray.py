@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 ray = pytest.importorskip("ray")
+# One worker runs every Ray test (one local Ray at a time) under --dist loadgroup.
+pytestmark = pytest.mark.xdist_group("ray")
 
 from stepdamp_env.bench import protocol_motors, quick_protocol_v1, run_leaderboard  # noqa: E402
 from stepdamp_env.motorfile import load_system  # noqa: E402

@@ -450,6 +450,11 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
     return _with_versions(board, lines)
 
 
+#: A per-motor row no entry scores (v4 scores a table's common cells only).
+NO_MOTOR_SCORE = ("no score: none of its cells is scored (all its speeds off the suite's "
+                  "headline band, or outside a ranked learned entry's training coverage)")
+
+
 def render_per_motor(board: Mapping[str, Any], suite: str, split: str) -> str:
     """Per motor, the entries ranked by their mean headline on it (the custom
     split's answer to "which damping is best on my motor?"; v3: by attenuation)."""
@@ -465,8 +470,8 @@ def render_per_motor(board: Mapping[str, Any], suite: str, split: str) -> str:
         if in_db:
             ranked = sorted((-e["per_motor_db"][motor], e["name"]) for e in rows
                             if motor in e["per_motor_db"])
-            lines.append(f"| {motor} | " + " | ".join(f"{n} {-v:.3g}" for v, n in ranked)
-                         + " |")
+            lines.append(f"| {motor} | " + (" | ".join(f"{n} {-v:.3g}" for v, n in ranked)
+                                            if ranked else NO_MOTOR_SCORE) + " |")
             continue
         ranked = sorted((e["per_motor_headline_mean"][motor], e["name"]) for e in rows
                         if motor in e["per_motor_headline_mean"])
