@@ -29,8 +29,8 @@ residuals on the model-based baselines.
   trained for stepdamp-bench v4's moves suite, selected on its dev split) and
   ``ppo-mid-band-datasheets`` (0.19.0: the mid-band trained on real catalogue
   motors, the datasheet pool's train part, selected on its dev part) and
-  ``ppo-mid-band-unrelated`` (the same on the pool without the scored
-  catalogue motors' relatives);
+  ``ppo-mid-band-unrelated`` and ``ppo-open-loop-unrelated`` (the mid-band
+  and open loop on the pool without the scored catalogue motors' relatives);
 * :mod:`stepdamp_agents.selection`: model selection on a dev split (v3's; v4's
   for moves), and the splits a training config records.
 

@@ -26,7 +26,7 @@ from typing import Any
 
 from stepdamp_env.params import ParameterError
 
-__all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "POOL_DEV_DRAW",
+__all__ = ["DevValidator", "SELECTION_SPLITS", "SCORED_SPLITS", "POOL_DEV_DRAW", "POOL_DEV_SENSORS",
            "training_splits"]
 
 #: Where a model may be selected: the dev split, or validation motors drawn from
@@ -47,6 +47,12 @@ def training_splits(config: dict[str, Any]) -> dict[str, str]:
 #: A datasheet pool's dev motors for selection (``--motor-pool datasheets...``):
 #: how many, and the seed of their draw from the pool's dev part.
 POOL_DEV_DRAW = MappingProxyType({"count": 12, "seed": 950_000})
+#: The sensors of those dev motors (``--pool-dev-sensors``): the protocol's, as
+#: ``--motors`` and the scored catalogue give them (the default), or the motor
+#: file's defaults (no current noise), with which ``ppo-mid-band-datasheets`` and
+#: ``ppo-mid-band-unrelated`` were selected (their configs' ``pool_dev`` has no
+#: ``sensors``).
+POOL_DEV_SENSORS = ("protocol", "motor-file")
 
 
 class DevValidator:
@@ -59,7 +65,8 @@ class DevValidator:
     metric = "attenuation_db"
     higher_is_better = True
 
-    def __init__(self, suite: str, motor_pool: str = "presets") -> None:
+    def __init__(self, suite: str, motor_pool: str = "presets",
+                 pool_dev_sensors: str = "protocol") -> None:
         from stepdamp_env.bench.protocols import protocol_for
         from stepdamp_env.bench.suites import SUITES_THROUGH_V3
 
@@ -68,6 +75,9 @@ class DevValidator:
         if motor_pool != "presets" and motor_pool not in MOTOR_POOLS:
             raise ParameterError(f"motor_pool={motor_pool!r} is not one of "
                                  f"{['presets', *MOTOR_POOLS]}")
+        if pool_dev_sensors not in POOL_DEV_SENSORS:
+            raise ParameterError(f"pool_dev_sensors={pool_dev_sensors!r} is not one of "
+                                 f"{list(POOL_DEV_SENSORS)}")
         self.suite = suite
         pool = motor_pool != "presets"
         # v3's dev split where v3 has the suite (the committed models); v4's otherwise.
@@ -76,8 +86,12 @@ class DevValidator:
         if pool:
             from stepdamp_env.motorpool import draw_datasheets, pool_systems
 
+            from stepdamp_env.bench.protocols.drawn import with_protocol_sensors
+
             dev = pool_systems(draw_datasheets(POOL_DEV_DRAW["seed"], POOL_DEV_DRAW["count"],
                                                "dev", motor_pool=motor_pool))
+            if pool_dev_sensors == "protocol":
+                dev = tuple(with_protocol_sensors(s, protocol) for s in dev)
             self.protocol = protocol.with_custom_motors(dev)
         else:
             self.protocol = protocol.with_splits(["dev"])

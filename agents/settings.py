@@ -18,7 +18,7 @@ from stepdamp_env.presets import preset_names
 from . import arguments
 from .arguments import check_ranges, option
 from .family import TrainingFamily
-from .selection import SELECTION_SPLITS
+from .selection import POOL_DEV_SENSORS, SELECTION_SPLITS
 from .task import ENV_ID_V1, RESIDUAL_ENV_ID, SUITE_TASKS
 from .train_gain_selector import FAMILY as GAIN_SELECTOR
 from .train_per_step import FAMILY as PER_STEP
@@ -152,6 +152,11 @@ class Args:
                            "model; 'shared', as before 0.18.0: loading the model for a "
                            "validation draws torch's generator (how the committed models were "
                            "trained)", choices=EVAL_RNG_CHOICES)
+    pool_dev_sensors: str = option("protocol", "with a --motor-pool of datasheets: the dev "
+                                   "motors' sensors, 'protocol' (default: the board's, as "
+                                   "--motors and the scored catalogue give them) or "
+                                   "'motor-file' (no current noise: how the committed mid-band "
+                                   "pool models were selected)", choices=POOL_DEV_SENSORS)
     val_seed: int = option(900_000, "seed of the validation motors' draw",
                            low=0, high=TRAINING_SEED_LIMIT - 1001)
     val_motors_per_preset: int = option(2, "validation motors drawn around each preset",
@@ -255,6 +260,9 @@ def check_args(args: Args) -> None:
     if pool and tuple(args.motors) != PRESETS:
         raise ParameterError(f"--presets does not apply with --motor-pool {args.motor_pool} (its "
                              "motors are drawn from the pool); leave it out")
+    if not pool and args.pool_dev_sensors != "protocol":
+        raise ParameterError(f"--pool-dev-sensors needs --motor-pool one of "
+                             f"{list(DATASHEET_POOLS)}")
     if not pool and args.pool_motors != 32:
         raise ParameterError(f"--pool-motors needs --motor-pool one of {list(DATASHEET_POOLS)}")
     unknown = sorted(set(args.motors) - set(PRESETS))

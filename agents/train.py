@@ -177,7 +177,8 @@ def _agent_config(args: Args, sp: dict[str, Any], motors: tuple[Any, ...]) -> di
                 # (stepdamp_agents.selection); never a scored split.
                 **({"suite": args.suite} if args.suite is not None else {}),
                 **({"motor_pool": args.motor_pool, "pool_draw": _pool_draw(),
-                    "pool_dev": dict(POOL_DEV_DRAW)} if pool else {}),
+                    "pool_dev": {**POOL_DEV_DRAW, "sensors": args.pool_dev_sensors}}
+                   if pool else {}),
                 "splits": {"motors": "pool-train" if pool else "train",
                            "selection": ("pool-dev" if pool else args.select_on)
                            if args.eval_freq > 0 else "none"},
@@ -281,7 +282,8 @@ def train(args: Args) -> dict[str, Any]:
     model.set_logger(configure(os.path.join(args.out, "logs"), formats))
     validator: Any = None
     if args.eval_freq > 0:
-        validator = DevValidator(args.suite or "open-loop", motor_pool=args.motor_pool) \
+        validator = DevValidator(args.suite or "open-loop", args.motor_pool,
+                                 args.pool_dev_sensors) \
             if args.select_on == "dev" else \
             Validator(args, env_kwargs)
     log: dict[str, Any] = {"args": dataclasses.asdict(args), "config": config,

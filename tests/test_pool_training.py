@@ -78,7 +78,8 @@ def test_the_datasheet_pool_needs_v1_and_dev_selection():
     for bad, flag in ((dict(motor_pool="datasheets", select_on="validation", suite=None),
                        "--motor-pool"), (dict(motor_pool="pool"), "--motor-pool"),
                       (dict(motor_pool="datasheets", motors=("patent",)), "--presets"),
-                      (dict(pool_motors=8), "--pool-motors")):
+                      (dict(pool_motors=8), "--pool-motors"),
+                      (dict(pool_dev_sensors="motor-file"), "--pool-dev-sensors")):
         with pytest.raises(ParameterError) as caught:
             check_args(_args(**bad))
         assert "\n" not in str(caught.value) and flag in str(caught.value)
@@ -116,6 +117,26 @@ def test_pool_selection_runs_v4_on_the_pools_dev_motors():
     with pytest.raises(ParameterError, match=r"^motor_pool='pool' is not one of \['presets', "
                                              r"'datasheets', 'datasheets-unrelated'\]$"):
         DevValidator("mid-band", "pool")
+
+
+def test_pool_dev_motors_have_the_boards_sensors_unless_told_otherwise():
+    # The dev check once ran the pool's dev motors without current noise while a
+    # board on the same motors (--motors) and the scored catalogue have the
+    # protocol's 0.01 A: 27.4 dB at a check, 22.7 on the board.
+    from stepdamp_agents.selection import DevValidator
+    from stepdamp_env.bench.protocols import protocol_for
+
+    v4 = protocol_for("v4")
+    assert v4.current_noise_a > 0.0
+    board = DevValidator("open-loop", "datasheets-unrelated").protocol.custom_motors
+    old = DevValidator("open-loop", "datasheets-unrelated", "motor-file").protocol.custom_motors
+    assert all(s.to_dict()["current_noise_a"] == v4.current_noise_a
+               and s.to_dict()["encoder_cpr"] == v4.encoder_cpr for s in board)
+    assert all(s.to_dict()["current_noise_a"] == 0.0 for s in old)
+    assert [s.name for s in board] == [s.name for s in old]
+    with pytest.raises(ParameterError, match=r"^pool_dev_sensors='clean' is not one of "
+                                             r"\['protocol', 'motor-file'\]$"):
+        DevValidator("open-loop", "datasheets-unrelated", "clean")
 
 
 def test_coverage_of_pool_training_is_each_motors_resonances():

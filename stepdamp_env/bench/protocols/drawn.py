@@ -34,7 +34,7 @@ from ..scoring import add_probability_of_improvement, make_entry_v1, reference_i
 
 __all__ = ["DrawnProtocol", "MidBandProtocol", "SPLITS", "MIN_TRAINING_SEEDS", "Shift",
            "SHIFTS", "QUICK_SETTINGS", "servo_grid", "in_training_distribution",
-           "load_motors_file", "midband_grid"]
+           "load_motors_file", "midband_grid", "SENSOR_FIELDS", "with_protocol_sensors"]
 
 SPLITS = ("interpolation", "extrapolation", "custom")
 # An entry with fewer training seeds makes no claim (the report says so).
@@ -418,7 +418,15 @@ def _motors(protocol: DrawnProtocol) -> tuple[ProtocolMotor, ...]:
     return tuple(motors)
 
 
-_SENSOR_FIELDS = ("current_noise_a", "encoder_cpr")
+#: The sensors a protocol gives a custom motor whose file does not set them.
+SENSOR_FIELDS = ("current_noise_a", "encoder_cpr")
+
+
+def with_protocol_sensors(system: SystemParams, protocol: Any,
+                          given: Mapping[str, Any] | Sequence[str] = ()) -> SystemParams:
+    """``system`` with the protocol's sensors (:data:`SENSOR_FIELDS`) where
+    ``given`` (the motor's own keys) does not set them, as ``--motors`` reads it."""
+    return system.replace(**{f: getattr(protocol, f) for f in SENSOR_FIELDS if f not in given})
 
 
 def load_motors_file(path: str, protocol: DrawnProtocol) -> tuple[SystemParams, ...]:
@@ -461,10 +469,8 @@ def load_motors_file(path: str, protocol: DrawnProtocol) -> tuple[SystemParams, 
             raise ParameterError(f"--motors {path!r}, motor {k}: {exc}") from None
         if isinstance(item, str) or "name" not in item:
             system = system.replace(name=f"custom{k}" if isinstance(item, dict) else item)
-        given = item if isinstance(item, dict) else {}
-        system = system.replace(**{f: getattr(protocol, f) for f in _SENSOR_FIELDS
-                                   if f not in given})
-        systems.append(system)
+        systems.append(with_protocol_sensors(system, protocol,
+                                             item if isinstance(item, dict) else {}))
     return tuple(systems)
 
 
