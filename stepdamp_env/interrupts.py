@@ -7,16 +7,22 @@ that lands there during the package's first seconds was swallowed and the
 command ran on (CI saw a double Ctrl-C, coalesced into one, lost this way under
 load). :func:`interrupts_kept` records every Ctrl-C of its block and raises
 :class:`KeyboardInterrupt` at the block's end if none got out.
+
+``os.fork`` runs such callbacks too (logging's lock is released in one): a
+Ctrl-C that landed while a process pool forked its workers was swallowed and
+the command ran on (CI, once). :func:`signals_deferred` only records Ctrl-C
+and SIGTERM over a block and acts on them after it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from typing import Any, Iterator
 
-__all__ = ["interrupts_kept"]
+__all__ = ["interrupts_kept", "signals_deferred"]
 
 
 @contextlib.contextmanager
@@ -47,3 +53,35 @@ def interrupts_kept() -> Iterator[None]:
             signal.signal(signal.SIGINT, signal.default_int_handler)
     if pressed:                         # only reached when no KeyboardInterrupt got out
         raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def signals_deferred(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
+                     ) -> Iterator[None]:
+    """Run the block with these signals only recorded (a handler that raises could
+    run inside code whose exceptions Python ignores, such as fork's callbacks);
+    after it, hand each recorded signal, once, to the handler that was in place.
+    Does nothing outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pressed: list[int] = []
+
+    def record(signum: int, frame: Any) -> None:
+        if signum not in pressed:
+            pressed.append(signum)
+
+    previous = {}
+    try:
+        for signum in signums:
+            previous[signum] = signal.signal(signum, record)
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    for signum in pressed:
+        handler = previous[signum]
+        if callable(handler):
+            handler(signum, None)
+        elif handler == signal.SIG_DFL:
+            os.kill(os.getpid(), signum)

@@ -13,6 +13,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
+from .interrupts import signals_deferred
+
 __all__ = ["default_workers", "pool_map", "sigint_ignored", "WorkerLostError"]
 
 
@@ -86,8 +88,10 @@ def pool_map(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, *,
                                initargs=(os.getpid(), initializer, initargs))
     parts: dict[int, list[Any]] = {}
     try:
-        first = {pool.submit(_run_chunk, fn, jobs[k:k + chunk]): k
-                 for k in range(0, len(jobs), chunk)}
+        # The first submit forks the workers: a signal handled there would be lost.
+        with signals_deferred():
+            first = {pool.submit(_run_chunk, fn, jobs[k:k + chunk]): k
+                     for k in range(0, len(jobs), chunk)}
         pending = set(first)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)

@@ -295,6 +295,67 @@ def test_a_ctrl_c_swallowed_during_the_imports_still_interrupts(kept):
         assert out.stdout.split() == ["went", "on", "finished"] and out.returncode == 0
 
 
+AT_FORK = """
+import os, signal, sys
+from stepdamp_env.parallel import pool_map
+
+def ctrl_c():                       # Python ignores what a fork callback raises
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(10000):
+        pass
+
+os.register_at_fork(before=ctrl_c)
+try:
+    if sys.argv[1] == "pool":
+        pool_map(abs, list(range(8)), 2)
+    else:
+        if os.fork() == 0:
+            os._exit(0)
+        os.wait()
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(130)
+print("finished", flush=True)
+"""
+
+
+@pytest.mark.parametrize("pool", [True, False])
+def test_a_ctrl_c_while_the_pool_forks_still_interrupts(pool):
+    """A Ctrl-C handled inside a fork callback (logging has one) is ignored by
+    Python: CI once saw the leaderboard run on after a Ctrl-C that landed while a
+    pool forked its workers. :func:`pool_map` hands it on after the fork."""
+    out = subprocess.run([sys.executable, "-c", AT_FORK, "pool" if pool else "fork"],
+                         capture_output=True, text=True, timeout=120,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT,
+                                                          signal.default_int_handler))
+    if pool:
+        assert out.stdout.split() == ["interrupted"] and out.returncode == 130, out.stderr
+        assert "Exception ignored" not in out.stderr
+    else:                               # the proof that the test could fail
+        assert "Exception ignored" in out.stderr and "KeyboardInterrupt" in out.stderr
+        assert out.stdout.split() == ["finished"] and out.returncode == 0
+
+
+def test_signals_deferred_hands_each_signal_once_to_the_handler_in_place():
+    from stepdamp_env.interrupts import signals_deferred
+    seen: list[int] = []
+    previous = signal.signal(signal.SIGUSR1, lambda signum, frame: seen.append(signum))
+    try:
+        with signals_deferred((signal.SIGUSR1,)):
+            os.kill(os.getpid(), signal.SIGUSR1)
+            os.kill(os.getpid(), signal.SIGUSR1)
+            for _ in range(1000):
+                pass
+            assert seen == []
+        assert seen == [signal.SIGUSR1]
+        os.kill(os.getpid(), signal.SIGUSR1)
+        for _ in range(1000):
+            pass
+        assert seen == [signal.SIGUSR1] * 2
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+
+
 # -- result files ------------------------------------------------------------------------
 def test_a_failed_run_leaves_the_previous_results_whole(tmp_path):
     out = tmp_path / "res"
