@@ -60,8 +60,9 @@ def signals_deferred(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
                      ) -> Iterator[None]:
     """Run the block with these signals only recorded (a handler that raises could
     run inside code whose exceptions Python ignores, such as fork's callbacks);
-    after it, hand each recorded signal, once, to the handler that was in place.
-    Does nothing outside the main thread."""
+    after it, hand each recorded signal, once, to the handler that was in place
+    (those whose default action ends the process first), also when the block
+    raises. Does nothing outside the main thread."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -71,17 +72,24 @@ def signals_deferred(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
         if signum not in pressed:
             pressed.append(signum)
 
-    previous = {}
+    previous: dict[int, Any] = {}
     try:
         for signum in signums:
             previous[signum] = signal.signal(signum, record)
+    except ValueError:                  # signals are not this interpreter's
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        yield
+        return
+    try:
         yield
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    for signum in pressed:
-        handler = previous[signum]
-        if callable(handler):
-            handler(signum, None)
-        elif handler == signal.SIG_DFL:
-            os.kill(os.getpid(), signum)
+            # None: a handler installed from C, which Python cannot put back.
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+        for signum in sorted(pressed, key=lambda n: previous[n] != signal.SIG_DFL):
+            handler = previous[signum]
+            if handler in (signal.SIG_DFL, None):
+                os.kill(os.getpid(), signum)
+            elif callable(handler):
+                handler(signum, None)

@@ -1,6 +1,6 @@
 """The quick boards under emulated CPUs: the same numbers on every x86-64 CPU.
 
-Each variant runs the quick boards of v0 to v4 (every default entry of
+Each variant runs the quick boards of v0 to v5 (every default entry of
 each version, ``Protocol.default_entries``: the identification, estimators,
 adaptive laws, learned networks and statistics all run) in a fresh process whose environment makes the libraries take the
 code paths of another CPU:
@@ -41,7 +41,7 @@ from typing import Any, Sequence
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 STORED = os.path.join(HERE, "data", "quick_boards.json")
-PROTOCOLS = ("v0", "v1", "v2", "v3", "v4", "env-v2", "env-v3")
+PROTOCOLS = ("v0", "v1", "v2", "v3", "v4", "v5", "env-v2", "env-v3")
 #: Rollouts pinned beside the boards: the env versions no board runs.
 ENV_ROLLOUTS = {"env-v2": "StepperDamp-v2", "env-v3": "StepperDamp-v3"}
 
@@ -80,10 +80,12 @@ def quick_boards(protocols: Sequence[str] = PROTOCOLS, workers: int = 2,
 
     from stepdamp_env.bench.protocols.v3 import full_protocol_v3, quick_protocol_v3
     from stepdamp_env.bench.protocols.v4 import full_protocol_v4, quick_protocol_v4
+    from stepdamp_env.bench.protocols.v5 import full_protocol_v5, quick_protocol_v5
 
     make = {"v0": (quick_protocol, full_protocol), "v1": (quick_protocol_v1, full_protocol_v1),
             "v2": (quick_protocol_v2, full_protocol_v2), "v3": (quick_protocol_v3, full_protocol_v3),
-            "v4": (quick_protocol_v4, full_protocol_v4)}
+            "v4": (quick_protocol_v4, full_protocol_v4),
+            "v5": (quick_protocol_v5, full_protocol_v5)}
     out = {}
     for name in protocols:
         if name in ENV_ROLLOUTS:

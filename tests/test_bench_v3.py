@@ -27,8 +27,8 @@ SMALL = dict(suites=("open-loop", "servo"), servo_factors=(0.28, 0.56, 1.1), ser
              extrapolation_pairs=((0, "inertia"), (1, "0.9-degree")))
 
 
-def test_v3_stays_runnable_after_v4_became_the_default():
-    assert DEFAULT_VERSION == "v4"
+def test_v3_stays_runnable_after_later_versions_became_the_default():
+    assert DEFAULT_VERSION == "v5"
     assert isinstance(protocol_for("v3", quick=True), ProtocolV3)
 
 
@@ -405,7 +405,7 @@ def test_first_band_only_scan_finds_the_same_band():
 
 
 @pytest.mark.slow
-def test_default_leaderboard_is_v4_with_its_figures_report_and_check(tmp_path, capsys):
+def test_default_leaderboard_is_v5_with_its_figures_report_and_check(tmp_path, capsys):
     import json
 
     from stepdamp_env.cli import main
@@ -414,7 +414,7 @@ def test_default_leaderboard_is_v4_with_its_figures_report_and_check(tmp_path, c
     assert main(["leaderboard", "--quick", "--entries", "ff-delay-comp", "--eval-seeds", "1",
                  "--out", str(out), "--no-progress", "--workers", "2"]) == 0
     board = json.loads((out / "leaderboard.json").read_text())
-    assert board["protocol"]["version"] == "v4"
+    assert board["protocol"]["version"] == "v5"
     keys = {(e["name"], e["suite"], e["split"]) for e in board["entries"]}
     assert keys == {(n, s, sp) for n in (REFERENCE_ROW, "none", "ff-delay-comp")
                     for s in ("open-loop", "servo", "mid-band", "moves")

@@ -1,6 +1,6 @@
 """The same numbers on every x86-64 CPU, from x86-64-v2 to AVX-512, and any thread count.
 
-The quick boards of v0 to v4 (every default entry) and rollouts of the
+The quick boards of v0 to v5 (every default entry) and rollouts of the
 StepperDamp-v2 and v3 vector envs give the fingerprints stored in
 ``tests/data/quick_boards.json`` here; the v0 and v3 quick boards and the
 rollouts give them in fresh processes under emulated CPUs too (``tests/cpu_variants.py``

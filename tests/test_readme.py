@@ -42,6 +42,9 @@ def test_results_tables_are_generated_from_the_committed_leaderboards():
     import subprocess
     import sys
 
+    v5 = load_leaderboard(os.path.join(RESULTS, "v5"), runs=False)
+    assert render_ladder(v5).strip() in RESULTS_PAGE
+    assert v5["protocol"]["variant"] == "full" and v5["protocol"]["version"] == "v5"
     v4 = load_leaderboard(os.path.join(RESULTS, "v4"), runs=False)
     assert render_ladder(v4).strip() in RESULTS_PAGE
     assert v4["protocol"]["variant"] == "full" and v4["protocol"]["version"] == "v4"

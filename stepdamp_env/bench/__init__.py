@@ -10,8 +10,10 @@ protocol      the protocol contract (``Protocol``: what every version says)
 protocols     the versions, one module each (its docstring is its spec):
               ``v0``, ``v1`` (splits, servo grid, settling, ``--motors``
               files), ``v2`` (the mid-band suite), ``v3`` (dB, reference
-              rows, dev split), ``v4`` (the default: paired ranks, seeds,
-              per-cell eligibility, catalogue split, moves); ``protocol_for`` by name
+              rows, dev split), ``v4`` (paired ranks, seeds,
+              per-cell eligibility, catalogue split, moves), ``v5`` (the
+              default: v4 with the board's envelope as the bound);
+              ``protocol_for`` by name
               (``full_protocol``/``quick_protocol`` are v0's, frozen)
 motors        ``ProtocolMotor`` and what the versions share to draw motors
 policy        the policy contract: ``Policy`` (and ``BatchPolicy``, one
@@ -45,6 +47,7 @@ from .protocols.v1 import SPLITS, ProtocolV1, full_protocol_v1, load_motors_file
 from .protocols.v2 import ProtocolV2, full_protocol_v2, quick_protocol_v2
 from .protocols.v3 import ProtocolV3, full_protocol_v3, quick_protocol_v3
 from .protocols.v4 import ProtocolV4, full_protocol_v4, quick_protocol_v4
+from .protocols.v5 import ProtocolV5, full_protocol_v5, quick_protocol_v5
 from .registry import (PolicySource, default_policy_names, register_loader, register_policy,
                        registered_policies, resolve_policy)
 from .report import render_markdown, write_outputs
@@ -69,6 +72,6 @@ __all__ = [
     "probability_of_improvement", "two_level_bootstrap", "BatchPolicy", "ScalarPolicies",
     "EpisodeSpec", "run_episodes", "RowPolicy", "DEFAULT_VERSION", "ProtocolV3",
     "full_protocol_v3", "quick_protocol_v3", "ProtocolV4", "full_protocol_v4",
-    "quick_protocol_v4", "Suite", "get_suite", "register_suite",
+    "quick_protocol_v4", "ProtocolV5", "full_protocol_v5", "quick_protocol_v5", "Suite", "get_suite", "register_suite",
     "suite_names",
 ]

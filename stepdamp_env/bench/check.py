@@ -94,9 +94,12 @@ def job_of_run(motors: Sequence[ProtocolMotor], entry: Mapping[str, Any],
         raise ParameterError(f"the board's run at {run['speed_rps']!r} rev/s "
                              f"({run['speed_label']}) on {run['motor']!r} is not on the "
                              f"protocol's {entry['suite']} grid")
-    return LeaderboardJob(entry["spec"], entry["suite"], i, run["seed"],
+    # A derived row's run (v5's envelope) is a copy of the run it names.
+    chosen = run.get("chosen") or {"spec": entry["spec"],
+                                   "training_seed": run.get("training_seed")}
+    return LeaderboardJob(chosen["spec"], entry["suite"], i, run["seed"],
                           grid.index((run["speed_rps"], run["speed_label"])),
-                          run.get("training_seed"))
+                          chosen["training_seed"])
 
 
 def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, Any]]:
@@ -123,6 +126,7 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
     recorded_models = {(x["motor"], x["seed"]): x.get("model") for x in board["identification"]}
     recorded_failures = {(x["motor"], x["seed"]): x.get("failed")
                          for x in board["identification"]}
+    out += protocol.check_derived(board["entries"])
     picked = _sample(board, sample)
     identified: dict[tuple[int, int], FeedforwardModel | None] = {}
     for e, r in picked:
@@ -141,6 +145,8 @@ def check_board(board: Mapping[str, Any], sample: int = 12) -> list[dict[str, An
                     "detail": "" if ok else "the identified model differs"})
     jobs = [job_of_run(motors, e, r) for e, r in picked]
     for (e, r), got in zip(picked, run_cells(protocol, jobs, identified)):
+        if "chosen" in r:               # a copy: the run it names, as the copy records it
+            got = {**got, "training_seed": r["training_seed"], "chosen": r["chosen"]}
         ok = _same(got, r)
         where = (f"{e['name']} | {e['suite']}{' | ' + e['split'] if 'split' in e else ''} | "
                  f"{r['motor']} seed {r['seed']} {r['speed_label']} {r['speed_rps']:.4g} rev/s"

@@ -189,6 +189,12 @@ class Protocol(abc.ABC):
         none (the default) before v4."""
         return []
 
+    def check_derived(self, entries: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """``report --check``'s items for rows the version derives from other rows'
+        runs (``what``, ``reproduces``, ``detail``), from the board's ``entries``
+        with their runs; none (the default) before v5."""
+        return []
+
     def with_custom_motors(self, systems: Sequence["SystemParams"]) -> "Protocol":
         """The protocol on the user's motors (``--motors FILE``)."""
         raise ParameterError(f"--motors: {self.name} {self.version}'s motors are frozen; "

@@ -10,6 +10,7 @@ import numpy as np
 
 from .protocol import REFERENCE_POLICY
 from .protocols import protocol_class
+from .verdicts import render_table_facts, table_facts_line
 
 #: The patent's own entry: drawn and listed beside the reference in every suite.
 PATENT_ENTRY = "patent-ff-identified"
@@ -93,56 +94,6 @@ def rank_rule(protocol: Mapping[str, Any], before_v4: str, end: str = "") -> str
 
 def _sentence(clause: str) -> str:
     return clause[:1].upper() + clause[1:] + "."
-
-
-def table_facts_line(t: Mapping[str, Any]) -> str:
-    """One table's facts (v4's ``tables``): cells, headroom, saturation, the
-    bound per motor, rank stability over the evaluation seeds."""
-    parts = [f"cells scored {t['cells']['scored']} of {t['cells']['split']}"]
-    if t.get("headroom_db") is not None and math.isfinite(t["headroom_db"]):
-        parts.append(f"headroom {t['headroom_db']:+.1f} dB (bound minus `{t['best']}`)")
-    if "saturated" in t:
-        word = {True: "saturated", False: "not saturated", None: "saturation unknown"}
-        parts.append(f"{word[t['saturated']]} ({t['saturated_why']})")
-    b = t.get("bound_check")
-    if b:
-        worst = max(b["beaten_on"], key=lambda x: x["by_db"], default=None)
-        parts.append(f"bound holds on {b['holds']} of {b['motors']} motors"
-                     + (f" (worst: `{worst['by']}` {worst['by_db']:.1f} dB above it on "
-                        f"{worst['motor']})" if worst else ""))
-    r = t.get("rank_stability")
-    if r:
-        parts.append(f"rank 1 kept on {r['rank_1_kept_on_seeds']} of {r['seeds']} seeds, "
-                     f"ranks move {r['mean_rank_change']:.2f} on average (at most "
-                     f"{r['max_rank_change']})")
-    return "Table: " + "; ".join(parts) + "."
-
-
-def render_table_facts(board: Mapping[str, Any]) -> list[str]:
-    """LEADERBOARD.md's table of v4's per-table facts (none before v4)."""
-    tables = board.get("tables")
-    if not tables:
-        return []
-    p = board["protocol"]
-    lines = ["| suite, split | best ranked | headroom (dB) | saturated | bound holds "
-             "(motors) | rank 1 kept (seeds) |", "|---|---|---|---|---|---|"]
-    for t in tables:
-        b, r = t.get("bound_check"), t.get("rank_stability")
-        lines.append(
-            f"| {t['suite']}, {t['split']} | {t['best'] or '-'} | "
-            + (f"{t['headroom_db']:+.1f}" if t.get("headroom_db") is not None
-               and math.isfinite(t["headroom_db"]) else "-") + " | "
-            + {True: "yes", False: "no", None: f"unknown: {t.get('saturated_why', '')}"}[
-                t.get("saturated")] + " | "
-            + (f"{b['holds']}/{b['motors']}" if b else "-") + " | "
-            + (f"{r['rank_1_kept_on_seeds']}/{r['seeds']}" if r else "-") + " |")
-    return [f"Per table: headroom = the bound (`{p.get('bound_entry')}`) minus the best "
-            f"ranked entry; saturated = less than {p.get('saturation_db')} dB of headroom, or "
-            "the best ranked entry not told apart from the bound (unknown where the bound "
-            f"holds on fewer than {p.get('bound_share_min', 0.95):.0%} of the motors); the "
-            "bound holds on a motor where no non-privileged "
-            "entry scores above it; rank 1 kept = seeds on which every rank-1 entry is "
-            "rank 1 again.", "", *lines, ""]
 
 
 def best_eligible(rows: Sequence[Mapping[str, Any]], skip: Sequence[str] = ()
@@ -388,8 +339,11 @@ def _render_markdown_db(board: Mapping[str, Any], suites: Sequence[str] | None =
              "Ratio: ripple over `none`'s. Full sweep: mean / worst ratio over every speed. "
              + rank_rule(p, "Rank: entries whose intervals overlap share a rank", ";")
              + " `ref`, `privileged` "
-             f"(true state or exact model; `{p.get('bound_entry', 'privileged-bound')}` is "
-             "the bound) and `zero-shot` "
+             + (f"(true state or exact model; `{p.get('bound_entry', 'privileged-bound')}` is "
+                "the bound)" if "bound_rule" not in p else
+                f"(true state or exact model, and `{p['bound_entry']}`, the bound: "
+                f"{p['bound_rule'].split(': ', 1)[-1]})")
+             + " and `zero-shot` "
              "(a learned entry outside its training coverage) rows are unranked. Effect: median over motors "
              "of the difference in dB against the best ranked entry, with its interval."
              + (" Position ripple: the same score of the RMS position error about its "

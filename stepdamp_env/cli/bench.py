@@ -50,7 +50,8 @@ def add_commands(sub: Any, command: Callable[[str, str], argparse.ArgumentParser
                         "motors from public datasheets. Default: the protocol's scored splits")
     p.add_argument("--eval-seeds", type=number(int, 1, 20), default=None, metavar="N",
                    help="v4 or later: how many evaluation (noise) seeds each run is repeated "
-                        "with, from 1000000 on (default: the protocol's, 3)")
+                        "with, from 1000000 on (default: the protocol's, 3; v5 needs 2 or "
+                        "more for its bound)")
     add_pool_run_args(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--no-resume", action="store_true",

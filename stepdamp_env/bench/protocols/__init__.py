@@ -1,6 +1,6 @@
 """The registered ``stepdamp-bench`` versions, by name.
 
-Each version is one module here (v0 to v4) whose docstring is its
+Each version is one module here (v0 to v5) whose docstring is its
 specification and whose ``PROTOCOL`` dict registers it: ``{"version": ...,
 "full": factory, "quick": factory, "about": text, "quick_about": text}`` (the
 texts are the command line's help). ``--protocol`` offers what is registered;
@@ -14,13 +14,13 @@ from typing import Any, Mapping
 
 from ...params import ParameterError
 from ..protocol import Protocol
-from . import v0, v1, v2, v3, v4
+from . import v0, v1, v2, v3, v4, v5
 
 __all__ = ["register_protocol", "protocol_versions", "protocol_for", "protocol_class",
            "protocol_about", "known_suites", "DEFAULT_VERSION"]
 
 # What `stepdamp leaderboard` runs without --protocol.
-DEFAULT_VERSION = "v4"
+DEFAULT_VERSION = "v5"
 
 _REGISTRY: dict[str, dict[str, Any]] = {}
 
@@ -34,7 +34,7 @@ def register_protocol(entry: Mapping[str, Any]) -> None:
     _REGISTRY[version] = {key: entry[key] for key in ("full", "quick", "about", "quick_about")}
 
 
-for _module in (v0, v1, v2, v3, v4):
+for _module in (v0, v1, v2, v3, v4, v5):
     register_protocol(_module.PROTOCOL)
 
 
