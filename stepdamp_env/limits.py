@@ -16,9 +16,9 @@ class Limits:
     #: Nesting of arrays and objects in any JSON file read (the tool's own files
     #: nest at most 8 deep; Python's parser would recurse out past about 1000).
     json_depth: int = 64
-    #: Size of a JSON or CSV file read, bytes (a full board's runs are about 30 MB;
-    #: parsing may take 26 times the file in memory).
-    json_bytes: int = 256 * 1024 ** 2
+    #: Size of a JSON or CSV file read, bytes (the full v5 board's runs file is
+    #: 47 MB compressed, 260 MB of JSON; parsing may take 26 times the file in memory).
+    json_bytes: int = 512 * 1024 ** 2
     #: Nesting of list files naming list files (``stepdamp motors``).
     list_file_depth: int = 8
     #: Characters of a motor's name (printable).
