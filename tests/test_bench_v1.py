@@ -224,8 +224,9 @@ def test_protocol_versions():
     assert protocol_for("v1", True) == quick_protocol_v1()
     assert protocol_for("v2").version == "v2" and protocol_for("v2", True).variant == "quick"
     assert protocol_for("v3").version == "v3" and protocol_for("v4").version == "v4"
+    assert protocol_for("v5").version == "v5"
     with pytest.raises(ParameterError, match="--protocol"):
-        protocol_for("v5")
+        protocol_for("v6")
     json.dumps(full_protocol_v1().to_dict())
 
 
