@@ -1,8 +1,9 @@
 """``stepdamp-bench v5``: v4 with a bound that holds on every motor.
 
 v0-v4 stay frozen. v5 keeps every rule of v4 (its module docstring,
-docs/protocol_v4.md) and changes one: the bound of ``headroom_db``,
-``bound_check`` and ``saturated``.
+docs/protocol_v4.md) and changes three, all about the tables' verdicts: the
+bound of ``headroom_db``, ``bound_check`` and ``saturated``, the check's
+tolerance, and when a table is saturated (docs/protocol_v5.md).
 
 Why
     v4's bound, ``plant-bound``, chooses per run from a portfolio of
@@ -10,8 +11,8 @@ Why
     reviewer's held-out board it scored -7.0 dB on the LDO 42STH60-3004MAC
     in the mid-band (every law of its portfolio destabilises that motor; no
     damping is not among them), and the mid-band agents trained on datasheet
-    motors beat it on 12 of the 27 catalogue motors (by 0.2-4.7 dB). A bound
-    that is beaten measures no headroom.
+    motors beat it on 11 and 12 of the 27 catalogue motors (by 0.14-4.7 dB).
+    A bound that is beaten measures no headroom.
 
 The bound (``bound_entry`` = ``board-envelope``, a privileged row no one
 submits)
@@ -23,7 +24,10 @@ submits)
     entry apart (an entry and training seed); a tie goes to the first in that
     order (by name, then training seed). Each of its runs is a copy of the
     chosen run, with ``chosen`` = {"spec", "training_seed"} naming it
-    (``stepdamp report --check`` re-runs that). With one evaluation seed
+    (``stepdamp report --check`` derives the choices again from the other
+    rows' runs and re-runs sampled copies as what they name). Each table also
+    records ``plant-bound``'s own check (``also_checked``), as information.
+    With one evaluation seed
     there is nothing to cross-fit on: the table has no envelope (and no
     bound).
 
