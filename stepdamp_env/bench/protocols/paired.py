@@ -11,7 +11,7 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -337,17 +337,27 @@ class PairedProtocol(DecibelProtocol):
         """v4's :meth:`run_db` of each headline run of the velocity ripple against
         ``none``'s run of the same cell and seed, keyed (motor, seed, speed_rps);
         runs without a finite score are left out."""
-        none = {(r["motor"], r["seed"], r["speed_rps"], r["speed_label"]): r for r in none_runs}
-        stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
+        score = self.run_scorer(none_runs)
         out: dict[tuple[str, int, float], float] = {}
         for r in runs:
             if r["speed_label"].startswith("off"):
                 continue
-            n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
-            db = self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
+            db = score(r)
             if math.isfinite(db):
                 out[(r["motor"], r["seed"], r["speed_rps"])] = db
         return out
+
+    def run_scorer(self, none_runs: Sequence[Mapping[str, Any]]
+                   ) -> Callable[[Mapping[str, Any]], float]:
+        """A run's :meth:`run_db` of the velocity ripple against ``none``'s run of
+        the same cell and seed (or its stand-in), as a function of the run."""
+        none = {(r["motor"], r["seed"], r["speed_rps"], r["speed_label"]): r for r in none_runs}
+        stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
+
+        def score(r: Mapping[str, Any]) -> float:
+            n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
+            return self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
+        return score
 
     def run_db(self, run: Mapping[str, Any], none: Mapping[str, Any] | None,
                stand_in: float, metric: str = "rms_velocity_error_rad_s") -> float:

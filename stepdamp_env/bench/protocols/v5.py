@@ -173,23 +173,16 @@ class ProtocolV5(PairedProtocol):
         other row's runs (``by_entry``: (spec, suite) -> runs)."""
         out = {}
         for suite in self.suites:
-            none = {(r["motor"], r["seed"], r["speed_rps"], r["speed_label"]): r
-                    for r in by_entry.get((REFERENCE_POLICY, suite), [])}
-            if not none:
+            none_runs = by_entry.get((REFERENCE_POLICY, suite), [])
+            if not none_runs:
                 continue
-            stand_in = self._stand_ins_of(none, "rms_velocity_error_rad_s")
-
-            def score(r: Mapping[str, Any]) -> float:
-                n = none.get((r["motor"], r["seed"], r["speed_rps"], r["speed_label"]))
-                return self.run_db(r, n, stand_in.get((r["motor"], r["seed"]), math.nan))
-
             candidates: dict[Candidate, list[Mapping[str, Any]]] = {}
             for (spec, s), runs in by_entry.items():
                 if s != suite or spec in (REFERENCE_ROW, ENVELOPE):
                     continue
                 for r in runs:
                     candidates.setdefault((spec, r.get("training_seed")), []).append(r)
-            got = envelope_runs(score, candidates)
+            got = envelope_runs(self.run_scorer(none_runs), candidates)
             if got:
                 out[(ENVELOPE, suite)] = got
         return out
