@@ -69,6 +69,26 @@ def test_v5_is_v4_with_the_envelope_as_its_bound_and_the_later_agents():
     assert protocol_for("v5", quick=True).eval_seeds == protocol_for("v4", quick=True).eval_seeds
 
 
+def test_v5s_default_entries_are_its_published_boards_and_a_later_entry_stays_off():
+    """The envelope and every paired comparison depend on the board's rows: an
+    entry registered after v5 was published must not join its default board."""
+    import os
+
+    from stepdamp_env.bench import default_policy_names
+    from stepdamp_env.bench.protocols.v5 import PUBLISHED_ENTRIES_V5
+
+    v5 = protocol_for("v5")
+    assert v5.default_entries(default_policy_names()) == [
+        n for n in default_policy_names() if n in PUBLISHED_ENTRIES_V5]
+    assert set(v5.default_entries(default_policy_names())) == set(PUBLISHED_ENTRIES_V5)
+    assert v5.default_entries([*default_policy_names(), "a-later-entry"]) == \
+        v5.default_entries(default_policy_names())
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "docs", "results", "v5", "leaderboard.json")) as fh:
+        published = {e["name"] for e in json.load(fh)["entries"]}
+    assert published - {"reference", ENVELOPE} == set(PUBLISHED_ENTRIES_V5)
+
+
 # The reviewer's held-out motor on which v4's plant-bound scored -7.0 dB in the
 # mid-band (every law of its portfolio destabilises it; docs/results/agents/
 # mid-band-unrelated/heldout/motors.json).

@@ -53,11 +53,13 @@ Saturation
     nothing left to win where the motor without the phenomenon is far above.
 
 Default entries
-    Every registered default entry (``published_entries`` None, as the
-    default version has it): in 0.19.0 v4's and the agents trained after v4
-    was published, ``ppo-moves``, ``ppo-mid-band-datasheets``,
-    ``ppo-mid-band-unrelated`` and ``ppo-open-loop-unrelated``
-    (docs/agents.md).
+    The entries of its published board (``PUBLISHED_ENTRIES_V5``): v4's and
+    the agents trained after v4 was published, ``ppo-moves``,
+    ``ppo-mid-band-datasheets``, ``ppo-mid-band-unrelated`` and
+    ``ppo-open-loop-unrelated`` (docs/agents.md). Written out, not "every
+    registered default": the envelope and every paired comparison depend on
+    the board's rows, so an entry registered later would change every
+    published number. A later entry runs on v5 with ``--entries``.
 """
 
 from __future__ import annotations
@@ -71,8 +73,18 @@ from ..motors import ProtocolMotor
 from ..protocol import REFERENCE_POLICY, REFERENCE_ROW
 from .paired import PairedProtocol, quick_settings
 
-__all__ = ["ProtocolV5", "ENVELOPE", "envelope_runs",
+__all__ = ["ProtocolV5", "ENVELOPE", "PUBLISHED_ENTRIES_V5", "envelope_runs",
            "full_protocol_v5", "quick_protocol_v5"]
+
+#: The default entries of the published v5 board (0.19.0), written out.
+PUBLISHED_ENTRIES_V5 = (
+    "none", "patent-ff-oracle", "patent-ff-identified", "ff-delay-comp", "adaptive-ff",
+    "velocity-feedback", "sensorless-damping", "calibrated-table", "repetitive-control",
+    "tuned-constant-gain", "tuned-gain-pair", "oracle-floor", "plant-bound",
+    "ars-mid-band", "ars-open-loop", "ars-per-step", "ars-per-step-25hz", "ars-servo",
+    "ppo-gain-selector", "ppo-mid-band", "ppo-open-loop", "ppo-open-loop-long",
+    "ppo-per-step", "td3-per-step", "ppo-moves", "ppo-mid-band-datasheets",
+    "ppo-mid-band-unrelated", "ppo-open-loop-unrelated")
 
 #: The derived row that is v5's bound.
 ENVELOPE = "board-envelope"
@@ -140,8 +152,7 @@ class ProtocolV5(PairedProtocol):
     #: v4's bound, as information on where its privileged laws fall short.
     also_checked: tuple[str, ...] = ("plant-bound",)
 
-    #: The default: every registered default entry (docs/architecture.md).
-    published_entries: ClassVar[tuple[str, ...] | None] = None
+    published_entries: ClassVar[tuple[str, ...] | None] = PUBLISHED_ENTRIES_V5
 
     def __post_init__(self) -> None:
         super().__post_init__()
