@@ -12,8 +12,12 @@ reassociation), so vectorising cannot change a bit.
 Lanes run every variant of the drive: open loop or servo, current or voltage
 mode, any velocity estimator, any profile, with or without the damping law
 (:func:`run_batch_law_lanes`). Each variant's branches are computed and the
-drive's selected, so one group of LANES may mix variants; it shares one
-substep count, and a drive of another count is run by the kernel's own
+drive's selected, so one group of LANES may mix variants, but a group computes
+only the variants its lanes use: the command's move profile only where a lane
+moves and the sensor noise only where a lane has noise (:func:`given_lanes`,
+before the period's control), and a group of current-mode drives without the
+back-EMF estimate runs a control compiled without the voltage mode
+(:func:`control_lanes`). A group shares one substep count, and a drive of another count is run by the kernel's own
 :func:`kernel.run_periods` for the whole call. A drive that leaves the
 branch-free path in a period (an angle beyond 1e6 rad for
 :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8 rad for
@@ -35,15 +39,18 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-from .fixedmath import sincos
-from .kernel import (ACC, CONFIG, CTRL, INPUT, LAW, STATE, TRACE, control_period, controller_params,
-                     law_input, load_controller, load_law, load_metrics, load_plant, plant_params,
-                     plant_step_in, run_periods, run_periods_law, store_controller, store_law,
-                     store_metrics,
-                     store_plant, without_law)
+from .fixedmath import bits_float, float_bits, sincos
+from .kernel import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, PROFILE, STATE, TRACE, VEL_EST,
+                     command_in,
+                     constant_speed_command, control_period, controller_params,
+                     gaussian_pair_keyed, law_input, load_controller, load_law, load_metrics,
+                     load_plant, noise_key, plant_params, plant_step_in, run_periods,
+                     run_periods_law, store_controller, store_law, store_metrics, store_plant,
+                     without_law)
 
 __all__ = ["LANES", "step_lanes", "step_lanes_parallel", "run_batch_lanes",
-           "run_batch_law_lanes", "run_batch_lanes_parallel", "run_batch_law_lanes_parallel", "in_lanes", "control_lanes", "plant_lanes", "workspace_size",
+           "run_batch_law_lanes", "run_batch_lanes_parallel", "run_batch_law_lanes_parallel",
+           "in_lanes", "given_lanes", "control_lanes", "plant_lanes", "workspace_size",
            "simd_by_default"]
 
 _jit = njit(cache=True, error_model="numpy")
@@ -62,7 +69,7 @@ LANES = 32
 #: this (rad; the rotation alone holds to 1/8 rad).
 WIDE_SHIFT = 0.1
 
-Blocks = namedtuple("Blocks", "CFG ST AC IN LW ST0 AC0 LW0 SIN COS VA VB RARE ROWS")
+Blocks = namedtuple("Blocks", "CFG ST AC IN LW ST0 AC0 LW0 SIN COS VA VB RARE KEY GIVEN ROWS")
 
 
 def _blocks(sizes: tuple[int, ...]) -> Blocks:
@@ -77,9 +84,11 @@ def _blocks(sizes: tuple[int, ...]) -> Blocks:
 #: state, accumulators and law at the period's start (for the kernel's reruns);
 #: SIN, COS the last Park angle's sine and cosine (the law's input); VA, VB the
 #: winding voltages applied during the period (V); RARE 1.0 where the kernel runs
-#: the lane's period again; ROWS the workspace's rows.
+#: the lane's period again; KEY the bits of the noise seed's hash key
+#: (``kernel.noise_key``); GIVEN the period's command position (rad) and speed
+#: (rad/s) and noise pair (``control_step``'s ``given``); ROWS the workspace's rows.
 ROW = _blocks((len(CONFIG), len(STATE), len(ACC), len(INPUT), len(LAW), len(STATE), len(ACC),
-               len(LAW), 1, 1, 1, 1, 1))
+               len(LAW), 1, 1, 1, 1, 1, 1, 4))
 
 
 def _column_reader(rows: int):
@@ -134,10 +143,48 @@ def in_lanes(c, n_sub):
 
 
 @_jit
-def control_lanes(w, law):
+def given_lanes(w, moves, noisy):
+    """The period's command and sensor noise for every lane (``control_step``'s
+    ``given``: what depends on the period and the drive's constants alone), in
+    loops of their own so that a group skips what none of its lanes uses: the
+    move profiles where every lane runs at a constant speed (``moves`` False),
+    the noise where no lane has any (``noisy`` False; the lanes' selects then
+    never read it). The values are those ``control_step`` computes."""
+    n = LANES
+    if moves:
+        for d in range(n):
+            t = w[_st(STATE.PERIOD, d)] * w[(ROW.CFG + CONFIG.DT) * n + d]
+            p, v = command_in(t, w[(ROW.CFG + CONFIG.PROFILE) * n + d],
+                              w[(ROW.CFG + CONFIG.SPEED) * n + d],
+                              w[(ROW.CFG + CONFIG.ACCEL) * n + d],
+                              w[(ROW.CFG + CONFIG.DISTANCE) * n + d], n)
+            w[ROW.GIVEN * n + d] = p
+            w[(ROW.GIVEN + 1) * n + d] = v
+    else:
+        for d in range(n):
+            t = w[_st(STATE.PERIOD, d)] * w[(ROW.CFG + CONFIG.DT) * n + d]
+            p, v = constant_speed_command(t, w[(ROW.CFG + CONFIG.SPEED) * n + d],
+                                          w[(ROW.CFG + CONFIG.ACCEL) * n + d])
+            w[ROW.GIVEN * n + d] = p
+            w[(ROW.GIVEN + 1) * n + d] = v
+    if noisy:
+        for d in range(n):
+            a, b = gaussian_pair_keyed(float_bits(w[ROW.KEY * n + d]), w[_st(STATE.PERIOD, d)], n)
+            w[(ROW.GIVEN + 2) * n + d] = a
+            w[(ROW.GIVEN + 3) * n + d] = b
+    else:
+        for d in range(n):
+            w[(ROW.GIVEN + 2) * n + d] = 0.0
+            w[(ROW.GIVEN + 3) * n + d] = 0.0
+
+
+@_jit
+def control_lanes(w, law, current_only):
     """The sample, law, control and metrics of one period for every lane
     (:func:`kernel.control_period`, compiled for lanes); ``law`` None (pruned
-    at compile time) or ``w`` for the damping law in the workspace."""
+    at compile time) or ``w`` for the damping law in the workspace;
+    ``current_only`` None, or (a group of current-mode drives without the
+    back-EMF estimate) not None: the other variants' branches are not compiled."""
     n = LANES
     for d in range(n):
         c = _config_column(w, ROW.CFG, d)
@@ -152,8 +199,11 @@ def control_lanes(w, law):
         if law is not None:
             lw, u = law_input(load_law(w, ROW.LW * n + d, n), u, cs, obs, q[CTRL.DT], n)
             store_law(w, ROW.LW * n + d, n, lw)
+        given = (w[ROW.GIVEN * n + d], w[(ROW.GIVEN + 1) * n + d], w[(ROW.GIVEN + 2) * n + d],
+                 w[(ROW.GIVEN + 3) * n + d])
         cs, v, v_next, obs, m, off_path = control_period(period, x, cs, v_next, obs, m, q, u,
-                                                         win_start, win_end, ref_rate, n)
+                                                         win_start, win_end, ref_rate, n, given,
+                                                         current_only)
         store_controller(w, at, n, period + 1.0, cs, v_next, obs)
         store_metrics(w, ROW.AC * n + d, n, m)
         w[ROW.VA * n + d] = v[0]
@@ -232,10 +282,18 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
         _load(w, first, states, ROW.ST, m)
         _load(w, first, accs, ROW.AC, m)
         _load(w, first, inputs, ROW.IN, m)
+        moves = False
+        noisy = False
+        current_only = True
         for d in range(n):
             sin_a, cos_a = sincos(w[_st(STATE.PARK_ANGLE, d)])
             w[ROW.SIN * n + d] = sin_a
             w[ROW.COS * n + d] = cos_a
+            w[ROW.KEY * n + d] = bits_float(noise_key(w[(ROW.CFG + CONFIG.NOISE_SEED) * n + d]))
+            moves = moves | (w[(ROW.CFG + CONFIG.PROFILE) * n + d] != PROFILE.CONSTANT)
+            noisy = noisy | (w[(ROW.CFG + CONFIG.I_NOISE) * n + d] != 0.0)
+            current_only = current_only & (w[(ROW.CFG + CONFIG.DRIVE_MODE) * n + d] == DRIVE.CURRENT) \
+                & (w[(ROW.CFG + CONFIG.VEL_EST) * n + d] != VEL_EST.BACK_EMF)
         if laws is not None:
             _load(w, first, laws, ROW.LW, m)
             # Whether the resonant terms run is set once per call, as in run_periods_law.
@@ -263,7 +321,11 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
             if laws is not None:
                 for j in range(ROW.LW * n, (ROW.LW + len(LAW)) * n):
                     w[j + (ROW.LW0 - ROW.LW) * n] = w[j]
-            control_lanes(w, law)
+            given_lanes(w, moves, noisy)
+            if current_only:
+                control_lanes(w, law, one)
+            else:
+                control_lanes(w, law, None)
             for _ in range(n_sub):
                 if wide:
                     plant_lanes(w, one)

@@ -214,6 +214,31 @@ def test_a_batch_in_lanes_is_the_kernels_batch(with_law):
     assert got[0][9, K.STATE.OMEGA] == 0.0                # stuck
 
 
+@pytest.mark.parametrize("kind", [0, 1, 2, 3, 4, 5, 6, 13, 14])
+def test_a_group_of_one_variant_has_the_kernels_bits(kind):
+    # A group computes only what one of its lanes uses (the move profiles, the
+    # noise, the voltage mode and the back-EMF estimate are skipped where no
+    # lane has them): every lane of kind 0 (open loop, no noise) skips all four;
+    # a mixed group (above) skips none.
+    c, s, a, u = _batch(2 * KINDS)
+    pick = [kind, kind + KINDS] * (lanes.LANES // 2)
+    c, s, a, u = c[pick], s[pick], a[pick], u[pick]
+    laws = _laws(len(c))
+    for law in (None, laws):
+        want = [s.copy(), a.copy(), None if law is None else law.copy()]
+        got = [s.copy(), a.copy(), None if law is None else law.copy()]
+        for periods in (1, 700):
+            if law is None:
+                K.run_batch(c, want[0], want[1], u, periods)
+                assert lanes.run_batch_lanes(c, got[0], got[1], u, periods) == 0
+            else:
+                K.run_batch_law(c, want[0], want[1], u, want[2], periods)
+                assert lanes.run_batch_law_lanes(c, got[0], got[1], u, got[2], periods) == 0
+        for x, y in zip(got, want):
+            if x is not None:
+                assert np.array_equal(_bits(x), _bits(y))
+
+
 def test_a_nan_command_is_the_kernels_nan():
     # An S-curve whose ramp time underflows (accel/speed beyond 1e308): the
     # command is NaN from the first period; the lanes leave such a period to the
@@ -261,10 +286,14 @@ def test_the_loops_over_lanes_are_vectorised():
     # callers can (numba's private _get_module_for_linking: if numba renames it,
     # this fails).
     row = numba.typeof(np.zeros(lanes.workspace_size()))
-    for fn, sig in ((lanes.control_lanes, (row, numba.types.none)),
-                    (lanes.control_lanes, (row, numba.types.Optional(row))),
-                    (lanes.plant_lanes, (row, numba.types.none)),
-                    (lanes.plant_lanes, (row, numba.types.int64))):
+    none, law, one = numba.types.none, numba.types.Optional(row), numba.types.int64
+    for fn, sig in ((lanes.control_lanes, (row, none, none)),
+                    (lanes.control_lanes, (row, none, one)),
+                    (lanes.control_lanes, (row, law, none)),
+                    (lanes.control_lanes, (row, law, one)),
+                    (lanes.given_lanes, (row, numba.types.boolean, numba.types.boolean)),
+                    (lanes.plant_lanes, (row, none)),
+                    (lanes.plant_lanes, (row, one))):
         fn.compile(sig)
         cres = fn.overloads[sig]
         # The function's own body, not the callees linked into its module.

@@ -35,8 +35,9 @@ from __future__ import annotations
 from .control import (command, command_in, constant_speed_command, control_step,
                       controller_params, current_command, current_command_lanes, current_loop,
                       estimate_velocity, estimate_velocity_lanes, feedforward_torque,
-                      gaussian_pair, move_command, quantise, s_curve_command, s_curve_lanes,
-                      sense_currents, splitmix64, uniform_pair, voltage_drive, voltage_drive_lanes)
+                      gaussian_pair, gaussian_pair_keyed, move_command, noise_key, quantise,
+                      s_curve_command, s_curve_lanes, sense_currents, splitmix64, uniform_pair,
+                      uniform_pair_keyed, voltage_drive, voltage_drive_lanes)
 from .layout import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, MODE, PLANT, PROFILE, STATE, TRACE,
                      TRACE_NAMES, TRACE_UNITS, VEL_EST, ControllerState, LawState, Metrics,
                      Sample)
@@ -58,7 +59,8 @@ __all__ = ["CONFIG", "DRIVE", "VEL_EST", "MODE", "PROFILE", "PLANT", "CTRL", "ST
            "harmonic_series", "plant_params", "detent_torque", "detent_potential",
            "electromagnetic_torque", "friction_torque", "driving_torque", "driving_torque_sc",
            "motor_derivative_sc", "motor_derivative", "rk4_step", "rk4_combine", "plant_step",
-           "rk4_step_stuck", "splitmix64", "uniform_pair", "gaussian_pair", "quantise",
+           "rk4_step_stuck", "splitmix64", "noise_key", "uniform_pair_keyed", "uniform_pair",
+           "gaussian_pair_keyed", "gaussian_pair", "quantise",
            "constant_speed_command", "move_command", "command", "controller_params",
            "feedforward_torque", "sense_currents", "estimate_velocity", "current_command",
            "voltage_drive", "current_loop", "control_step", "run_periods", "run_periods_law",

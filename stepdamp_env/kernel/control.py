@@ -13,7 +13,8 @@ from ..fixedmath import log_in, sincos, sincos_in, sincos_lane, sincos_rotated, 
 from .layout import CONFIG, CTRL, DRIVE, INPUT, MODE, PROFILE, VEL_EST, ControllerState, Sample
 from .plant import harmonic_series, inverse_park_sc, park_sc, pi_output, pi_update, svpwm_legs
 
-__all__ = ["splitmix64", "uniform_pair", "gaussian_pair", "quantise", "constant_speed_command",
+__all__ = ["splitmix64", "noise_key", "uniform_pair_keyed", "uniform_pair", "gaussian_pair_keyed",
+           "gaussian_pair", "quantise", "constant_speed_command",
            "move_command", "s_curve_command", "s_curve_lanes", "command", "command_in",
            "controller_params", "feedforward_torque", "sense_currents", "estimate_velocity",
            "estimate_velocity_lanes", "current_command", "current_command_lanes", "voltage_drive",
@@ -45,13 +46,34 @@ def splitmix64(x):
 
 
 @_jit_inline
-def uniform_pair(seed, counter):
-    """Two uniform samples for (seed, counter): u1 in (0, 1], u2 in [0, 1)."""
-    key = splitmix64(np.uint64(seed))
+def noise_key(seed):
+    """The hash key (uint64) of a noise ``seed``: :func:`uniform_pair`'s first
+    step, the same for every counter (the SIMD lanes compute it once per call)."""
+    return splitmix64(np.uint64(seed))
+
+
+@_jit_inline
+def uniform_pair_keyed(key, counter):
+    """:func:`uniform_pair` of the seed whose :func:`noise_key` is ``key``."""
     c2 = np.uint64(counter) * np.uint64(2)
     u1 = (float(splitmix64(key ^ c2) >> np.uint64(11)) + 1.0) * _TWO_M53
     u2 = float(splitmix64(key ^ (c2 + np.uint64(1))) >> np.uint64(11)) * _TWO_M53
     return u1, u2
+
+
+@_jit_inline
+def uniform_pair(seed, counter):
+    """Two uniform samples for (seed, counter): u1 in (0, 1], u2 in [0, 1)."""
+    return uniform_pair_keyed(noise_key(seed), counter)
+
+
+@_jit_inline
+def gaussian_pair_keyed(key, counter, lanes=None):
+    """:func:`gaussian_pair` of the seed whose :func:`noise_key` is ``key``."""
+    u1, u2 = uniform_pair_keyed(key, counter)
+    r = math.sqrt(-2.0 * log_in(u1, lanes))
+    s, c = sincos_in(2.0 * math.pi * u2, lanes)
+    return r * c, r * s
 
 
 @_jit_inline
@@ -62,10 +84,7 @@ def gaussian_pair(seed, counter, lanes=None):
     of PWM period k is a function of k alone, so it does not depend on how a run
     is chunked. ``lanes``: see :func:`control_step`.
     """
-    u1, u2 = uniform_pair(seed, counter)
-    r = math.sqrt(-2.0 * log_in(u1, lanes))
-    s, c = sincos_in(2.0 * math.pi * u2, lanes)
-    return r * c, r * s
+    return gaussian_pair_keyed(noise_key(seed), counter, lanes)
 
 
 @_jit_inline
@@ -236,12 +255,16 @@ def feedforward_torque(sin_x, cos_x, q, u):
 
 
 @_jit_inline
-def sense_currents(period, ia, ib, q, lanes=None):
+def sense_currents(period, ia, ib, q, lanes=None, noise=None):
     """The current sensors' readings (A) of the true ``ia``, ``ib``: offset and,
-    if set, noise drawn for ``period``. ``lanes``: see :func:`control_step`."""
+    if set, noise drawn for ``period`` (or ``noise``, the pair
+    :func:`gaussian_pair` gives for it, drawn beforehand). ``lanes``: see
+    :func:`control_step`."""
     noisy = q[CTRL.I_NOISE] != 0.0
     noise_a = noise_b = 0.0
-    if lanes is not None or noisy:
+    if noise is not None:
+        noise_a, noise_b = noise
+    elif lanes is not None or noisy:
         noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period, lanes)
     return (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a if noisy
             else ia + q[CTRL.I_OFFSET_A],
@@ -283,18 +306,22 @@ def estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_p
 
 @_jit_inline
 def estimate_velocity_lanes(theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_prev, ib_prev,
-                            va_old, vb_old, theta_cmd, omega_cmd, q):
+                            va_old, vb_old, theta_cmd, omega_cmd, q, encoder_only=None):
     """:func:`estimate_velocity` for SIMD lanes: the three estimates computed and
     the drive's selected (the same bits); also whether the back-EMF's angle
-    left the branch-free sine's range (beyond 1e6 rad, or NaN)."""
+    left the branch-free sine's range (beyond 1e6 rad, or NaN).
+    ``encoder_only`` not None: no lane estimates from the back-EMF, which is
+    then not computed (chosen when compiled)."""
     dt, nr = q[CTRL.DT], q[CTRL.NR]
-    ea = va_old - q[CTRL.BEMF_G1] * ia + q[CTRL.BEMF_G2] * ia_prev
-    eb = vb_old - q[CTRL.BEMF_G1] * ib + q[CTRL.BEMF_G2] * ib_prev
     x_mid = (nr * (theta_cmd - 0.5 * dt * omega_cmd) if q[CTRL.MODE] == MODE.OPEN_LOOP
              else nr * (theta_fb + 0.5 * q[CTRL.ENCODER]))
-    s_p, c_p = sincos_lane(x_mid)
-    w_raw = (c_p * eb - s_p * ea) * (1.0 / q[CTRL.KM_EST])
-    w_bemf = omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb)
+    w_bemf = omega_fb
+    if encoder_only is None:
+        ea = va_old - q[CTRL.BEMF_G1] * ia + q[CTRL.BEMF_G2] * ia_prev
+        eb = vb_old - q[CTRL.BEMF_G1] * ib + q[CTRL.BEMF_G2] * ib_prev
+        s_p, c_p = sincos_lane(x_mid)
+        w_raw = (c_p * eb - s_p * ea) * (1.0 / q[CTRL.KM_EST])
+        w_bemf = omega_fb + q[CTRL.VEL_ALPHA] * (w_raw - omega_fb)
     predicted = theta_est + dt * omega_fb
     innovation = theta_fb + 0.5 * q[CTRL.ENCODER] - predicted
     w_kf = omega_fb + q[CTRL.KF_K1] * innovation
@@ -419,7 +446,7 @@ def current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m, sin_a, cos_a, q):
 
 
 @_jit_inline
-def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
+def control_step(period, theta, ia, ib, cs, q, u, lanes=None, given=None, current_only=None):
     """The controller of PWM period ``period`` (a count): a pure function, one
     job per piece: the command, the sensors (:func:`sense_currents`), the
     velocity estimate (:func:`estimate_velocity`), the mode's current command
@@ -439,6 +466,14 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
     logarithm, so a loop over lanes of any mix of variants vectorises; the same
     arithmetic, so the same bits.
 
+    ``given`` None, or what depends on the period and the drive's constants
+    alone, computed beforehand (the SIMD lanes do, once for a group where a
+    piece is the same for every lane): (the command's position (rad) and
+    speed (rad/s), the current sensors' noise pair), the values this function
+    would compute. ``current_only`` not None (lanes; chosen when compiled):
+    every lane is a current-mode drive with an encoder or Kalman velocity
+    estimate, so the voltage mode and the back-EMF estimate are not computed.
+
     Returns (the new :class:`.layout.ControllerState`, (va, vb) winding voltages
     to apply next period, the period's :class:`.layout.Sample`, whether a
     lane's back-EMF or voltage-mode angle left the branch-free path (beyond
@@ -446,12 +481,16 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
     """
     int_d, int_q, theta_fb_prev, omega_fb, pos_int, theta_est, ia_prev, ib_prev, va_old, \
         vb_old = cs
-    t = period * q[CTRL.DT]
-    theta_cmd, omega_cmd = command_in(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL],
-                                      q[CTRL.DISTANCE], lanes)
+    if given is None:
+        t = period * q[CTRL.DT]
+        theta_cmd, omega_cmd = command_in(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL],
+                                          q[CTRL.DISTANCE], lanes)
+        ia, ib = sense_currents(period, ia, ib, q, lanes)
+    else:
+        theta_cmd, omega_cmd = given[0], given[1]
+        ia, ib = sense_currents(period, ia, ib, q, lanes, (given[2], given[3]))
     # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[CTRL.ENCODER])
-    ia, ib = sense_currents(period, ia, ib, q, lanes)
     if lanes is None:
         omega_fb, theta_est = estimate_velocity(theta_fb, theta_fb_prev, omega_fb, theta_est, ia,
                                                 ib, ia_prev, ib_prev, va_old, vb_old, theta_cmd,
@@ -468,18 +507,23 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None):
     else:
         omega_fb, theta_est, far_est = estimate_velocity_lanes(
             theta_fb, theta_fb_prev, omega_fb, theta_est, ia, ib, ia_prev, ib_prev, va_old,
-            vb_old, theta_cmd, omega_cmd, q)
+            vb_old, theta_cmd, omega_cmd, q, current_only)
         pos_int, angle, sin_a, cos_a, id_cmd, iq_cmd, iq_inj = current_command_lanes(
             theta_fb, omega_fb, pos_int, theta_cmd, omega_cmd, q, u)
         id_m, iq_m = park_sc(ia, ib, sin_a, cos_a)
-        va_v, vb_v, far_v = voltage_drive_lanes(angle, sin_a, cos_a, id_cmd, iq_cmd, omega_cmd, q)
         int_d_c, int_q_c, va_c, vb_c = current_loop(int_d, int_q, id_cmd, iq_cmd, id_m, iq_m,
                                                     sin_a, cos_a, q)
-        voltage = q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE
-        va, vb = (va_v if voltage else va_c), (vb_v if voltage else vb_c)
-        int_d, int_q = (int_d if voltage else int_d_c), (int_q if voltage else int_q_c)
         # A NaN command (an S-curve whose ramp time underflows): the kernel's NaN, not the lanes'.
-        far = far_est | (voltage & far_v) | (theta_cmd != theta_cmd) | (omega_cmd != omega_cmd)
+        far = far_est | (theta_cmd != theta_cmd) | (omega_cmd != omega_cmd)
+        if current_only is None:
+            va_v, vb_v, far_v = voltage_drive_lanes(angle, sin_a, cos_a, id_cmd, iq_cmd,
+                                                    omega_cmd, q)
+            voltage = q[CTRL.DRIVE_MODE] == DRIVE.VOLTAGE
+            va, vb = (va_v if voltage else va_c), (vb_v if voltage else vb_c)
+            int_d, int_q = (int_d if voltage else int_d_c), (int_q if voltage else int_q_c)
+            far = far | (voltage & far_v)
+        else:
+            va, vb, int_d, int_q = va_c, vb_c, int_d_c, int_q_c
     return (ControllerState(int_d, int_q, theta_fb, omega_fb, pos_int, theta_est, ia, ib, va_old,
                             vb_old),
             (va, vb),

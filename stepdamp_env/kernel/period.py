@@ -138,7 +138,8 @@ def law_input(lw, u, cs, obs, dt, lanes):
 
 
 @_jit_inline
-def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_rate, lanes):
+def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_rate, lanes,
+                   given=None, current_only=None):
     """The sample, control and metrics of PWM period ``period`` (the damping
     law, if any, is in ``u``: :func:`law_input`).
 
@@ -148,7 +149,8 @@ def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_
     :class:`.layout.Metrics`; ``q`` :func:`.control.controller_params`, ``u``
     the external inputs. ``lanes`` None for a drive's own loop; for SIMD lanes
     their count (an int: an array passed into the inlined branches would be
-    reference-counted there, and the loop would stay scalar).
+    reference-counted there, and the loop would stay scalar). ``given`` and
+    ``current_only``: see :func:`.control.control_step`.
 
     Returns (cs, the voltages applied during this period (V), the voltages to
     apply next period, the period's sample, the metrics, whether the period
@@ -158,7 +160,8 @@ def control_period(period, x, cs, v_next, obs, m, q, u, win_start, win_end, ref_
     t = period * q[CTRL.DT]
     # Computation delay: this period applies what the previous one computed.
     va, vb = v_next
-    cs, v_next, obs, far = control_step(period, x[0], x[2], x[3], cs, q, u, lanes)
+    cs, v_next, obs, far = control_step(period, x[0], x[2], x[3], cs, q, u, lanes, given,
+                                        current_only)
     # What this period applies is, at the next sample, the period that just ended.
     cs = ControllerState(cs.int_d, cs.int_q, cs.theta_fb_prev, cs.omega_fb, cs.pos_int,
                          cs.theta_est, cs.ia_prev, cs.ib_prev, va, vb)
