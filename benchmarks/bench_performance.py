@@ -1,7 +1,7 @@
 """Performance: the kernel's rate, and the board's and PPO's share of it, in one run.
 
 Run: ``PYTHONPATH=. python benchmarks/bench_performance.py [--cores 2] [--skip-board]
-[--skip-ppo] [--skip-lanes] [--ttq-seeds 21-25]``.
+[--skip-ppo] [--skip-lanes] [--ttq-seeds 21-25] [--ttq-suites open-loop moves]``.
 
 Everything is measured in this run, one thing after the other:
 
@@ -23,9 +23,11 @@ Everything is measured in this run, one thing after the other:
   --algo ppo --num-threads N`` with the committed settings (32 drives, 100-step
   rollouts, ten epochs of 400), whose ``training.json`` gives the same ratio. Efficiency =
   ``env-steps/s x 0.01 s / (cores x kernel)``. Target: >= 0.5.
-* **time to quality** (``--ttq-seeds``): ``benchmarks/time_to_quality.py``,
+* **time to quality** (``--ttq-seeds``, ``--ttq-suites``): ``benchmarks/time_to_quality.py``,
   PPO's training wall time until a dev check reaches `tuned-constant-gain`'s dev
-  attenuation in the open-loop suite, the committed config against a faster one.
+  attenuation in the open-loop suite (the committed config against a faster
+  one) and in the moves suite (`ppo-moves`'s config against the same with the
+  open-loop entry's collection and updates).
 """
 
 from __future__ import annotations
@@ -68,11 +70,13 @@ def lanes_rates(periods: int = 10000) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def time_to_quality(seeds: str, configs: list[str]) -> list[str]:
+def time_to_quality(seeds: str, configs: list[str] | None, suite: str = "open-loop") -> list[str]:
     """``benchmarks/time_to_quality.py``'s summary lines (PPO to tuned-constant-gain's
-    dev attenuation, the configs interleaved seed by seed)."""
+    dev attenuation in ``suite``, the configs interleaved seed by seed; None: the
+    suite's every config)."""
     out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "time_to_quality.py"),
-                          "--seeds", seeds, "--configs", *configs],
+                          "--suite", suite, "--seeds", seeds,
+                          *(["--configs", *configs] if configs else [])],
                          check=True, stdout=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
     lines = out.stdout.strip().splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("config "))
@@ -170,7 +174,11 @@ def main() -> None:
     p.add_argument("--ttq-seeds", default=None, metavar="K-L",
                    help="also time PPO to quality with these seeds (benchmarks/"
                         "time_to_quality.py; about 5 minutes per seed and config here)")
-    p.add_argument("--ttq-configs", nargs="+", default=["committed", "lanes-5-epochs"])
+    p.add_argument("--ttq-suites", nargs="+", default=["open-loop"],
+                   choices=["open-loop", "moves"])
+    p.add_argument("--ttq-configs", nargs="+", default=None,
+                   help="default: open loop committed and lanes-5-epochs; moves committed "
+                        "and reference-collection")
     args = p.parse_args()
     sys.path.insert(0, ROOT)
     rate = kernel_rate()
@@ -210,8 +218,11 @@ def main() -> None:
                       f"env-steps/s, efficiency "
                       f"{t['simulated_seconds_per_wall_second'] / ceiling:.2f}", flush=True)
     if args.ttq_seeds:
-        for line in time_to_quality(args.ttq_seeds, args.ttq_configs):
-            print(f"time to quality: {line}", flush=True)
+        for suite in args.ttq_suites:
+            configs = args.ttq_configs or (["committed", "lanes-5-epochs"]
+                                           if suite == "open-loop" else None)
+            for line in time_to_quality(args.ttq_seeds, configs, suite):
+                print(f"time to quality: {line}", flush=True)
 
 
 if __name__ == "__main__":

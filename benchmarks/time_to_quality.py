@@ -1,11 +1,13 @@
 """Time to quality: how long PPO trains before it damps as well as `tuned-constant-gain`.
 
-Run: ``PYTHONPATH=. python benchmarks/time_to_quality.py [--seeds 21-25]
-[--configs committed lanes-5-epochs] [--eval-freq 25000] [--budget 1200000] [--out DIR]``.
+Run: ``PYTHONPATH=. python benchmarks/time_to_quality.py [--suite open-loop]
+[--seeds 21-25] [--configs committed lanes-5-epochs] [--eval-freq 25000]
+[--budget 1200000] [--out DIR]``.
 
-The quality is `tuned-constant-gain`'s attenuation on stepdamp-bench v3's dev
-split of the open-loop suite (IQM over the dev motors, dB), measured in this run
-by the same dev board that ``stepdamp train --select-on dev`` checks a model on.
+The quality is `tuned-constant-gain`'s attenuation on the dev split of the
+suite (IQM over the dev motors, dB): stepdamp-bench v3's for ``open-loop``,
+v4's for ``moves`` (v3 has no moves), measured in this run by the same dev
+board that ``stepdamp train --select-on dev`` checks a model on.
 Each config trains PPO for the open-loop suite with ``--stop-at-db`` at that
 value, one seed after the other, the configs interleaved seed by seed (so that
 the machine's drift falls on both). Dev checks every ``--eval-freq`` decisions;
@@ -23,7 +25,10 @@ rollout (3,072 decisions) from 256 drives of 12 steps, 64 per preset: two
 groups of 32 SIMD lanes per preset, one per numba thread (below 32 drives a
 preset's env steps in the scalar kernel), and do five epochs:
 ``lanes-5-epochs`` of minibatches of 384, ``lanes-big-batch`` of 768 at twice
-the learning rate.
+the learning rate. For ``moves``: ``committed`` is `ppo-moves`'s training
+(256 drives of 12 steps, five epochs of 384, 25 Hz, gamma 0.98), and
+``reference-collection`` the same with `ppo-open-loop`'s collection and
+updates (32 drives, 100-step rollouts, ten epochs of 400).
 """
 
 from __future__ import annotations
@@ -39,7 +44,13 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-#: Training configs: ``stepdamp train`` options beyond the common ones.
+_MOVES = ["--hyperparam", "env_kwargs={agent_hz: 25.0}", "--hyperparam", "gamma=0.98"]
+
+#: Per suite: (the protocol whose dev split sets the quality, the training
+#: configs: ``stepdamp train`` options beyond the common ones).
+SUITES: dict[str, tuple[str, dict[str, list[str]]]] = {}
+
+#: The open-loop suite's training configs.
 CONFIGS: dict[str, list[str]] = {
     "committed": ["--hyperparam", "env_kwargs={agent_hz: 25.0}"],
     "lanes-5-epochs": ["--hyperparam", "env_kwargs={agent_hz: 25.0}",
@@ -50,6 +61,12 @@ CONFIGS: dict[str, list[str]] = {
                         "--hyperparam", "batch_size=768", "--hyperparam", "n_epochs=5",
                         "--hyperparam", "learning_rate=0.0006"],
 }
+SUITES["open-loop"] = ("v3", CONFIGS)
+SUITES["moves"] = ("v4", {
+    "committed": [*_MOVES, "--hyperparam", "n_envs=256", "--hyperparam", "n_steps=12",
+                  "--hyperparam", "batch_size=384", "--hyperparam", "n_epochs=5"],
+    "reference-collection": _MOVES,
+})
 
 
 def _env() -> dict[str, str]:
@@ -57,10 +74,10 @@ def _env() -> dict[str, str]:
             "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
 
 
-def quality_db(out: str, entry: str = "tuned-constant-gain") -> float:
-    """``entry``'s IQM attenuation (dB) on v3's dev split, open-loop suite."""
-    _run([sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--protocol", "v3",
-          "--split", "dev", "--suite", "open-loop", "--entries", entry, "--out", out,
+def quality_db(out: str, entry: str = "tuned-constant-gain", suite: str = "open-loop") -> float:
+    """``entry``'s IQM attenuation (dB) on the dev split of ``suite`` (:data:`SUITES`)."""
+    _run([sys.executable, "-m", "stepdamp_env.cli", "leaderboard", "--protocol", SUITES[suite][0],
+          "--split", "dev", "--suite", suite, "--entries", entry, "--out", out,
           "--no-plots", "--no-progress", "--workers", "1"])
     with open(os.path.join(out, "leaderboard.json"), encoding="utf-8") as fh:
         board = json.load(fh)
@@ -77,13 +94,13 @@ def _run(cmd: list[str]) -> None:
 
 
 def train_until(config: str, seed: int, target_db: float, eval_freq: int, budget: int,
-                out: str) -> dict:
+                out: str, suite: str = "open-loop") -> dict:
     """One ``stepdamp train`` run stopped at ``target_db``; what it took."""
     cmd = [sys.executable, "-m", "stepdamp_env.cli", "train", "--algo", "ppo",
-           "--suite", "open-loop", "--select-on", "dev", "--seed", str(seed), "--out", out,
+           "--suite", suite, "--select-on", "dev", "--seed", str(seed), "--out", out,
            "--eval-freq", str(eval_freq), "--total-timesteps", str(budget),
            "--stop-at-db", repr(target_db), "--checkpoint-freq", "0", "--no-progress",
-           "--no-tensorboard", *CONFIGS[config]]
+           "--no-tensorboard", *SUITES[suite][1][config]]
     t0 = time.perf_counter()
     _run(cmd)
     end_to_end = time.perf_counter() - t0
@@ -110,7 +127,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", default="21-25", help="training seeds (fresh: the committed "
                    "ppo-open-loop used 11-15)")
-    p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    p.add_argument("--suite", default="open-loop", choices=list(SUITES))
+    p.add_argument("--configs", nargs="+", default=None,
+                   choices=sorted({c for _, cs in SUITES.values() for c in cs}),
+                   help="default: every config of the suite")
     p.add_argument("--eval-freq", type=int, default=25_000, help="decisions between dev checks")
     p.add_argument("--budget", type=int, default=1_200_000, help="decisions at most per run")
     p.add_argument("--out", default=None, help="keep the runs here (default: a temporary dir)")
@@ -122,15 +142,21 @@ def main() -> None:
         seeds = parse_seeds(a.seeds)
     except ParameterError as exc:
         sys.exit(str(exc))
+    configs = SUITES[a.suite][1]
+    a.configs = a.configs or list(configs)
+    unknown = [c for c in a.configs if c not in configs]
+    if unknown:
+        sys.exit(f"--configs: {', '.join(unknown)} not a config of --suite {a.suite} "
+                 f"(allowed: {', '.join(configs)})")
     out = a.out or tempfile.mkdtemp(prefix="ttq-")       # kept: the runs and their logs
-    target = quality_db(os.path.join(out, "quality"))
-    print(f"quality: tuned-constant-gain on v3 dev, open-loop: {target:.2f} dB "
+    target = quality_db(os.path.join(out, "quality"), suite=a.suite)
+    print(f"quality: tuned-constant-gain on {SUITES[a.suite][0]} dev, {a.suite}: {target:.2f} dB "
           f"(dev checks every {a.eval_freq} decisions, at most {a.budget})", flush=True)
     rows = []
     for seed in seeds:
         for config in a.configs:
             r = train_until(config, seed, target, a.eval_freq, a.budget,
-                            os.path.join(out, config, f"seed{seed}"))
+                            os.path.join(out, config, f"seed{seed}"), a.suite)
             rows.append(r)
             print(f"{config:15s} seed {seed:3d}: "
                   f"{'reached' if r['reached'] else 'NOT reached'} at {r['decisions']:>9,d} "
@@ -154,8 +180,8 @@ def main() -> None:
                 print(f"{config} / committed, median training s: "
                       f"{m / medians['committed']:.2f}")
     with open(os.path.join(out, "time_to_quality.json"), "w", encoding="utf-8") as fh:
-        json.dump({"quality_db": target, "eval_freq": a.eval_freq, "budget": a.budget,
-                   "runs": rows}, fh, indent=1)
+        json.dump({"suite": a.suite, "quality_db": target, "eval_freq": a.eval_freq,
+                   "budget": a.budget, "runs": rows}, fh, indent=1)
     print(f"wrote {os.path.join(out, 'time_to_quality.json')}")
 
 

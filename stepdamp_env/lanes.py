@@ -13,11 +13,12 @@ Lanes run every variant of the drive: open loop or servo, current or voltage
 mode, any velocity estimator, any profile, with or without the damping law
 (:func:`run_batch_law_lanes`). Each variant's branches are computed and the
 drive's selected, so one group of LANES may mix variants, but a group computes
-only the variants its lanes use: the command's move profile only where a lane
-moves and the sensor noise only where a lane has noise (:func:`given_lanes`,
-before the period's control), and a group of current-mode drives without the
-back-EMF estimate runs a control compiled without the voltage mode
-(:func:`control_lanes`). A group shares one substep count, and a drive of another count is run by the kernel's own
+only the variants its lanes use (:func:`group_variants`): the move profiles
+only in a group where a lane moves, the sensor noise only in one where a lane
+has noise (:func:`given_lanes`, before the period's control), and a group of
+current-mode drives without the back-EMF estimate runs a control compiled
+without the voltage mode (:func:`control_lanes`). A group shares one substep
+count, and a drive of another count is run by the kernel's own
 :func:`kernel.run_periods` for the whole call. A drive that leaves the
 branch-free path in a period (an angle beyond 1e6 rad for
 :func:`fixedmath.sincos_lane`, an RK4 stage shift beyond 1/8 rad for
@@ -50,8 +51,8 @@ from .kernel import (ACC, CONFIG, CTRL, DRIVE, INPUT, LAW, PROFILE, STATE, TRACE
 
 __all__ = ["LANES", "step_lanes", "step_lanes_parallel", "run_batch_lanes",
            "run_batch_law_lanes", "run_batch_lanes_parallel", "run_batch_law_lanes_parallel",
-           "in_lanes", "given_lanes", "control_lanes", "plant_lanes", "workspace_size",
-           "simd_by_default"]
+           "in_lanes", "group_variants", "given_lanes", "control_lanes", "plant_lanes",
+           "workspace_size", "simd_by_default"]
 
 _jit = njit(cache=True, error_model="numpy")
 # The kernel's parameter tuples, inlined: a call in the loop over lanes (or the
@@ -140,6 +141,24 @@ def in_lanes(c, n_sub):
     """True if the drive of CONFIG row ``c`` runs in a group of lanes of ``n_sub``
     substeps: any variant, one substep count per group."""
     return int(c[CONFIG.SUBSTEPS]) == n_sub
+
+
+@_jit
+def group_variants(configs):
+    """What a group of lanes whose drives have the CONFIG rows ``configs``
+    computes: (``moves``: a drive's profile is not a constant speed,
+    ``noisy``: a drive has current-sensor noise, ``current_only``: every drive
+    is in current mode without the back-EMF estimate). The tests are those the
+    kernel's branches make, so a NaN setting computes the variant."""
+    moves = False
+    noisy = False
+    current_only = True
+    for c in configs:
+        moves = moves | (c[CONFIG.PROFILE] != PROFILE.CONSTANT)
+        noisy = noisy | (c[CONFIG.I_NOISE] != 0.0)
+        current_only = (current_only & (c[CONFIG.DRIVE_MODE] == DRIVE.CURRENT)
+                        & (c[CONFIG.VEL_EST] != VEL_EST.BACK_EMF))
+    return moves, noisy, current_only
 
 
 @_jit
@@ -245,8 +264,8 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
     (no damping law; pruned when compiled) or each drive's LAW row.
 
     A drive whose substep count is not that of the first drive of its group of
-    LANES runs through the kernel for the whole call. Returns the number of drive-periods the kernel ran (those, and
-    the periods run again).
+    LANES runs through the kernel for the whole call. Returns the number of
+    drive-periods the kernel ran (those, and the periods run again).
     """
     n = LANES
     w = np.zeros(ROW.ROWS * n)
@@ -282,18 +301,15 @@ def step_lanes(configs, states, accs, inputs, laws, n_periods):
         _load(w, first, states, ROW.ST, m)
         _load(w, first, accs, ROW.AC, m)
         _load(w, first, inputs, ROW.IN, m)
-        moves = False
-        noisy = False
-        current_only = True
+        # The padding lanes copy the group's first drive: its drives decide.
+        moves, noisy, current_only = group_variants(configs[first:first + m])
         for d in range(n):
             sin_a, cos_a = sincos(w[_st(STATE.PARK_ANGLE, d)])
             w[ROW.SIN * n + d] = sin_a
             w[ROW.COS * n + d] = cos_a
+            # The uint64 key kept as a double's bits (possibly a NaN's): only
+            # moved, never computed with, so every bit survives.
             w[ROW.KEY * n + d] = bits_float(noise_key(w[(ROW.CFG + CONFIG.NOISE_SEED) * n + d]))
-            moves = moves | (w[(ROW.CFG + CONFIG.PROFILE) * n + d] != PROFILE.CONSTANT)
-            noisy = noisy | (w[(ROW.CFG + CONFIG.I_NOISE) * n + d] != 0.0)
-            current_only = current_only & (w[(ROW.CFG + CONFIG.DRIVE_MODE) * n + d] == DRIVE.CURRENT) \
-                & (w[(ROW.CFG + CONFIG.VEL_EST) * n + d] != VEL_EST.BACK_EMF)
         if laws is not None:
             _load(w, first, laws, ROW.LW, m)
             # Whether the resonant terms run is set once per call, as in run_periods_law.

@@ -467,10 +467,11 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None, given=None, curren
     arithmetic, so the same bits.
 
     ``given`` None, or what depends on the period and the drive's constants
-    alone, computed beforehand (the SIMD lanes do, once for a group where a
-    piece is the same for every lane): (the command's position (rad) and
-    speed (rad/s), the current sensors' noise pair), the values this function
-    would compute. ``current_only`` not None (lanes; chosen when compiled):
+    alone, computed beforehand (the SIMD lanes do, in loops of their own that
+    a group skips where none of its lanes needs them): (the command's position
+    (rad) and speed (rad/s), the current sensors' noise pair), the values this
+    function would compute (the noise pair may be anything for a drive
+    without noise: it is not read). ``current_only`` not None (lanes; chosen when compiled):
     every lane is a current-mode drive with an encoder or Kalman velocity
     estimate, so the voltage mode and the back-EMF estimate are not computed.
 
