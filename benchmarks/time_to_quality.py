@@ -158,19 +158,19 @@ def main() -> None:
             r = train_until(config, seed, target, a.eval_freq, a.budget,
                             os.path.join(out, config, f"seed{seed}"), a.suite)
             rows.append(r)
-            print(f"{config:15s} seed {seed:3d}: "
+            print(f"{config:20s} seed {seed:3d}: "
                   f"{'reached' if r['reached'] else 'NOT reached'} at {r['decisions']:>9,d} "
                   f"decisions, training {r['learn_s']:7.1f} s, with dev checks "
                   f"{r['wall_s']:7.1f} s, end to end {r['end_to_end_s']:7.1f} s "
                   f"(best dev {r['best_db']:.2f} dB)", flush=True)
-    print("\nconfig           reached  decisions (median)  training s (median, range)  "
+    print(f"\n{'config':20s}  reached  decisions (median)  training s (median, range)  "
           "with dev checks s (median)")
     medians = {}
     for config in a.configs:
         rs = [r for r in rows if r["config"] == config]
         tr = [r["learn_s"] for r in rs]
         medians[config] = statistics.median(tr)
-        print(f"{config:15s}  {sum(r['reached'] for r in rs)}/{len(rs)}     "
+        print(f"{config:20s}  {sum(r['reached'] for r in rs)}/{len(rs)}     "
               f"{statistics.median(r['decisions'] for r in rs):>12,.0f}    "
               f"{medians[config]:7.1f} [{min(tr):.1f}, {max(tr):.1f}]        "
               f"{statistics.median(r['wall_s'] for r in rs):7.1f}")
