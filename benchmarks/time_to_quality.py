@@ -44,13 +44,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-_MOVES = ["--hyperparam", "env_kwargs={agent_hz: 25.0}", "--hyperparam", "gamma=0.98"]
-
-#: Per suite: (the protocol whose dev split sets the quality, the training
-#: configs: ``stepdamp train`` options beyond the common ones).
-SUITES: dict[str, tuple[str, dict[str, list[str]]]] = {}
-
-#: The open-loop suite's training configs.
+#: The open-loop suite's training configs: ``stepdamp train`` options beyond the common ones.
 CONFIGS: dict[str, list[str]] = {
     "committed": ["--hyperparam", "env_kwargs={agent_hz: 25.0}"],
     "lanes-5-epochs": ["--hyperparam", "env_kwargs={agent_hz: 25.0}",
@@ -61,12 +55,17 @@ CONFIGS: dict[str, list[str]] = {
                         "--hyperparam", "batch_size=768", "--hyperparam", "n_epochs=5",
                         "--hyperparam", "learning_rate=0.0006"],
 }
-SUITES["open-loop"] = ("v3", CONFIGS)
-SUITES["moves"] = ("v4", {
-    "committed": [*_MOVES, "--hyperparam", "n_envs=256", "--hyperparam", "n_steps=12",
-                  "--hyperparam", "batch_size=384", "--hyperparam", "n_epochs=5"],
-    "reference-collection": _MOVES,
-})
+_MOVES = ["--hyperparam", "env_kwargs={agent_hz: 25.0}", "--hyperparam", "gamma=0.98"]
+
+#: Per suite: (the protocol whose dev split sets the quality, its training configs).
+SUITES: dict[str, tuple[str, dict[str, list[str]]]] = {
+    "open-loop": ("v3", CONFIGS),
+    "moves": ("v4", {
+        "committed": [*_MOVES, "--hyperparam", "n_envs=256", "--hyperparam", "n_steps=12",
+                      "--hyperparam", "batch_size=384", "--hyperparam", "n_epochs=5"],
+        "reference-collection": _MOVES,
+    }),
+}
 
 
 def _env() -> dict[str, str]:

@@ -255,17 +255,16 @@ def feedforward_torque(sin_x, cos_x, q, u):
 
 
 @_jit_inline
-def sense_currents(period, ia, ib, q, lanes=None, noise=None):
+def sense_currents(period, ia, ib, q, noise=None):
     """The current sensors' readings (A) of the true ``ia``, ``ib``: offset and,
     if set, noise drawn for ``period`` (or ``noise``, the pair
-    :func:`gaussian_pair` gives for it, drawn beforehand). ``lanes``: see
-    :func:`control_step`."""
+    :func:`gaussian_pair` gives for it, drawn beforehand: the SIMD lanes')."""
     noisy = q[CTRL.I_NOISE] != 0.0
     noise_a = noise_b = 0.0
     if noise is not None:
         noise_a, noise_b = noise
-    elif lanes is not None or noisy:
-        noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period, lanes)
+    elif noisy:
+        noise_a, noise_b = gaussian_pair(q[CTRL.NOISE_SEED], period)
     return (ia + q[CTRL.I_OFFSET_A] + q[CTRL.I_NOISE] * noise_a if noisy
             else ia + q[CTRL.I_OFFSET_A],
             ib + q[CTRL.I_OFFSET_B] + q[CTRL.I_NOISE] * noise_b if noisy
@@ -466,9 +465,10 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None, given=None, curren
     logarithm, so a loop over lanes of any mix of variants vectorises; the same
     arithmetic, so the same bits.
 
-    ``given`` None, or what depends on the period and the drive's constants
-    alone, computed beforehand (the SIMD lanes do, in loops of their own that
-    a group skips where none of its lanes needs them): (the command's position
+    ``given`` None (a drive's own loop), or what depends on the period and
+    the drive's constants alone, computed beforehand (the SIMD lanes always
+    pass it, from loops of their own that a group skips where none of its
+    lanes needs them): (the command's position
     (rad) and speed (rad/s), the current sensors' noise pair), the values this
     function would compute (the noise pair may be anything for a drive
     without noise: it is not read). ``current_only`` not None (lanes; chosen when compiled):
@@ -484,12 +484,12 @@ def control_step(period, theta, ia, ib, cs, q, u, lanes=None, given=None, curren
         vb_old = cs
     if given is None:
         t = period * q[CTRL.DT]
-        theta_cmd, omega_cmd = command_in(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL],
-                                          q[CTRL.DISTANCE], lanes)
-        ia, ib = sense_currents(period, ia, ib, q, lanes)
+        theta_cmd, omega_cmd = command(t, q[CTRL.PROFILE], q[CTRL.SPEED], q[CTRL.ACCEL],
+                                       q[CTRL.DISTANCE])
+        ia, ib = sense_currents(period, ia, ib, q)
     else:
         theta_cmd, omega_cmd = given[0], given[1]
-        ia, ib = sense_currents(period, ia, ib, q, lanes, (given[2], given[3]))
+        ia, ib = sense_currents(period, ia, ib, q, (given[2], given[3]))
     # Velocity estimate from the encoder (a drive senses it in either mode).
     theta_fb = quantise(theta, q[CTRL.ENCODER])
     if lanes is None:
