@@ -2,6 +2,10 @@
 
 Run: ``PYTHONPATH=. python benchmarks/profile_board.py [--quick] [--top 25]``.
 
+``--phases [--protocol v5] [--workers 2]`` runs the board once as the CLI does
+(numba's cache warm) and prints the wall time of ``run_leaderboard``'s parts:
+motors, identification, the runs' batches and the scoring (``_board``).
+
 ``--by-entry [--protocol v4] [--workers 2]`` instead runs the board once (on the
 CLI's pool of workers, compiled by one process: run it with numba's cache warm)
 and prints the wall time of its batches summed by entry and suite (each worker
@@ -135,6 +139,26 @@ def by_entry(protocol, workers: int) -> None:
               f"{sim / max(wall, 1e-9):8.0f}")
 
 
+def phases(protocol, workers: int) -> None:
+    """Run the board once; print the wall time of its parts."""
+    from stepdamp_env.bench import leaderboard
+
+    parts = ("warm_up", "protocol_motors", "_identify_all", "_policy_meta", "_batches",
+             "_run_batches", "_board")
+    for name in parts:
+        setattr(leaderboard, name, timed(name, getattr(leaderboard, name)))
+    t0 = time.perf_counter()
+    board = leaderboard.run_leaderboard(protocol, workers=workers, progress=False,
+                                        fingerprint=False)
+    total = time.perf_counter() - t0
+    print(f"board {total:.1f} s with {workers} workers (its wall_seconds "
+          f"{board['wall_seconds']:.1f}), simulated {board['simulated_seconds']:.0f} s")
+    for name in parts:
+        print(f"  {name:16s} {TIMES[name]:7.1f} s  {TIMES[name] / total:6.1%}")
+    rest = total - sum(TIMES[n] for n in parts)
+    print(f"  {'the rest':16s} {rest:7.1f} s  {rest / total:6.1%}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -143,7 +167,9 @@ def main() -> None:
     p.add_argument("--by-entry", action="store_true",
                    help="time the batches by entry and suite (one board, as the CLI runs it)")
     p.add_argument("--protocol", default=None, help="protocol version (default: the default)")
-    p.add_argument("--workers", type=int, default=2, help="with --by-entry")
+    p.add_argument("--phases", action="store_true",
+                   help="time run_leaderboard's parts (one board, as the CLI runs it)")
+    p.add_argument("--workers", type=int, default=2, help="with --by-entry or --phases")
     args = p.parse_args()
     sys.path.insert(0, ROOT)
     t0 = time.perf_counter()
@@ -157,6 +183,9 @@ def main() -> None:
     imports = time.perf_counter() - t0
     if args.by_entry:
         by_entry(protocol, args.workers)
+        return
+    if args.phases:
+        phases(protocol, args.workers)
         return
     run_leaderboard(protocol, workers=1, progress=False)          # fills the caches
     install()

@@ -3,6 +3,7 @@ lost-run rule, the catalogue split and the per-table facts."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -249,3 +250,28 @@ def test_a_motor_no_entry_scores_says_why_in_the_per_motor_table():
     row = [ln for ln in lines if ln.startswith("| Stepperonline 17HM08-1204S~6 |")]
     assert row == [f"| Stepperonline 17HM08-1204S~6 | {NO_MOTOR_SCORE} |"]
     assert sum(NO_MOTOR_SCORE in ln for ln in lines) == 1
+
+
+@pytest.mark.slow
+def test_the_tables_score_alike_here_and_on_forked_workers(monkeypatch):
+    """A board of 2 workers scores its tables on forked workers, one of 1 here:
+    the same board, bit for bit."""
+    from stepdamp_env.bench.protocols import paired
+    from stepdamp_env.bench.provenance import board_fingerprint
+
+    forked = []
+
+    def counted(fn, jobs, workers, **kwargs):
+        forked.append((fn, len(jobs), workers))
+        return pool_map(fn, jobs, workers, **kwargs)
+
+    pool_map = paired.pool_map
+    monkeypatch.setattr(paired, "pool_map", counted)
+    p = quick_protocol_v4().with_suites(("open-loop", "servo"))
+    serial = run_leaderboard(p, ENTRIES, workers=1, progress=False)
+    assert forked == []
+    two = run_leaderboard(p, ENTRIES, workers=2, progress=False)
+    tables = {(e["suite"], e["split"]) for e in two["entries"]}
+    assert forked == [(paired._scored_table, len(tables), 2)] and len(tables) >= 4
+    assert board_fingerprint(serial) == board_fingerprint(two)
+    assert json.dumps(serial["entries"]) == json.dumps(two["entries"])

@@ -334,8 +334,9 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     records = _run_batches(protocol, motors, knowledge, sources, batches, run_map, workers,
                            progress, resume_dir, runner,
                            warm=backend is None and runner == "batched")
+    # Scoring stays on this machine: at most its cores (a Ray board's workers are elsewhere).
     board = _board(protocol, motors, sources, suites, meta, batches, records, identified,
-                   failures)
+                   failures, min(workers, default_workers()))
     board["wall_seconds"] = time.perf_counter() - wall_start
     _move_last(board, ("simulated_seconds", "simulated_seconds_detail"))
     board["environment"] = environment()
@@ -467,15 +468,16 @@ def _board(protocol: Protocol, motors: Sequence[ProtocolMotor],
            meta: dict[str, dict[str, Any]], batches: Sequence[LeaderboardBatch],
            records: Sequence[list[dict[str, Any]]],
            identified: dict[tuple[int, int], FeedforwardModel],
-           failures: dict[tuple[int, int], str]) -> dict[str, Any]:
-    """The board (JSON-ready) from every batch's records."""
+           failures: dict[tuple[int, int], str], workers: int = 1) -> dict[str, Any]:
+    """The board (JSON-ready) from every batch's records, scored on ``workers``
+    processes (:meth:`.protocol.Protocol.entries`)."""
     jobs = [job for b in batches for job in b.jobs()]
     results = [r for batch_records in records for r in batch_records]
     by_entry: dict[tuple[str, str], list[dict]] = {}
     for job, res in zip(jobs, results):
         by_entry.setdefault((job.spec, job.suite), []).append(res)
     names = {spec: (src.name, src.spec) for spec, src in sources.items()}
-    entries = protocol.entries(names, by_entry, motors, meta)
+    entries = protocol.entries(names, by_entry, motors, meta, workers=workers)
     identification = [{"motor": motors[i].name, "seed": seed,
                        "model": dataclasses.asdict(m) if m is not None else None,
                        **({"failed": failures[(i, seed)], "fallback": "nominal"}

@@ -161,10 +161,13 @@ class Protocol(abc.ABC):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence["ProtocolMotor"],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """The board's ranked entries. ``names``: policy spec -> (entry name, spec
         as recorded), in board order; ``by_entry``: (spec, suite) -> that
-        policy's run records; ``meta``: spec -> oracle flag, env options, card."""
+        policy's run records; ``meta``: spec -> oracle flag, env options, card.
+        ``workers``: processes a version may score on (v4 on: its tables; the
+        numbers do not depend on it)."""
 
     @abc.abstractmethod
     def to_dict(self) -> dict[str, Any]:

@@ -255,7 +255,8 @@ class DecibelProtocol(MidBandProtocol):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence[ProtocolMotor],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """Rows per (suite, split): the reference, then every entry; ranked rows,
         P(improvement) and effect sizes (see the module docstring)."""
         split_of = {m.name: m.split for m in motors}

@@ -248,7 +248,8 @@ class DrawnProtocol(Protocol):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence[ProtocolMotor],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """Entries per (suite, split), ranked, with every pair's probability of
         improvement."""
         split_of = {m.name: m.split for m in motors}

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing
 import os
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from ...parallel import pool_map
 from ...params import Allowed, ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
@@ -82,6 +84,33 @@ def coverage(trained_on: Sequence[Sequence[Any]], suite: str,
     ranges = [(float(lo), float(hi)) for s, lo, hi in trained_on if s == suite]
     covered = frozenset(c for c in cells if any(lo <= c[1] <= hi for lo, hi in ranges))
     return (len(covered) / len(cells) if cells else 0.0), covered
+
+
+@dataclass(frozen=True)
+class ScoringTable:
+    """One (suite, split)'s inputs to scoring: each row with its runs, the
+    reference's runs by cell, the stand-ins, the common cells, the split's
+    count of cells and the position metric."""
+    rows: list[tuple[dict[str, Any], list[dict[str, Any]]]]
+    none: Mapping[tuple, Mapping[str, Any]]
+    stand_in: Mapping[tuple[str, int], float]
+    common: frozenset
+    n_cells: int
+    position: str
+
+
+#: What forked scoring workers read (set by the parent just before they fork).
+_FORKED: list[tuple["PairedProtocol", Sequence[ScoringTable]]] = []
+
+
+def _scored_table(index: int) -> list[dict[str, Any]]:
+    """In a forked worker: table ``index`` of :data:`_FORKED`, scored, each row's
+    runs left out (``None`` in their place, so that the keys keep their order)."""
+    protocol, tables = _FORKED[0]
+    rows = protocol.score_table(tables[index])
+    for row in rows:
+        row["runs"] = None
+    return rows
 
 
 @dataclass(frozen=True)
@@ -209,11 +238,14 @@ class PairedProtocol(DecibelProtocol):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence[ProtocolMotor],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """Rows per (suite, split): the reference, then every entry, scored on the
-        table's common cells, ranked by paired comparisons (module docstring)."""
+        table's common cells, ranked by paired comparisons (module docstring).
+        ``workers`` > 1 scores the tables on that many forked processes (the
+        same numbers: each table is scored whole in one process)."""
         split_of = {m.name: m.split for m in motors}
-        out = []
+        tables: list[ScoringTable] = []
         for suite in self.suites:
             if (REFERENCE_POLICY, suite) not in by_entry:
                 continue
@@ -244,11 +276,39 @@ class PairedProtocol(DecibelProtocol):
                     if learned and not row["zero_shot"]:
                         covered.append(mine)
                 common = frozenset(cells).intersection(*covered) if covered else frozenset(cells)
-                scored = [self._score(row, runs, none, stand_in, common, len(cells), position)
-                          for row, runs in rows]
-                self._gap(scored)
-                self._compare(scored)
-                out += scored
+                tables.append(ScoringTable(rows, none, stand_in, common, len(cells), position))
+        return [row for scored in self._score_tables(tables, workers) for row in scored]
+
+    def score_table(self, table: ScoringTable) -> list[dict[str, Any]]:
+        """One table's rows (``table``: as :meth:`entries` builds them), scored,
+        compared and ranked."""
+        scored = [self._score(row, runs, table.none, table.stand_in, table.common,
+                              table.n_cells, table.position) for row, runs in table.rows]
+        self._gap(scored)
+        self._compare(scored)
+        return scored
+
+    def _score_tables(self, tables: Sequence[ScoringTable], workers: int
+                      ) -> list[list[dict[str, Any]]]:
+        """Every table scored, here or (``workers`` > 1, where processes fork) on
+        forked workers that read the tables from :data:`_FORKED` and send back
+        the rows without their runs (the parent puts its own back, in place)."""
+        if workers <= 1 or len(tables) < 2 or \
+                "fork" not in multiprocessing.get_all_start_methods():
+            return [self.score_table(t) for t in tables]
+        # The largest tables first, so that the last one to finish is short.
+        order = sorted(range(len(tables)),
+                       key=lambda k: -sum(len(runs) for _, runs in tables[k].rows))
+        _FORKED[:] = [(self, tables)]
+        try:
+            got = pool_map(_scored_table, order, min(workers, len(tables)))
+        finally:
+            _FORKED.clear()
+        out: list[list[dict[str, Any]]] = [[] for _ in tables]
+        for k, rows in zip(order, got):
+            for row, (_, runs) in zip(rows, tables[k].rows):
+                row["runs"] = runs
+            out[k] = rows
         return out
 
     def _score(self, row: dict[str, Any], runs: list[dict[str, Any]],

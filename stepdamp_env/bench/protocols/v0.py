@@ -177,7 +177,8 @@ class ProtocolV0(Protocol):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence[ProtocolMotor],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """One entry per policy and suite, ranked in its suite."""
         out = []
         for suite in self.suites:

@@ -168,7 +168,8 @@ class ProtocolV5(PairedProtocol):
     def entries(self, names: Mapping[str, tuple[str, str]],
                 by_entry: Mapping[tuple[str, str], list[dict[str, Any]]],
                 motors: Sequence[ProtocolMotor],
-                meta: Mapping[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                meta: Mapping[str, dict[str, Any]], *, workers: int = 1
+                ) -> list[dict[str, Any]]:
         """v4's rows and the envelope's (module docstring), scored as a
         privileged row of each table."""
         by_entry = {**by_entry, **self._envelopes(by_entry)}
@@ -176,7 +177,7 @@ class ProtocolV5(PairedProtocol):
             names = {**names, ENVELOPE: (ENVELOPE, ENVELOPE)}
             meta = {**meta, ENVELOPE: {"oracle": True, "learned": False,
                                        "knowledge": ENVELOPE_TEXT}}
-        return super().entries(names, by_entry, motors, meta)
+        return super().entries(names, by_entry, motors, meta, workers=workers)
 
     def _envelopes(self, by_entry: Mapping[tuple[str, str], Sequence[Mapping[str, Any]]]
                    ) -> dict[tuple[str, str], list[dict[str, Any]]]:
