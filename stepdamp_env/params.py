@@ -383,15 +383,15 @@ class SystemParams:
         """Build from a flat mapping of model fields (and metadata keys); missing
         fields come from ``base``. Without ``base`` every motor field without a
         default must be given (the drive's and servo's come from their defaults).
-
-        A mapping that names a preset as ``"base"`` or gives datasheet values
-        is a motor file's: :func:`stepdamp_env.motorfile.load_system` reads it."""
+        A mapping that names a preset as ``"base"`` or gives datasheet values is a
+        motor file's: :func:`stepdamp_env.motorfile.load_system` reads it."""
         meta = set(META_KEYS) - {"base"}
         unknown = sorted(set(values) - set(ALL_FIELDS) - meta)
         if unknown:
             raise ParameterError(
                 f"unknown parameter(s) {unknown}; allowed: {list(ALL_FIELDS)} and metadata keys "
                 f"{sorted(meta)} (a preset base or datasheet keys: load_system)")
+        name = base.name if base is not None else "custom"
         if base is None:
             missing = [f.name for f in fields(MotorParams) if f.name not in values
                        and f.default is dataclasses.MISSING]
@@ -399,18 +399,18 @@ class SystemParams:
                 raise ParameterError(f"motor field(s) {missing} missing; give base= or load the "
                                      "mapping with load_system (a preset base for the rest)")
             base_fields: dict[str, Any] = {}
-            name = "custom"
-        else:
-            base_fields = {**dataclasses.asdict(base.motor), **dataclasses.asdict(base.drive),
-                           **dataclasses.asdict(base.servo)}
-            name = base.name
+        else:   # shallow copies: every field is a number or a string
+            base_fields = {**vars(base.motor), **vars(base.drive), **vars(base.servo)}
 
-        def part(cls_: type, names: tuple[str, ...]) -> Any:
+        def part(cls_: type, names: tuple[str, ...], record: str) -> Any:
+            if base is not None and not any(k in values for k in names):
+                return getattr(base, record)    # unchanged: validated already
             return cls_(**{k: values[k] if k in values else base_fields[k] for k in names
                            if k in values or k in base_fields})
 
-        return cls(part(MotorParams, MOTOR_FIELDS), part(DriveParams, DRIVE_FIELDS),
-                   part(ServoParams, SERVO_FIELDS), name=str(values.get("name", name)))
+        return cls(part(MotorParams, MOTOR_FIELDS, "motor"),
+                   part(DriveParams, DRIVE_FIELDS, "drive"),
+                   part(ServoParams, SERVO_FIELDS, "servo"), name=str(values.get("name", name)))
 
     def replace(self, **overrides: Any) -> "SystemParams":
         """Copy with some flat fields changed (validated like construction)."""

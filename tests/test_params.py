@@ -169,3 +169,18 @@ def test_integer_fields_refuse_non_finite_values_with_one_line(value):
     for name in ("encoder_cpr", "Nr", "microsteps"):
         with pytest.raises(ParameterError, match=f"{name} must be finite"):
             get_preset("patent").replace(**{name: value})
+
+
+def test_replace_equals_a_system_built_from_all_its_fields_and_still_validates():
+    """replace() keeps the records it does not change (already validated) and
+    builds the others; the result equals one built from every field."""
+    import dataclasses as dc
+
+    base = get_preset("patent")
+    got = base.replace(J=base.motor.J * 1.3, kalman_accel_std=500.0)
+    flat = {**dc.asdict(base.motor), **dc.asdict(base.drive), **dc.asdict(base.servo),
+            "J": base.motor.J * 1.3, "kalman_accel_std": 500.0, "name": base.name}
+    assert got == SystemParams.from_dict(flat)
+    assert got.drive is base.drive and got.servo is not base.servo
+    with pytest.raises(ParameterError, match="pwm_hz"):
+        base.replace(pwm_hz=-1.0)
