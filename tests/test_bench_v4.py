@@ -15,6 +15,7 @@ from stepdamp_env.bench.protocols.v4 import (ProtocolV4, catalogue_systems, cove
                                              evaluation_seeds, quick_protocol_v4)
 from stepdamp_env.bench.tables import render_markdown, render_suite_page
 from stepdamp_env.cli import main
+from stepdamp_env.parallel import default_workers
 from stepdamp_env.params import ParameterError
 
 
@@ -253,6 +254,7 @@ def test_a_motor_no_entry_scores_says_why_in_the_per_motor_table():
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(default_workers() < 2, reason="scoring forks only with 2 usable cores")
 def test_the_tables_score_alike_here_and_on_forked_workers(monkeypatch):
     """A board of 2 workers scores its tables on forked workers, one of 1 here:
     the same board, bit for bit."""
@@ -275,3 +277,20 @@ def test_the_tables_score_alike_here_and_on_forked_workers(monkeypatch):
     assert forked == [(paired._scored_table, len(tables), 2)] and len(tables) >= 4
     assert board_fingerprint(serial) == board_fingerprint(two)
     assert json.dumps(serial["entries"]) == json.dumps(two["entries"])
+
+
+def test_a_dead_scoring_worker_leaves_the_tables_scored_here(monkeypatch):
+    """If a scoring worker dies, the parent scores every table itself (the runs
+    are done and must not be lost)."""
+    from stepdamp_env.bench.protocols import paired
+    from stepdamp_env.parallel import WorkerLostError
+
+    def dies(*args, **kwargs):
+        raise WorkerLostError("a worker died")
+
+    monkeypatch.setattr(paired, "pool_map", dies)
+    p = quick_protocol_v4()
+    tables = [paired.ScoringTable([], {}, {}, frozenset(), 0, "x") for _ in range(3)]
+    scored = []
+    monkeypatch.setattr(type(p), "score_table", lambda self, t: scored.append(t) or ["row"])
+    assert p._score_tables(tables, 2) == [["row"]] * 3 and len(scored) == 3

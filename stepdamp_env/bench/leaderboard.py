@@ -334,9 +334,9 @@ def run_leaderboard(protocol: Protocol, policies: Sequence[str] | None = None, *
     records = _run_batches(protocol, motors, knowledge, sources, batches, run_map, workers,
                            progress, resume_dir, runner,
                            warm=backend is None and runner == "batched")
-    # Scoring stays on this machine: at most its cores (a Ray board's workers are elsewhere).
+    # Scoring forks this process: never a Ray driver's (its threads), at most our cores.
     board = _board(protocol, motors, sources, suites, meta, batches, records, identified,
-                   failures, min(workers, default_workers()))
+                   failures, 1 if backend is not None else min(workers, default_workers()))
     board["wall_seconds"] = time.perf_counter() - wall_start
     _move_last(board, ("simulated_seconds", "simulated_seconds_detail"))
     board["environment"] = environment()

@@ -16,7 +16,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from ...parallel import pool_map
+from ...parallel import WorkerLostError, pool_map
 from ...params import Allowed, ParameterError, SystemParams
 from ..grid_cache import grids_cached
 from ..motors import ProtocolMotor, holds_its_load
@@ -99,8 +99,14 @@ class ScoringTable:
     position: str
 
 
-#: What forked scoring workers read (set by the parent just before they fork).
+#: What a forked scoring worker reads (set in the worker by :func:`_receive_tables`).
 _FORKED: list[tuple["PairedProtocol", Sequence[ScoringTable]]] = []
+
+
+def _receive_tables(protocol: "PairedProtocol", tables: Sequence[ScoringTable]) -> None:
+    """A forked worker's initializer: the tables it scores (inherited by the
+    fork, never pickled; the parent's :data:`_FORKED` stays empty)."""
+    _FORKED[:] = [(protocol, tables)]
 
 
 def _scored_table(index: int) -> list[dict[str, Any]]:
@@ -292,18 +298,19 @@ class PairedProtocol(DecibelProtocol):
                       ) -> list[list[dict[str, Any]]]:
         """Every table scored, here or (``workers`` > 1, where processes fork) on
         forked workers that read the tables from :data:`_FORKED` and send back
-        the rows without their runs (the parent puts its own back, in place)."""
+        the rows without their runs (the parent puts its own back, in place).
+        If a worker dies, every table is scored here."""
         if workers <= 1 or len(tables) < 2 or \
                 "fork" not in multiprocessing.get_all_start_methods():
             return [self.score_table(t) for t in tables]
         # The largest tables first, so that the last one to finish is short.
         order = sorted(range(len(tables)),
                        key=lambda k: -sum(len(runs) for _, runs in tables[k].rows))
-        _FORKED[:] = [(self, tables)]
         try:
-            got = pool_map(_scored_table, order, min(workers, len(tables)))
-        finally:
-            _FORKED.clear()
+            got = pool_map(_scored_table, order, min(workers, len(tables)),
+                           initializer=_receive_tables, initargs=(self, tables))
+        except WorkerLostError:     # the runs are done: score them here rather than lose them
+            return [self.score_table(t) for t in tables]
         out: list[list[dict[str, Any]]] = [[] for _ in tables]
         for k, rows in zip(order, got):
             for row, (_, runs) in zip(rows, tables[k].rows):
