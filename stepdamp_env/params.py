@@ -47,6 +47,8 @@ import numpy as np
 from . import fixedmath as fm
 from .errors import ParameterError, show_value
 from .limits import LIMITS
+from .stability import (RK4_STABLE_RADIUS, delayed_loop_gain, loop_radius, loop_surely_stable,
+                        plant_rate, plant_rate_bound)
 
 __all__ = [
     "CurrentGains",
@@ -63,6 +65,9 @@ __all__ = [
     "RK4_STABLE_RADIUS",
     "current_loop_radius",
     "fastest_plant_mode",
+    "fastest_plant_mode_bound",
+    "detent_coefficients",
+    "delayed_loop_gain",
     "required_substeps",
     "RESONANCE_HARMONICS",
     "check_name",
@@ -329,7 +334,8 @@ class SystemParams:
             raise ParameterError(
                 f"velocity_cutoff_hz={self.servo.velocity_cutoff_hz} is outside its allowed "
                 f"range (0, pwm_hz/2 = {self.drive.pwm_hz / 2})")
-        kp, ki = self.current_gains()
+        kp, ki = gains = self._derive_current_gains()
+        object.__setattr__(self, "_current_gains", gains)     # kept: a run reads them often
         if not kp >= MIN_KP_CURRENT:
             raise ParameterError(
                 f"current_bandwidth_hz={self.drive.current_bandwidth_hz:.4g} Hz (or Kp_current) "
@@ -342,7 +348,8 @@ class SystemParams:
                 f"Kp_current={kp:.4g} V/A with Ki_current={ki:.4g} V/(A*s) make the anti-windup "
                 f"unstable (Ki_current/(Kp_current*pwm_hz) = {aw:.4g}, allowed < 2); raise "
                 "Kp_current or leave both unset")
-        radius = current_loop_radius(self)
+        terms = _current_loop_terms(self)
+        radius = 0.0 if loop_surely_stable(*terms) else loop_radius(*terms)
         # A pole at 1 within rounding is the integrator of a lossless winding (R -> 0).
         if not radius <= 1.0 + 1e-9:
             hint = ("leave Kp_current and Ki_current unset to derive stable gains"
@@ -419,6 +426,9 @@ class SystemParams:
     # -- derived quantities ----------------------------------------------------
     def current_gains(self) -> CurrentGains:
         """(kp, ki) of the d and q current PI loops in V/A and V/(A*s)."""
+        return self._current_gains
+
+    def _derive_current_gains(self) -> CurrentGains:
         dt = 1.0 / self.drive.pwm_hz
         g = delayed_loop_gain(self.drive.current_bandwidth_hz * dt)
         x = self.motor.R * dt / self.motor.L
@@ -462,43 +472,22 @@ def current_loop_radius(system: SystemParams) -> float:
     the next, and the PI integrator I' = I + Ki*dt*e: state (i, v, I),
     closed loop [[a, (1 - a)/R, 0], [-Kp, 0, 1], [-Ki*dt, 0, 1]].
     """
+    return loop_radius(*_current_loop_terms(system))
+
+
+def _current_loop_terms(system: SystemParams) -> tuple[float, float, float, float]:
+    """(a, b, kp, ki*dt) of :func:`current_loop_radius`'s loop."""
     m = system.motor
     dt = 1.0 / system.drive.pwm_hz
     x = m.R * dt / m.L
     a = fm.exp(-x)
     b = -fm.expm1(-x) / m.R if x > 0 else dt / m.L
     kp, ki = system.current_gains()
-    if not (math.isfinite(kp) and math.isfinite(ki)):
-        return math.inf
-    with np.errstate(all="ignore"):
-        poles = np.linalg.eigvals(np.array([[a, b, 0.0], [-kp, 0.0, 1.0],
-                                            [-ki * dt, 0.0, 1.0]]))
-    radius = float(np.max(np.abs(poles)))
-    return radius if math.isfinite(radius) else math.inf
+    return a, b, kp, ki * dt
 
 
 #: Smallest current-loop gain (V/A) a drive may have; the anti-windup divides by it.
 MIN_KP_CURRENT = 1e-6
-
-#: RK4's stability region holds the left half-disc |h*lambda| <= 2.5 (|R(z)| <= 0.873 there).
-RK4_STABLE_RADIUS = 2.5
-
-
-@functools.lru_cache(maxsize=4096)
-def _plant_rate(k_max: float, J: float, D: float, Km: float, L: float, R: float) -> float:
-    """The fastest |lambda| (rad/s) of :func:`fastest_plant_mode`'s Jacobians; kept
-    per value set, as a board builds the same motor's run many times."""
-    jac = np.zeros((3, 3, 3))
-    jac[:, 0, 1] = 1.0
-    jac[:, 1, 0] = np.array([-k_max, 0.0, k_max]) / J
-    jac[:, 1, 1] = -D / J
-    jac[:, 1, 2] = Km / J
-    jac[:, 2, 1] = -Km / L
-    jac[:, 2, 2] = -R / L
-    with np.errstate(all="ignore"):
-        return max(R / L, float(np.max(np.abs(np.linalg.eigvals(jac))))) \
-            if np.all(np.isfinite(jac)) else math.inf
-
 
 def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[float, str]:
     """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode,
@@ -513,8 +502,8 @@ def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[fl
     (N*m/rad) anywhere in +-Nr*(Km*holding_current + Kd1 + 2*Kd2 + 4*Kd4).
     """
     m = system.motor
-    k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
-    rate = _plant_rate(k_max, m.J, m.D, m.Km, m.L, m.R)
+    terms = _plant_terms(system)
+    k_max, rate = terms[0], plant_rate(*terms)
     parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
              "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
              "Km, L, J": m.Km / math.sqrt(m.L * m.J)}
@@ -524,6 +513,20 @@ def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[fl
     return rate, max(parts, key=parts.get)
 
 
+def fastest_plant_mode_bound(system: SystemParams, speed_rps: float = 0.0) -> float:
+    """An upper bound (rad/s) of :func:`fastest_plant_mode`'s rate without its
+    eigenvalues (:func:`.stability.plant_rate_bound`); inf where it has none."""
+    return max(plant_rate_bound(*_plant_terms(system)),
+               2.0 * math.pi * abs(speed_rps) * system.motor.Nr)
+
+
+def _plant_terms(system: SystemParams) -> tuple[float, float, float, float, float, float]:
+    """(k_max, J, D, Km, L, R) of the plant's Jacobians (:func:`fastest_plant_mode`)."""
+    m = system.motor
+    k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
+    return k_max, m.J, m.D, m.Km, m.L, m.R
+
+
 def required_substeps(system: SystemParams, speed_rps: float = 0.0) -> int:
     """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably,
     and the windings' back-EMF rotation Nr*omega at ``speed_rps``."""
@@ -531,20 +534,6 @@ def required_substeps(system: SystemParams, speed_rps: float = 0.0) -> int:
     if not math.isfinite(rate):
         return 2 ** 62
     return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))
-
-
-def delayed_loop_gain(bandwidth_per_sample: float) -> float:
-    """Loop gain g for which g/(z^2 - z + g) is -3 dB at ``bandwidth_per_sample``.
-
-    The argument is the bandwidth over the sample rate (f_c/f_s). From
-    |z^2 - z + g|^2 = 2 g^2 at z = exp(j*2*pi*f_c/f_s): with A = z^2 - z,
-    g^2 - 2 Re(A) g - |A|^2 = 0.
-    """
-    theta = 2.0 * math.pi * bandwidth_per_sample
-    a = complex(fm.cos(2 * theta), fm.sin(2 * theta)) - complex(fm.cos(theta),
-                                                                    fm.sin(theta))
-    # |A|^2 written out: abs() and ** go through the C library's hypot and pow.
-    return a.real + math.sqrt(2.0 * a.real * a.real + a.imag * a.imag)
 
 
 # Detent harmonics of the model, in the order of its sin/cos coefficients.
@@ -595,6 +584,12 @@ class FeedforwardModel:
         Kd_h*sin(h*x + phi_h) = Kd_h*cos(phi_h)*sin(h*x) + Kd_h*sin(phi_h)*cos(h*x);
         returned as (s1, c1, s2, c2, s4, c4) with phi4 = 0.
         """
-        return (self.Kd1 * fm.cos(self.phi1), self.Kd1 * fm.sin(self.phi1),
-                self.Kd2 * fm.cos(self.phi2), self.Kd2 * fm.sin(self.phi2),
-                self.Kd4, 0.0)
+        return detent_coefficients(self)
+
+
+def detent_coefficients(model: "MotorParams | FeedforwardModel"
+                        ) -> tuple[float, float, float, float, float, float]:
+    """:meth:`FeedforwardModel.coefficients` of a motor's or a model's detent fields."""
+    return (model.Kd1 * fm.cos(model.phi1), model.Kd1 * fm.sin(model.phi1),
+            model.Kd2 * fm.cos(model.phi2), model.Kd2 * fm.sin(model.phi2),
+            model.Kd4, 0.0)

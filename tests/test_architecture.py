@@ -24,7 +24,7 @@ FLOORS = {
     "stepdamp_env.limits": 0, "stepdamp_env.errors": 0, "stepdamp_env.interrupts": 0,
     "stepdamp_env.lanes": 0,
     "stepdamp_env.estimators": 0, "stepdamp_env.numba_cache": 0, "stepdamp_env.fixedmath": 0,
-    "stepdamp_env.fixednet": 0,
+    "stepdamp_env.fixednet": 0, "stepdamp_env.stability": 0,
     "stepdamp_env.simulation": 1, "stepdamp_env.response": 1, "stepdamp_env.metrics": 1,
     "stepdamp_env.identify": 2, "stepdamp_env.sweep": 2, "stepdamp_env.plots": 2,
     "stepdamp_env.analysis": 2, "stepdamp_env.drivelog": 2, "stepdamp_env.logfit": 2,
