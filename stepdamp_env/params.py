@@ -47,8 +47,9 @@ import numpy as np
 from . import fixedmath as fm
 from .errors import ParameterError, show_value
 from .limits import LIMITS
-from .stability import (RK4_STABLE_RADIUS, delayed_loop_gain, loop_radius, loop_surely_stable,
-                        plant_rate, plant_rate_bound)
+from .stability import (RK4_STABLE_RADIUS, current_loop_radius, current_loop_terms,
+                        delayed_loop_gain, fastest_plant_mode, fastest_plant_mode_bound,
+                        loop_radius, loop_surely_stable, required_substeps)
 
 __all__ = [
     "CurrentGains",
@@ -348,7 +349,7 @@ class SystemParams:
                 f"Kp_current={kp:.4g} V/A with Ki_current={ki:.4g} V/(A*s) make the anti-windup "
                 f"unstable (Ki_current/(Kp_current*pwm_hz) = {aw:.4g}, allowed < 2); raise "
                 "Kp_current or leave both unset")
-        terms = _current_loop_terms(self)
+        terms = current_loop_terms(self)
         radius = 0.0 if loop_surely_stable(*terms) else loop_radius(*terms)
         # A pole at 1 within rounding is the integrator of a lossless winding (R -> 0).
         if not radius <= 1.0 + 1e-9:
@@ -464,77 +465,8 @@ class SystemParams:
         return predicted_resonances(self)
 
 
-def current_loop_radius(system: SystemParams) -> float:
-    """Largest pole radius of the sampled current loop (stable below 1).
-
-    The winding over one PWM period dt (exact: i' = a*i + (1 - a)/R * v, a =
-    exp(-R*dt/L)), the voltage computed from this period's sample applied in
-    the next, and the PI integrator I' = I + Ki*dt*e: state (i, v, I),
-    closed loop [[a, (1 - a)/R, 0], [-Kp, 0, 1], [-Ki*dt, 0, 1]].
-    """
-    return loop_radius(*_current_loop_terms(system))
-
-
-def _current_loop_terms(system: SystemParams) -> tuple[float, float, float, float]:
-    """(a, b, kp, ki*dt) of :func:`current_loop_radius`'s loop."""
-    m = system.motor
-    dt = 1.0 / system.drive.pwm_hz
-    x = m.R * dt / m.L
-    a = fm.exp(-x)
-    b = -fm.expm1(-x) / m.R if x > 0 else dt / m.L
-    kp, ki = system.current_gains()
-    return a, b, kp, ki * dt
-
-
 #: Smallest current-loop gain (V/A) a drive may have; the anti-windup divides by it.
 MIN_KP_CURRENT = 1e-6
-
-def fastest_plant_mode(system: SystemParams, speed_rps: float = 0.0) -> tuple[float, str]:
-    """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode,
-    or of the windings' back-EMF rotation Nr*omega at ``speed_rps`` if faster
-    (the stator-frame currents oscillate at it).
-
-    The Jacobian of (theta, omega, ia, ib) (docs/model.md, "The plant"), written
-    in currents along and across the rotor's electrical angle x: the current
-    along x has the pole -R/L and feeds nothing back (so the speed, which only
-    drives it, moves no eigenvalue); the current across x, omega and theta form
-    [[0, 1, 0], [k/J, -D/J, Km/J], [0, -Km/L, -R/L]] with the stiffness k
-    (N*m/rad) anywhere in +-Nr*(Km*holding_current + Kd1 + 2*Kd2 + 4*Kd4).
-    """
-    m = system.motor
-    terms = _plant_terms(system)
-    k_max, rate = terms[0], plant_rate(*terms)
-    parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
-             "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
-             "Km, L, J": m.Km / math.sqrt(m.L * m.J)}
-    rotation = 2.0 * math.pi * abs(speed_rps) * m.Nr
-    if rotation > rate:
-        return rotation, "the speed command with Nr"
-    return rate, max(parts, key=parts.get)
-
-
-def fastest_plant_mode_bound(system: SystemParams, speed_rps: float = 0.0) -> float:
-    """An upper bound (rad/s) of :func:`fastest_plant_mode`'s rate without its
-    eigenvalues (:func:`.stability.plant_rate_bound`); inf where it has none."""
-    return max(plant_rate_bound(*_plant_terms(system)),
-               2.0 * math.pi * abs(speed_rps) * system.motor.Nr)
-
-
-def _plant_terms(system: SystemParams) -> tuple[float, float, float, float, float, float]:
-    """(k_max, J, D, Km, L, R) of the plant's Jacobians (:func:`fastest_plant_mode`)."""
-    m = system.motor
-    k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
-    return k_max, m.J, m.D, m.Km, m.L, m.R
-
-
-def required_substeps(system: SystemParams, speed_rps: float = 0.0) -> int:
-    """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably,
-    and the windings' back-EMF rotation Nr*omega at ``speed_rps``."""
-    rate, _ = fastest_plant_mode(system, speed_rps)
-    if not math.isfinite(rate):
-        return 2 ** 62
-    return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))
-
 
 # Detent harmonics of the model, in the order of its sin/cos coefficients.
 DETENT_HARMONICS = (1, 2, 4)

@@ -1,12 +1,14 @@
-"""Stability of the sampled current loop and of the plant's integration, on numbers.
+"""Stability of a system's sampled current loop and of its plant's integration.
 
-:mod:`.params` validates every system it builds with these, and
-:func:`.simulation.check_integrable` every run: a training episode draws a new
-motor, so they run once per episode. The eigenvalues (numpy, tens of
-microseconds a call) decide; a closed-form certificate first accepts what is
-stable with a margin, so the common case skips them. A certificate only
-accepts: whatever it cannot settle goes to the eigenvalues, so every decision
-is the eigenvalues' (tests/test_stability.py).
+:mod:`.params` validates every system it builds with these (its current loop's
+pole radius), and :func:`.simulation.check_integrable` every run (the RK4 steps
+its fastest plant mode needs): a training episode draws a new motor, so they
+run once per episode. The eigenvalues (numpy, tens of microseconds a call)
+decide; a closed-form certificate first accepts what is stable with a margin,
+so the common case skips them. A certificate only accepts: whatever it cannot
+settle goes to the eigenvalues, so every decision is the eigenvalues'
+(tests/test_stability.py). The first half works on numbers, the second on a
+:class:`~.params.SystemParams` (which re-exports it).
 """
 
 from __future__ import annotations
@@ -14,12 +16,19 @@ from __future__ import annotations
 import functools
 import math
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from . import fixedmath as fm
 
+if TYPE_CHECKING:
+    from .params import SystemParams
+
 __all__ = ["RK4_STABLE_RADIUS", "delayed_loop_gain", "current_loop_poles", "loop_radius",
-           "loop_surely_stable", "plant_rate", "plant_rate_bound"]
+           "loop_surely_stable", "plant_rate", "plant_rate_bound", "current_loop_radius",
+           "current_loop_terms", "fastest_plant_mode", "fastest_plant_mode_bound", "plant_terms",
+           "required_substeps"]
 
 #: RK4's stability region holds the left half-disc |h*lambda| <= 2.5 (|R(z)| <= 0.873 there).
 RK4_STABLE_RADIUS = 2.5
@@ -105,3 +114,73 @@ def plant_rate_bound(k_max: float, J: float, D: float, Km: float, L: float, R: f
     c = Km / math.sqrt(J * L)
     bound = max(w + D / J + c, c + R / L)
     return bound if w > 0.0 and math.isfinite(bound) else math.inf
+
+
+# -- a system's (params.SystemParams) -------------------------------------------
+def current_loop_radius(system: "SystemParams") -> float:
+    """Largest pole radius of the sampled current loop (stable below 1).
+
+    The winding over one PWM period dt (exact: i' = a*i + (1 - a)/R * v, a =
+    exp(-R*dt/L)), the voltage computed from this period's sample applied in
+    the next, and the PI integrator I' = I + Ki*dt*e: state (i, v, I),
+    closed loop [[a, (1 - a)/R, 0], [-Kp, 0, 1], [-Ki*dt, 0, 1]].
+    """
+    return loop_radius(*current_loop_terms(system))
+
+
+def current_loop_terms(system: "SystemParams") -> tuple[float, float, float, float]:
+    """(a, b, kp, ki*dt) of a system's current loop (:func:`current_loop_radius`)."""
+    m = system.motor
+    dt = 1.0 / system.drive.pwm_hz
+    x = m.R * dt / m.L
+    a = fm.exp(-x)
+    b = -fm.expm1(-x) / m.R if x > 0 else dt / m.L
+    kp, ki = system.current_gains()
+    return a, b, kp, ki * dt
+
+
+def fastest_plant_mode(system: "SystemParams", speed_rps: float = 0.0) -> tuple[float, str]:
+    """(|lambda| in rad/s, the fields that set it) of the plant's fastest mode,
+    or of the windings' back-EMF rotation Nr*omega at ``speed_rps`` if faster
+    (the stator-frame currents oscillate at it).
+
+    The Jacobian of (theta, omega, ia, ib) (docs/model.md, "The plant"), written
+    in currents along and across the rotor's electrical angle x: the current
+    along x has the pole -R/L and feeds nothing back (so the speed, which only
+    drives it, moves no eigenvalue); the current across x, omega and theta form
+    [[0, 1, 0], [k/J, -D/J, Km/J], [0, -Km/L, -R/L]] with the stiffness k
+    (N*m/rad) anywhere in +-Nr*(Km*holding_current + Kd1 + 2*Kd2 + 4*Kd4).
+    """
+    m = system.motor
+    terms = plant_terms(system)
+    k_max, rate = terms[0], plant_rate(*terms)
+    parts = {"R, L": m.R / m.L, "D, J": m.D / m.J,
+             "Km, holding_current, Kd1/2/4, J": math.sqrt(k_max / m.J),
+             "Km, L, J": m.Km / math.sqrt(m.L * m.J)}
+    rotation = 2.0 * math.pi * abs(speed_rps) * m.Nr
+    if rotation > rate:
+        return rotation, "the speed command with Nr"
+    return rate, max(parts, key=parts.get)
+
+
+def fastest_plant_mode_bound(system: "SystemParams", speed_rps: float = 0.0) -> float:
+    """An upper bound (rad/s) of :func:`fastest_plant_mode`'s rate without its
+    eigenvalues (:func:`plant_rate_bound`); inf where it has none."""
+    return max(plant_rate_bound(*plant_terms(system)),
+               2.0 * math.pi * abs(speed_rps) * system.motor.Nr)
+
+
+def plant_terms(system: "SystemParams") -> tuple[float, float, float, float, float, float]:
+    """(k_max, J, D, Km, L, R) of the plant's Jacobians (:func:`fastest_plant_mode`)."""
+    m = system.motor
+    k_max = m.Nr * (m.Km * system.drive.holding_current + m.Kd1 + 2 * m.Kd2 + 4 * m.Kd4)
+    return k_max, m.J, m.D, m.Km, m.L, m.R
+
+
+def required_substeps(system: "SystemParams", speed_rps: float = 0.0) -> int:
+    """Fewest RK4 steps per PWM period that integrate the fastest plant mode stably,
+    and the windings' back-EMF rotation Nr*omega at ``speed_rps``."""
+    rate, _ = fastest_plant_mode(system, speed_rps)
+    if not math.isfinite(rate):
+        return 2 ** 62
+    return max(1, math.ceil(rate / (RK4_STABLE_RADIUS * system.drive.pwm_hz) - 1e-12))
