@@ -427,7 +427,8 @@ class SystemParams:
     # -- derived quantities ----------------------------------------------------
     def current_gains(self) -> CurrentGains:
         """(kp, ki) of the d and q current PI loops in V/A and V/(A*s)."""
-        return self._current_gains
+        gains = self.__dict__.get("_current_gains")     # absent in a pickle of 0.18.0
+        return gains if gains is not None else self._derive_current_gains()
 
     def _derive_current_gains(self) -> CurrentGains:
         dt = 1.0 / self.drive.pwm_hz

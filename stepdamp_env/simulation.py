@@ -339,12 +339,13 @@ def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0
     steps per PWM period cannot integrate stably (it would end in NaN or 1e200).
 
     The back-EMF rotation Nr*omega at ``speed_rps`` counts as a mode too
-    (:func:`~stepdamp_env.params.fastest_plant_mode`).
+    (:func:`~stepdamp_env.stability.fastest_plant_mode`).
     """
     limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
     # A bound settles the common case without the eigenvalues (a training episode's
-    # reset); the margin keeps it inside their rounding.
-    if fastest_plant_mode_bound(system, speed_rps) <= limit * (1.0 - 1e-6):
+    # reset); the margin keeps it inside their rounding, the floor to whole steps.
+    whole = RK4_STABLE_RADIUS * system.drive.pwm_hz * math.floor(substeps)
+    if fastest_plant_mode_bound(system, speed_rps) <= whole * (1.0 - 1e-6):
         return
     need = required_substeps(system, speed_rps)
     if substeps >= need:

@@ -88,7 +88,7 @@ def loop_surely_stable(a: float, b: float, kp: float, ki_dt: float) -> bool:
 
 @functools.lru_cache(maxsize=4096)
 def plant_rate(k_max: float, J: float, D: float, Km: float, L: float, R: float) -> float:
-    """The fastest |lambda| (rad/s) of the plant's Jacobians (:func:`.params.fastest_plant_mode`)
+    """The fastest |lambda| (rad/s) of the plant's Jacobians (:func:`fastest_plant_mode`)
     with the stiffness k at -k_max, 0 and k_max, at least R/L; kept per value set,
     as a board builds the same motor's run many times."""
     jac = np.zeros((3, 3, 3))

@@ -21,8 +21,9 @@ from stepdamp_env.params import (ParameterError, SystemParams, current_loop_radi
                                  fastest_plant_mode, fastest_plant_mode_bound, required_substeps)
 from stepdamp_env.presets import get_preset, preset_names
 from stepdamp_env.simulation import check_integrable
-from stepdamp_env.stability import (RK4_STABLE_RADIUS, current_loop_poles, loop_radius,
-                                    loop_surely_stable, plant_rate, plant_rate_bound)
+from stepdamp_env.stability import (RK4_STABLE_RADIUS, current_loop_poles, current_loop_terms,
+                                    loop_radius, loop_surely_stable, plant_rate,
+                                    plant_rate_bound)
 
 
 def _loop_draws(n: int, seed: int = 3) -> list[tuple[float, float, float, float]]:
@@ -147,6 +148,9 @@ def test_a_systems_gains_survive_copies_and_pickles():
     for other in (copy.copy(system), copy.deepcopy(system),
                   pickle.loads(pickle.dumps(system))):
         assert other == system and other.current_gains() == system.current_gains()
+    older = copy.copy(system)
+    del older.__dict__["_current_gains"]        # as a system pickled by 0.18.0 has it
+    assert older.current_gains() == system.current_gains()
     assert current_loop_radius(system) < 1.0
 
 
@@ -156,3 +160,95 @@ def test_the_gains_are_the_derived_ones(name):
     rebuilt = SystemParams(system.motor, system.drive, system.servo, system.name)
     assert rebuilt.current_gains() == system.current_gains()
     assert rebuilt.replace(Kp_current=None).current_gains() == system.current_gains()
+
+
+def _probe_near(a: float, b: float, ki_share: float, target: float) -> float:
+    """kp whose loop radius is within 5e-8 of ``target`` (bisection on eigenvalues)."""
+    def radius(kp: float) -> float:
+        return loop_radius(a, b, kp, kp * (1.0 - a) * ki_share)
+
+    lo, hi = 0.0, 1.0 / b
+    while radius(hi) < target:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if radius(mid) < target else (lo, mid)
+        if abs(radius(hi) - target) < 5e-8:
+            return hi
+    raise AssertionError("no crossing found")
+
+
+@pytest.mark.parametrize("a, b, ki_share", [(0.5, 0.01, 1.0), (0.99, 0.001, 1.0),
+                                            (0.2, 0.5, 0.3), (0.9, 2e-4, 2.5)])
+def test_the_loop_certificate_stops_at_its_radius(a, b, ki_share):
+    # Just inside 1 - 1e-6 it accepts; just outside (still a stable loop) it leaves
+    # the question to the eigenvalues.
+    inside = _probe_near(a, b, ki_share, 1.0 - 1.3e-6)
+    outside = _probe_near(a, b, ki_share, 1.0 - 0.7e-6)
+    assert loop_surely_stable(a, b, inside, inside * (1.0 - a) * ki_share)
+    assert not loop_surely_stable(a, b, outside, outside * (1.0 - a) * ki_share)
+
+
+def test_the_lossless_integrator_is_left_to_the_eigenvalues():
+    # Ki = 0: (z - 1)(z^2 - a z + b kp), a pole on the unit circle that the
+    # constructor accepts (radius 1 within 1e-9) and the certificate does not.
+    a, b, kp = 0.7, 0.02, 10.0
+    assert abs(loop_radius(a, b, kp, 0.0) - 1.0) < 1e-12
+    assert not loop_surely_stable(a, b, kp, 0.0)
+
+
+def _stiff() -> SystemParams:
+    base = get_preset("patent")
+    return base.replace(J=base.motor.J / 100)      # fastest mode about 11,900 rad/s
+
+
+@pytest.mark.parametrize("f", [1.0 - 1e-6, 1.0 + 1e-6, 1.3, 2.0])
+def test_check_integrable_at_the_limit_of_one_rk4_step(f):
+    # pwm_hz puts one RK4 step's limit at f times the fastest mode: below, refused;
+    # between the mode and its bound, the eigenvalues accept it.
+    system = _stiff()
+    rate, _ = fastest_plant_mode(system)
+    pwm = rate / RK4_STABLE_RADIUS * f
+    system = system.replace(pwm_hz=pwm, current_bandwidth_hz=pwm / 10)
+    if f < 1.0:
+        with pytest.raises(ParameterError, match="substeps=1"):
+            check_integrable(system, 1)
+    else:
+        check_integrable(system, 1)
+
+
+def test_a_fraction_of_a_step_counts_for_nothing():
+    # 1.99 RK4 steps where 2 are needed (the mode at 1.05 of one step's limit, its
+    # bound at 1.6): refused, as the whole step it runs.
+    system = _stiff()
+    rate, _ = fastest_plant_mode(system)
+    pwm = rate / RK4_STABLE_RADIUS / 1.05
+    system = system.replace(pwm_hz=pwm, current_bandwidth_hz=pwm / 10)
+    assert fastest_plant_mode_bound(system) < RK4_STABLE_RADIUS * pwm * 1.9
+    with pytest.raises(ParameterError, match="substeps >= 2"):
+        check_integrable(system, 1.99)
+
+
+@pytest.mark.parametrize("f, refused", [(0.999, False), (1.001, True)])
+def test_the_speed_command_counts_in_the_bound(f, refused):
+    # The windings' rotation Nr*omega past one RK4 step's limit: refused with it.
+    system = get_preset("patent")
+    speed = RK4_STABLE_RADIUS * system.drive.pwm_hz / (2.0 * math.pi * system.motor.Nr) * f
+    if refused:
+        with pytest.raises(ParameterError, match="speed command"):
+            check_integrable(system, 1, speed)
+    else:
+        check_integrable(system, 1, speed)
+
+
+def test_real_motors_skip_the_eigenvalues(monkeypatch):
+    from stepdamp_env import simulation
+
+    def no_eigenvalues(*args, **kwargs):
+        raise AssertionError("the eigenvalues were needed")
+
+    monkeypatch.setattr(simulation, "required_substeps", no_eigenvalues)
+    for system in _real_systems():
+        check_integrable(system, 1, 10.0)
+        terms = current_loop_terms(system)
+        assert loop_surely_stable(*terms), system.name
