@@ -341,7 +341,6 @@ def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0
     The back-EMF rotation Nr*omega at ``speed_rps`` counts as a mode too
     (:func:`~stepdamp_env.stability.fastest_plant_mode`).
     """
-    limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
     # A bound settles the common case without the eigenvalues (a training episode's
     # reset); the margin keeps it inside their rounding, the floor to whole steps.
     whole = RK4_STABLE_RADIUS * system.drive.pwm_hz * math.floor(substeps)
@@ -351,6 +350,7 @@ def check_integrable(system: SystemParams, substeps: int, speed_rps: float = 0.0
     if substeps >= need:
         return
     rate, fields = fastest_plant_mode(system, speed_rps)
+    limit = RK4_STABLE_RADIUS * system.drive.pwm_hz * substeps
     advice = (f"set substeps >= {need} (allowed up to 1000)" if need <= 1000
               else "no allowed substeps (at most 1000) integrates it; change those fields")
     raise ParameterError(
