@@ -68,9 +68,16 @@ def kernel_timed(fn):
 def install() -> None:
     from stepdamp_env import fixednet, kernel
     from stepdamp_env.bench import leaderboard, rig, runner
+    from stepdamp_env.env import engine
 
     for name in ("run_periods", "run_periods_law", "step_batch", "step_batch_parallel"):
         setattr(kernel, name, kernel_timed(getattr(kernel, name)))
+    # The SIMD lanes (most of a board's kernel time), wrapped where the engine picks
+    # them: lanes' own module globals stay compiled functions (its parallel step calls
+    # step_lanes).
+    pick = engine.batch_step
+    engine.batch_step = lambda simd, parallel: (kernel_timed(pick(simd, parallel)) if simd
+                                                else pick(simd, parallel))
     fixednet.mlp_forward = timed("policy forward (mlp_forward)", fixednet.mlp_forward)
     leaderboard.identify = timed("identification", leaderboard.identify)
     leaderboard.protocol_motors = timed("motors", leaderboard.protocol_motors)

@@ -197,16 +197,29 @@ def read_json_or_none(path: str | os.PathLike[str]) -> Any:
         return None
 
 
+def _checked_text(key: str, content: Any) -> str:
+    """``[key, content]`` as compact JSON, dicts' keys in their own order (as a
+    kept file holds them, so that its reader encodes the same text)."""
+    return json.dumps([key, content], default=_default, allow_nan=True)
+
+
 def _checksum(key: str, content: Any) -> str:
-    """sha256 of a kept entry's key and its content (canonical JSON)."""
-    text = json.dumps([key, content], sort_keys=True, default=_default, allow_nan=True)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    """sha256 of a kept entry's key and its content (:func:`_checked_text`)."""
+    return hashlib.sha256(_checked_text(key, content).encode("utf-8")).hexdigest()
 
 
 def write_checked_json(path: str | os.PathLike[str], key: str, content: Any) -> None:
     """Keep ``content`` at ``path`` (atomically) with its key and a checksum of
-    both, for :func:`read_checked_json`."""
-    write_json(path, {"key": key, "sha256": _checksum(key, content), "content": content})
+    both, for :func:`read_checked_json`: ``{"key": ..., "sha256": ..., "content":
+    ...}`` in compact JSON, one encoding for the file and the checksum (json's C
+    encoder; a board's parent writes a batch while its workers run)."""
+    text = _checked_text(key, content)
+    key_text = json.dumps(key)
+    # text is "[" + key_text + ", " + the content's JSON + "]".
+    content_text = text[len(key_text) + 3:-1]
+    write_text(path, '{"key": ' + key_text + ', "sha256": "'
+               + hashlib.sha256(text.encode("utf-8")).hexdigest() + '", "content": '
+               + content_text + "}\n")
 
 
 def read_checked_json(path: str | os.PathLike[str], key: str, what: str) -> Any:

@@ -5,6 +5,7 @@ edited caches and boards)."""
 from __future__ import annotations
 
 import gzip
+import hashlib
 import json
 import lzma
 import os
@@ -326,6 +327,22 @@ def test_a_changed_byte_in_a_kept_entry_is_never_read_as_another_value(tmp_path,
     got = sio.read_checked_json(path, "key", "cache entry")
     assert got is None or got == value      # whitespace may change; the value never
     assert sio.read_checked_json(path, "other key", "cache entry") is None
+
+
+def test_a_kept_entry_is_one_compact_encoding_of_its_key_and_content(tmp_path):
+    # Keys in their own order, floats as repr, NaN kept: the file's content is the
+    # checksum's text, and it reads back equal (the same order included).
+    content = [{"z": 0.1, "a": float("nan"), "m": [1, -0.0, 1e300]}, {"b": np.float64(2.5)}]
+    path = tmp_path / "entry.json"
+    sio.write_checked_json(path, "k\u00e9y", content)
+    text = path.read_text(encoding="utf-8")
+    kept = json.loads(text)
+    body = json.dumps(["k\u00e9y", kept["content"]])
+    assert "\n" not in text.rstrip("\n") and kept["key"] == "k\u00e9y"
+    assert kept["sha256"] == hashlib.sha256(body.encode("utf-8")).hexdigest()
+    assert list(kept["content"][0]) == ["z", "a", "m"]
+    got = sio.read_checked_json(path, "k\u00e9y", "cache entry")
+    assert json.dumps(got) == json.dumps(json.loads(json.dumps(content, default=float)))
 
 
 def test_an_edited_identification_is_computed_again_with_a_note(tmp_path, monkeypatch, capsys):
