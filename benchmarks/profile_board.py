@@ -75,9 +75,17 @@ def install() -> None:
     # The SIMD lanes (most of a board's kernel time), wrapped where the engine picks
     # them: lanes' own module globals stay compiled functions (its parallel step calls
     # step_lanes).
-    pick = engine.batch_step
-    engine.batch_step = lambda simd, parallel: (kernel_timed(pick(simd, parallel)) if simd
-                                                else pick(simd, parallel))
+    pick, lanes_timed = engine.batch_step, {}
+
+    def batch_step(simd, parallel):
+        step = pick(simd, parallel)
+        if not simd:
+            return step
+        if step not in lanes_timed:
+            lanes_timed[step] = kernel_timed(step)
+        return lanes_timed[step]
+
+    engine.batch_step = batch_step
     fixednet.mlp_forward = timed("policy forward (mlp_forward)", fixednet.mlp_forward)
     leaderboard.identify = timed("identification", leaderboard.identify)
     leaderboard.protocol_motors = timed("motors", leaderboard.protocol_motors)
