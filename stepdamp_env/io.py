@@ -197,15 +197,15 @@ def read_json_or_none(path: str | os.PathLike[str]) -> Any:
         return None
 
 
-def _checked_text(key: str, content: Any) -> str:
-    """``[key, content]`` as compact JSON, dicts' keys in their own order (as a
-    kept file holds them, so that its reader encodes the same text)."""
-    return json.dumps([key, content], default=_default, allow_nan=True)
+def _checked_parts(key: str, content: Any) -> tuple[str, str]:
+    """A kept entry's key and content as compact JSON, dicts' keys in their own
+    order (as a kept file holds them, so that its reader encodes the same text)."""
+    return json.dumps(key), json.dumps(content, default=_default, allow_nan=True)
 
 
-def _checksum(key: str, content: Any) -> str:
-    """sha256 of a kept entry's key and its content (:func:`_checked_text`)."""
-    return hashlib.sha256(_checked_text(key, content).encode("utf-8")).hexdigest()
+def _checksum(key_text: str, content_text: str) -> str:
+    """sha256 of a kept entry's key and content, ``[key, content]`` as JSON."""
+    return hashlib.sha256(f"[{key_text}, {content_text}]".encode("utf-8")).hexdigest()
 
 
 def write_checked_json(path: str | os.PathLike[str], key: str, content: Any) -> None:
@@ -213,13 +213,9 @@ def write_checked_json(path: str | os.PathLike[str], key: str, content: Any) -> 
     both, for :func:`read_checked_json`: ``{"key": ..., "sha256": ..., "content":
     ...}`` in compact JSON, one encoding for the file and the checksum (json's C
     encoder; a board's parent writes a batch while its workers run)."""
-    text = _checked_text(key, content)
-    key_text = json.dumps(key)
-    # text is "[" + key_text + ", " + the content's JSON + "]".
-    content_text = text[len(key_text) + 3:-1]
-    write_text(path, '{"key": ' + key_text + ', "sha256": "'
-               + hashlib.sha256(text.encode("utf-8")).hexdigest() + '", "content": '
-               + content_text + "}\n")
+    key_text, content_text = _checked_parts(key, content)
+    write_text(path, f'{{"key": {key_text}, "sha256": "{_checksum(key_text, content_text)}", '
+                     f'"content": {content_text}}}\n')
 
 
 def read_checked_json(path: str | os.PathLike[str], key: str, what: str) -> Any:
@@ -232,7 +228,7 @@ def read_checked_json(path: str | os.PathLike[str], key: str, what: str) -> Any:
         return None
     kept = read_json_or_none(path)
     if isinstance(kept, dict) and kept.get("key") == key and "content" in kept and \
-            kept.get("sha256") == _checksum(key, kept["content"]):
+            kept.get("sha256") == _checksum(*_checked_parts(key, kept["content"])):
         return kept["content"]
     print(f"stepdamp: note: {what} {os.fspath(path)!r} is damaged or edited (its checksum "
           "does not match); computing it again", file=sys.stderr)
