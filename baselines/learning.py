@@ -118,11 +118,29 @@ class CalibratedTable(DelayCompensatedFF):
         g = torque_paths(knowledge.nominal, context.mode, context.speed_rps, model)
         self._action = harmonic_actions(torque / g, phasors(model), context.action_scale)
 
+    def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
+        # One KeptResults per batch (it reads the code once: one per preparation).
+        self._batch_kept: list[KeptResults] = []
+        try:
+            super().reset_batch(contexts)
+        finally:
+            del self._batch_kept
+
+    def _kept(self) -> KeptResults:
+        """The kept tables: the batch's (made on first use), or a new one outside a batch."""
+        held = getattr(self, "_batch_kept", None)
+        if held:
+            return held[0]
+        kept = KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
+        if held is not None:
+            held.append(kept)
+        return kept
+
     def _kept_calibration(self, key: tuple, knowledge: MotorKnowledge, mode: str, model
                           ) -> tuple[np.ndarray, float]:
         """:meth:`_calibrate`, kept on disk by ``key`` (:class:`KeptResults`: the
         calibration is deterministic, so a kept table is the one it would find)."""
-        kept = KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
+        kept = self._kept()
         # On disk, shared by boards, protocols and sweeps: the nominal model too (it
         # picks the calibration speeds and the current paths).
         disk_key = [*key, knowledge.nominal]

@@ -126,3 +126,35 @@ def test_calibrated_table_reads_its_table_back_bit_for_bit(cache, monkeypatch):
     assert len(_files(cache, "calibrated-table")) == 3
     learning._TABLES.clear()
     assert os.path.isdir(cache / "calibrated-table")
+
+
+def test_calibrated_table_reads_the_code_once_per_batch(cache, monkeypatch):
+    """A KeptResults hashes the sources when made: one per batch (a preparation),
+    not one per calibration; outside a batch, one per configure."""
+    system = get_preset("patent")
+    exact = FeedforwardModel.from_motor(system.motor)
+    contexts = [PolicyContext(
+        knowledge=MotorKnowledge(system, exact, exact, plant=system,
+                                 rig=CalibrationRig(system, noise_seed=seed, accel_rps2=50.0)),
+        estimate=exact, mode="open-loop", speed_rps=1.0, action_mode="harmonic",
+        action_scale=0.05, agent_hz=1000.0, current_scale_a=1.0, accel_rps2=50.0)
+        for seed in (3, 4, 5)]
+    made = []
+    real_init = KeptResults.__init__
+
+    def counted(self, *args, **kwargs):
+        made.append(args)
+        real_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(KeptResults, "__init__", counted)
+    learning._TABLES.clear()
+    table = CalibratedTable(iterations=2)
+    table.reset_batch(contexts)
+    assert len(made) == 1 and len(_files(cache, "calibrated-table")) == 3
+    learning._TABLES.clear()
+    table.reset_batch(contexts)                 # read back: one more reading of the code
+    assert len(made) == 2
+    learning._TABLES.clear()
+    table.configure(contexts[0])
+    assert len(made) == 3
+    learning._TABLES.clear()
