@@ -142,9 +142,10 @@ def test_calibrated_table_reads_the_code_once_per_batch(cache, monkeypatch):
     made = []
     real_init = KeptResults.__init__
 
-    def counted(self, *args, **kwargs):
-        made.append(args)
-        real_init(self, *args, **kwargs)
+    def counted(self, kind, *args, **kwargs):
+        if kind == "calibrated-table":
+            made.append(kind)
+        real_init(self, kind, *args, **kwargs)
 
     monkeypatch.setattr(KeptResults, "__init__", counted)
     learning._TABLES.clear()
@@ -157,4 +158,14 @@ def test_calibrated_table_reads_the_code_once_per_batch(cache, monkeypatch):
     learning._TABLES.clear()
     table.configure(contexts[0])
     assert len(made) == 3
+    # A batch that fails (a run without a rig) leaves no batch's KeptResults behind.
+    no_rig = dataclasses.replace(contexts[1], knowledge=dataclasses.replace(
+        contexts[1].knowledge, rig=None))
+    learning._TABLES.clear()
+    with pytest.raises(ValueError, match="rig"):
+        table.reset_batch([contexts[0], no_rig])
+    assert len(made) == 4
+    learning._TABLES.clear()
+    table.configure(contexts[0])
+    assert len(made) == 5
     learning._TABLES.clear()
