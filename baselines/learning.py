@@ -63,6 +63,11 @@ def golden_section(f, low: float, high: float, iterations: int,
 _TABLES: dict[tuple, tuple[np.ndarray, float]] = {}
 
 
+def _kept_tables() -> KeptResults:
+    """``calibrated-table``'s tables kept on disk (the code read now)."""
+    return KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
+
+
 def _magnitude(z):
     """|z| in real arithmetic (abs of a complex goes through the C library's hypot,
     whose last bit depends on the CPU)."""
@@ -118,29 +123,21 @@ class CalibratedTable(DelayCompensatedFF):
         g = torque_paths(knowledge.nominal, context.mode, context.speed_rps, model)
         self._action = harmonic_actions(torque / g, phasors(model), context.action_scale)
 
+    #: The batch's kept tables (one KeptResults per preparation: it reads the code once).
+    _batch_kept: KeptResults | None = None
+
     def reset_batch(self, contexts: Sequence[PolicyContext]) -> None:
-        # One KeptResults per batch (it reads the code once: one per preparation).
-        self._batch_kept: list[KeptResults] = []
+        outer, self._batch_kept = self._batch_kept, _kept_tables()
         try:
             super().reset_batch(contexts)
         finally:
-            del self._batch_kept
-
-    def _kept(self) -> KeptResults:
-        """The kept tables: the batch's (made on first use), or a new one outside a batch."""
-        held = getattr(self, "_batch_kept", None)
-        if held:
-            return held[0]
-        kept = KeptResults("calibrated-table", code_root=os.path.dirname(__file__))
-        if held is not None:
-            held.append(kept)
-        return kept
+            self._batch_kept = outer
 
     def _kept_calibration(self, key: tuple, knowledge: MotorKnowledge, mode: str, model
                           ) -> tuple[np.ndarray, float]:
         """:meth:`_calibrate`, kept on disk by ``key`` (:class:`KeptResults`: the
         calibration is deterministic, so a kept table is the one it would find)."""
-        kept = self._kept()
+        kept = self._batch_kept or _kept_tables()
         # On disk, shared by boards, protocols and sweeps: the nominal model too (it
         # picks the calibration speeds and the current paths).
         disk_key = [*key, knowledge.nominal]
