@@ -386,3 +386,24 @@ def test_a_child_forked_after_parallel_steps_serially_with_the_same_bits():
     with multiprocessing.get_context("fork").Pool(1) as pool:
         there = pool.map_async(_two_thread_rollout, [0]).get(timeout=120)[0]
     assert all(np.array_equal(a, b) for a, b in zip(here, there, strict=True))
+
+
+def test_v1_options_share_their_drive_with_v0_without_checking_it_twice():
+    # EnvOptionsV1.shared() gives v0 the same drive options (checked once, by v1)
+    # and its own at v0's checks: equal to v0's options made from keywords.
+    from stepdamp_env.env.options import EnvOptions
+
+    o = EnvOptionsV1(motor="patent-0.9-degree", mode="servo", speed_rps=1.5,
+                     randomize={"J": (0.9, 1.1)}, base_controller="none",
+                     measure_from_s=0.2, agent_hz=500.0)
+    want = EnvOptions(**o.drive_options(), action_mode="harmonic+current",
+                      base_controller="none")
+    assert o.shared() == want
+    assert EnvOptionsV1().shared() == EnvOptions(**EnvOptionsV1().drive_options(),
+                                                 action_mode="harmonic+current")
+    with pytest.raises(ParameterError, match="action_mode"):
+        EnvOptions.of_drive(o, action_mode="gains")
+    with pytest.raises(ParameterError, match="current_penalty"):
+        EnvOptions.of_drive(o, current_penalty=-1.0)
+    with pytest.raises(ParameterError, match=r"\['mode', 'nominal'\]"):
+        EnvOptions.of_drive(o, mode="servo", nominal="patent")

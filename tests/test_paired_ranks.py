@@ -101,3 +101,67 @@ def test_false_separation_and_false_tie_rates_on_simulated_boards():
     assert got["paired", 2.0] >= 0.80
     assert got["paired", 4.0] >= 0.98
     assert got["v3 intervals", 4.0] <= 0.10
+
+
+def _eager_ranks(estimates, per_motor, probability=None, decisive_share=0.95, min_motors=3):
+    """paired_ranks' rule with the bootstrap run for every pair (as before 0.18)."""
+    names = sorted((k for k in estimates if math.isfinite(estimates[k])),
+                   key=lambda k: (-estimates[k], str(k)))
+
+    def beats(j, k):
+        t = paired_difference(per_motor.get(j, {}), per_motor.get(k, {}))
+        p = (probability or {}).get((j, k), math.nan)
+        return t["motors"] >= min_motors and (
+            (t["iqm"] > 0.0 and (t["low"] > 0.0 or t["share"] >= decisive_share))
+            or p >= decisive_share)
+
+    raw = {k: 1 + sum(beats(j, k) for j in names if j != k) for k in names}
+    out, best = {k: None for k in estimates}, 0
+    for k in names:
+        best = max(best, raw[k])
+        out[k] = best
+    first = out[names[0]] if names else 1
+    return {k: None if v is None else v - first + 1 for k, v in out.items()}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_ranks_skip_only_the_bootstraps_that_cannot_change_them(seed):
+    # paired_ranks bootstraps a pair only where the IQM, the share and the given
+    # probability leave the verdict open: the ranks are those of the eager rule.
+    rng = np.random.default_rng(seed)
+    scores = _board(rng, rng.uniform(0.0, 4.0, size=7), motors=int(rng.integers(3, 20)))
+    est = {k: iqm(list(v.values())) for k, v in scores.items()}
+    names = sorted(scores)
+    prob = {(a, b): float(rng.uniform()) for a in names for b in names if a != b}
+    for p in (None, prob):
+        assert paired_ranks(est, scores, probability=p) == _eager_ranks(est, scores, p)
+
+
+def test_a_paired_difference_without_its_interval_keeps_the_rest():
+    rng = np.random.default_rng(3)
+    x = {f"m{i}": float(v) for i, v in enumerate(rng.normal(1.0, 2.0, 12))}
+    y = {f"m{i}": float(v) for i, v in enumerate(rng.normal(0.0, 2.0, 12))}
+    full, bare = paired_difference(x, y), paired_difference(x, y, interval=False)
+    assert math.isnan(bare["low"]) and math.isfinite(full["low"])
+    assert {k: v for k, v in full.items() if k != "low"} == \
+        {k: v for k, v in bare.items() if k != "low"}
+    assert paired_difference(x, y) == full
+
+
+def test_the_kept_motor_draws_are_a_new_generators_each_time():
+    # median_difference and paired_difference keep their level-1 draws (every pair
+    # of a table draws the same): each call sees exactly a new default_rng(seed)'s.
+    from stepdamp_env.bench.stats import median_difference, widening_factor
+
+    rng = np.random.default_rng(5)
+    for motors in (7, 12, 7):
+        x = {f"m{i:02d}": float(v) for i, v in enumerate(rng.normal(1.0, 2.0, motors))}
+        y = {f"m{i:02d}": float(v) for i, v in enumerate(rng.normal(0.0, 2.0, motors))}
+        d = np.array([x[k] - y[k] for k in sorted(x)])
+        draws = np.random.default_rng(2000).integers(0, motors, size=(2000, motors))
+        low, high = np.quantile(np.median(d[draws], axis=1), [0.025, 0.975])
+        est, c = float(np.median(d)), widening_factor(motors, 0.95)
+        for _ in range(2):
+            got = median_difference(x, y)
+            assert got["median"] == est
+            assert got["ci"] == [est - c * (est - float(low)), est + c * (float(high) - est)]

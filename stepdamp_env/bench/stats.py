@@ -98,18 +98,45 @@ def _cell_table(values: Sequence[float], motors: Sequence[Any]
     return order, table, np.array([len(groups[k]) for k in order])
 
 
+def _strata_groups(order: Sequence[Any], strata: Mapping[Any, Any] | None
+                   ) -> tuple[tuple[int, ...], ...]:
+    """The indices into ``order`` of each stratum's motors, strata in sorted order."""
+    by: dict[Any, list[int]] = {}
+    for i, k in enumerate(order):
+        by.setdefault(None if strata is None else strata[k], []).append(i)
+    return tuple(tuple(by[s]) for s in sorted(by, key=str))
+
+
+def _draws_of_groups(groups: tuple[tuple[int, ...], ...], rng: np.random.Generator,
+                     resamples: int) -> np.ndarray:
+    cols = []
+    for group in groups:
+        idx = np.asarray(group)
+        cols.append(idx[rng.integers(0, idx.size, size=(resamples, idx.size))])
+    return np.concatenate(cols, axis=1)
+
+
 def _motor_draws(order: Sequence[Any], strata: Mapping[Any, Any] | None,
                  rng: np.random.Generator, resamples: int) -> np.ndarray:
     """Level 1: (resamples, motors) indices, motors drawn with replacement within
     their stratum (each stratum keeps its size); strata in sorted order."""
-    by: dict[Any, list[int]] = {}
-    for i, k in enumerate(order):
-        by.setdefault(None if strata is None else strata[k], []).append(i)
-    cols = []
-    for s in sorted(by, key=str):
-        idx = np.asarray(by[s])
-        cols.append(idx[rng.integers(0, idx.size, size=(resamples, idx.size))])
-    return np.concatenate(cols, axis=1)
+    return _draws_of_groups(_strata_groups(order, strata), rng, resamples)
+
+
+@functools.lru_cache(maxsize=64)
+def _seeded_draws(groups: tuple[tuple[int, ...], ...], seed: int, resamples: int
+                  ) -> np.ndarray:
+    draws = _draws_of_groups(groups, np.random.default_rng(seed), resamples)
+    draws.setflags(write=False)
+    return draws
+
+
+def _fresh_motor_draws(order: Sequence[Any], strata: Mapping[Any, Any] | None, seed: int,
+                       resamples: int) -> np.ndarray:
+    """:func:`_motor_draws` from a new generator of ``seed`` (read-only). Kept: a
+    board compares every pair of a table's entries on the same motors, so it
+    draws the same indices again and again."""
+    return _seeded_draws(_strata_groups(order, strata), int(seed), int(resamples))
 
 
 def _cell_draws(counts: np.ndarray, motor_idx: np.ndarray, rng: np.random.Generator
@@ -336,8 +363,7 @@ def median_difference(x: Mapping[Any, float], y: Mapping[Any, float],
         return {"median": math.nan, "ci": [math.nan, math.nan], "motors": 0}
     d = np.array([x[k] - y[k] for k in common], dtype=float)
     est = float(np.median(d))
-    rng = np.random.default_rng(seed)
-    m_idx = _motor_draws(common, strata, rng, resamples)
+    m_idx = _fresh_motor_draws(common, strata, seed, resamples)
     stats = np.median(d[m_idx], axis=1)
     alpha = (1.0 - confidence) / 2.0
     low, high = (float(q) for q in np.quantile(stats, [alpha, 1.0 - alpha]))
@@ -363,14 +389,16 @@ def rank_groups(estimates: Sequence[float], intervals: Sequence[Sequence[float]]
 
 def paired_difference(x: Mapping[Any, float], y: Mapping[Any, float],
                       strata: Mapping[Any, Any] | None = None, *, resamples: int = 2000,
-                      seed: int = 2000, confidence: float = 0.95) -> dict[str, Any]:
+                      seed: int = 2000, confidence: float = 0.95,
+                      interval: bool = True) -> dict[str, Any]:
     """X against Y paired by motor (per-motor scores, higher better), on the motors
     both have a finite score for: the IQM over motors of x - y, the lower end
     of its two-sided ``confidence`` interval (motors drawn within their strata,
     widened as in :func:`motor_mean_bootstrap`; so two entries are told apart,
     in either direction, at level 1 - ``confidence``), and the share of motors
     where X scores higher (ties half; with one cell per motor, rliable's
-    probability that X improves on Y)."""
+    probability that X improves on Y). ``interval=False`` leaves the bootstrap
+    out (``low`` NaN): the other values are the same."""
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence={confidence!r} is outside (0, 1)")
     common = sorted((k for k in set(x) & set(y)
@@ -380,8 +408,9 @@ def paired_difference(x: Mapping[Any, float], y: Mapping[Any, float],
     d = np.array([x[k] - y[k] for k in common], dtype=float)
     share = float(((d > 0).sum() + 0.5 * (d == 0).sum()) / d.size)
     est = iqm(d)
-    rng = np.random.default_rng(seed)
-    m_idx = _motor_draws(common, strata, rng, resamples)
+    if not interval:
+        return {"iqm": est, "low": math.nan, "share": share, "motors": len(common)}
+    m_idx = _fresh_motor_draws(common, strata, seed, resamples)
     sample = np.sort(d[m_idx], axis=1)
     stats = fm.weighted_rows(np.ascontiguousarray(sample), _iqm_weights(sample.shape[1]))
     q = float(np.quantile(stats, (1.0 - confidence) / 2.0))
@@ -412,12 +441,18 @@ def paired_ranks(estimates: Mapping[Any, float], per_motor: Mapping[Any, Mapping
                    key=lambda k: (-estimates[k], str(k)))
 
     def beats(j: Any, k: Any) -> bool:
-        t = paired_difference(per_motor.get(j, {}), per_motor.get(k, {}), strata,
-                              resamples=resamples, seed=seed, confidence=confidence)
-        p = (probability or {}).get((j, k), math.nan)
-        return t["motors"] >= min_motors and (
-            (t["iqm"] > 0.0 and (t["low"] > 0.0 or t["share"] >= decisive_share))
-            or p >= decisive_share)
+        x, y = per_motor.get(j, {}), per_motor.get(k, {})
+        stats = dict(resamples=resamples, seed=seed, confidence=confidence)
+        t = paired_difference(x, y, strata, interval=False, **stats)
+        if t["motors"] < min_motors:
+            return False
+        if (probability or {}).get((j, k), math.nan) >= decisive_share:
+            return True
+        if not t["iqm"] > 0.0:
+            return False
+        # The bootstrap only where the share does not decide.
+        return t["share"] >= decisive_share or \
+            paired_difference(x, y, strata, **stats)["low"] > 0.0
 
     raw = {k: 1 + sum(beats(j, k) for j in names if j != k) for k in names}
     out: dict[Any, int | None] = {k: None for k in estimates}

@@ -259,11 +259,31 @@ class EnvOptions(DriveOptions):
     termination_penalty: float = 100.0
 
     def __post_init__(self) -> None:
+        self.check_own()
+        self.check_drive()
+
+    def check_own(self) -> None:
+        """Raise a ParameterError naming the first of v0's own options out of its range."""
         check_choice("base_controller", self.base_controller, BASE_CONTROLLERS)
         check_choice("action_mode", self.action_mode, ACTION_MODES)
         check_number("current_penalty", self.current_penalty, 0.0, 1e6)
         check_number("termination_penalty", self.termination_penalty, 0.0, 1e9)
-        self.check_drive()
+
+    @classmethod
+    def of_drive(cls, drive: DriveOptions, **own: Any) -> "EnvOptions":
+        """The v0 options of ``drive``'s shared options and ``own`` v0 options (the
+        others at their defaults). Only ``own`` is checked: ``drive`` was when it
+        was made, and a later version's task builds one of these per run."""
+        shared = DriveOptions.__dataclass_fields__
+        unknown = sorted((set(own) - set(cls.__dataclass_fields__)) | (set(own) & set(shared)))
+        if unknown:
+            raise ParameterError(f"EnvOptions.of_drive: {unknown} are not v0's own options")
+        out = object.__new__(cls)
+        for name, f in cls.__dataclass_fields__.items():
+            value = getattr(drive, name) if name in shared else own.get(name, f.default)
+            object.__setattr__(out, name, value)
+        out.check_own()
+        return out
 
 
 # The options section of the environments' docstrings.

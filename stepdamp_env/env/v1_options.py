@@ -150,8 +150,9 @@ class EnvOptionsV1(DriveOptions):
 
     def shared(self) -> EnvOptions:
         """The v0 options of the same drive and episode draws (v0 draws the episodes)."""
-        return EnvOptions(**self.drive_options(), action_mode="harmonic+current",
-                          base_controller="patent-ff" if self.base_controller != "none" else "none")
+        return EnvOptions.of_drive(self, action_mode="harmonic+current",
+                                   base_controller="patent-ff" if self.base_controller != "none"
+                                   else "none")
 
     @property
     def max_episode_steps(self) -> int:
