@@ -388,7 +388,7 @@ def test_a_child_forked_after_parallel_steps_serially_with_the_same_bits():
     assert all(np.array_equal(a, b) for a, b in zip(here, there, strict=True))
 
 
-def test_v1_options_share_their_drive_with_v0_without_checking_it_twice():
+def test_v1_options_share_their_drive_with_v0_checked_once(monkeypatch):
     # EnvOptionsV1.shared() gives v0 the same drive options (checked once, by v1)
     # and its own at v0's checks: equal to v0's options made from keywords.
     from stepdamp_env.env.options import EnvOptions
@@ -401,6 +401,10 @@ def test_v1_options_share_their_drive_with_v0_without_checking_it_twice():
     assert o.shared() == want
     assert EnvOptionsV1().shared() == EnvOptions(**EnvOptionsV1().drive_options(),
                                                  action_mode="harmonic+current")
+    checks = []
+    monkeypatch.setattr(EnvOptions, "check_drive", lambda self: checks.append(self))
+    assert o.shared() == want and checks == []
+    monkeypatch.undo()
     with pytest.raises(ParameterError, match="action_mode"):
         EnvOptions.of_drive(o, action_mode="gains")
     with pytest.raises(ParameterError, match="current_penalty"):

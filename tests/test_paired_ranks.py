@@ -135,6 +135,17 @@ def test_ranks_skip_only_the_bootstraps_that_cannot_change_them(seed):
     prob = {(a, b): float(rng.uniform()) for a in names for b in names if a != b}
     for p in (None, prob):
         assert paired_ranks(est, scores, probability=p) == _eager_ranks(est, scores, p)
+    # Each pair alone, where the rank is the verdict itself (no smoothing hides it).
+    open_pairs = 0
+    for a in names:
+        for b in names:
+            if a == b:
+                continue
+            pair = {a: est[a], b: est[b]}
+            assert paired_ranks(pair, scores) == _eager_ranks(pair, scores)
+            t = paired_difference(scores[a], scores[b])
+            open_pairs += t["iqm"] > 0.0 and t["share"] < 0.95
+    assert open_pairs > 0       # some verdicts asked the bootstrap
 
 
 def test_a_paired_difference_without_its_interval_keeps_the_rest():
@@ -165,3 +176,14 @@ def test_the_kept_motor_draws_are_a_new_generators_each_time():
             got = median_difference(x, y)
             assert got["median"] == est
             assert got["ci"] == [est - c * (est - float(low)), est + c * (float(high) - est)]
+
+
+def test_the_kept_draws_within_strata_are_a_new_generators_and_read_only():
+    from stepdamp_env.bench import stats
+
+    order = [f"m{i}" for i in range(9)]
+    strata = {k: ("a", "b", "c")[i % 3] for i, k in enumerate(order)}
+    for s in (strata, None):
+        kept = stats._fresh_motor_draws(order, s, 7, 300)
+        assert np.array_equal(kept, stats._motor_draws(order, s, np.random.default_rng(7), 300))
+        assert not kept.flags.writeable

@@ -123,7 +123,7 @@ def _motor_draws(order: Sequence[Any], strata: Mapping[Any, Any] | None,
     return _draws_of_groups(_strata_groups(order, strata), rng, resamples)
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=16)
 def _seeded_draws(groups: tuple[tuple[int, ...], ...], seed: int, resamples: int
                   ) -> np.ndarray:
     draws = _draws_of_groups(groups, np.random.default_rng(seed), resamples)
@@ -133,9 +133,11 @@ def _seeded_draws(groups: tuple[tuple[int, ...], ...], seed: int, resamples: int
 
 def _fresh_motor_draws(order: Sequence[Any], strata: Mapping[Any, Any] | None, seed: int,
                        resamples: int) -> np.ndarray:
-    """:func:`_motor_draws` from a new generator of ``seed`` (read-only). Kept: a
-    board compares every pair of a table's entries on the same motors, so it
-    draws the same indices again and again."""
+    """:func:`_motor_draws` from a new generator of ``seed`` (read-only). Kept for
+    an integer seed and count: a board compares every pair of a table's
+    entries on the same motors, so it draws the same indices again and again."""
+    if not (isinstance(seed, (int, np.integer)) and isinstance(resamples, (int, np.integer))):
+        return _motor_draws(order, strata, np.random.default_rng(seed), resamples)
     return _seeded_draws(_strata_groups(order, strata), int(seed), int(resamples))
 
 
@@ -258,7 +260,7 @@ def _normal_cdf(x: float) -> float:
     return 0.5 + area if x >= 0 else 0.5 - area
 
 
-@functools.lru_cache(maxsize=64)       # a few (p) per board, each 80 bisection steps
+@functools.lru_cache(maxsize=16)       # a few (p) per board, each 80 bisection steps
 def normal_quantile(p: float) -> float:
     """The standard normal quantile of ``p`` in (0, 1), by bisection on :func:`_normal_cdf`."""
     if not 0.0 < p < 1.0:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -271,17 +271,21 @@ class EnvOptions(DriveOptions):
 
     @classmethod
     def of_drive(cls, drive: DriveOptions, **own: Any) -> "EnvOptions":
-        """The v0 options of ``drive``'s shared options and ``own`` v0 options (the
-        others at their defaults). Only ``own`` is checked: ``drive`` was when it
-        was made, and a later version's task builds one of these per run."""
-        shared = DriveOptions.__dataclass_fields__
-        unknown = sorted((set(own) - set(cls.__dataclass_fields__)) | (set(own) & set(shared)))
+        """The v0 options of the shared options of ``drive`` (a later version's
+        options, whose construction checked them) and ``own`` v0 options (the
+        others at their defaults). Only ``own`` is checked: a later version's
+        task builds one of these per run."""
+        if cls is not EnvOptions:
+            raise TypeError("of_drive builds EnvOptions only")
+        shared = {f.name for f in fields(DriveOptions)}
+        mine = fields(EnvOptions)
+        unknown = sorted((set(own) - {f.name for f in mine}) | (set(own) & shared))
         if unknown:
             raise ParameterError(f"EnvOptions.of_drive: {unknown} are not v0's own options")
-        out = object.__new__(cls)
-        for name, f in cls.__dataclass_fields__.items():
-            value = getattr(drive, name) if name in shared else own.get(name, f.default)
-            object.__setattr__(out, name, value)
+        out = object.__new__(EnvOptions)
+        for f in mine:
+            value = getattr(drive, f.name) if f.name in shared else own.get(f.name, f.default)
+            object.__setattr__(out, f.name, value)
         out.check_own()
         return out
 
