@@ -260,7 +260,7 @@ def _normal_cdf(x: float) -> float:
     return 0.5 + area if x >= 0 else 0.5 - area
 
 
-@functools.lru_cache(maxsize=16)       # a few (p) per board, each 80 bisection steps
+@functools.lru_cache(maxsize=64)       # a few (p) per board, each 80 bisection steps
 def normal_quantile(p: float) -> float:
     """The standard normal quantile of ``p`` in (0, 1), by bisection on :func:`_normal_cdf`."""
     if not 0.0 < p < 1.0:
