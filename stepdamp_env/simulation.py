@@ -66,11 +66,15 @@ def _check_choice(name: str, value: str, choices) -> None:
         raise ParameterError(f"{name}={value!r} is not one of {sorted(choices)}")
 
 
+def _is_number(value: Any) -> bool:
+    """A real number, not a bool (a float first: the abstract-class test costs more
+    than the rest, and every run checks)."""
+    return type(value) is float or not isinstance(value, (bool, np.bool_)) and \
+        isinstance(value, numbers.Real)
+
+
 def _check_positive(name: str, value: float, allow_zero: bool = False) -> None:
-    # A float first: the abstract-class test costs more than the rest (every run checks).
-    if type(value) is not float and (isinstance(value, (bool, np.bool_))
-                                     or not isinstance(value, numbers.Real)) \
-            or not math.isfinite(value):
+    if not _is_number(value) or not math.isfinite(value):
         raise ParameterError(f"{name} must be a finite number, got {value!r}")
     if value < 0 or (value == 0 and not allow_zero):
         bound = "[0, inf)" if allow_zero else "(0, inf)"
@@ -105,9 +109,7 @@ class SpeedProfile:
                                  "at a constant acceleration)")
         for name in ("speed_rps", "distance_rev"):
             value = getattr(self, name)
-            # A float first: the abstract-class test costs more than the rest (every run).
-            if type(value) is not float and (isinstance(value, (bool, np.bool_))
-                                             or not isinstance(value, numbers.Real)):
+            if not _is_number(value):
                 raise ParameterError(f"{name} must be a number, got {value!r}")
         if not math.isfinite(self.speed_rps) or abs(self.speed_rps) > 1e3 or \
                 0.0 < abs(self.speed_rps) < 1e-6:
